@@ -1,0 +1,139 @@
+"""Write a printable two-level pattern, its marker table and a preview.
+
+    python -m assets.pattern --out out/pattern                       # default 32 x 32 markers, 300 DPI
+    python -m assets.pattern --out out/small --rows 4 --cols 6 --dpi 150
+    python -m assets.pattern --out out/shirt --panels panels.json     # print only inside panel outlines
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from assets.fileio import load_json, save_npz
+from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
+from assets.pattern.raster import panel_bounds, render_region, validate_polygons, write_png
+from assets.pattern.spec import PatternSpec
+from assets.pattern.table import MarkerTable
+
+log = logging.getLogger("assets.pattern")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    defaults = PatternSpec()
+    parser = argparse.ArgumentParser(
+        prog="python -m assets.pattern",
+        description=(
+            "Generate the two-level marker pattern: a printable PNG at exact physical scale (DPI in "
+            "the file), the marker table (every marker's ID, localization points and crosspoints in "
+            "pattern coordinates) as NPZ plus a JSON summary, and a small preview."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    parser.add_argument("--spec", type=Path, help="PatternSpec JSON; the flags below override its fields")
+    parser.add_argument("--pitch-mm", type=float, help=f"crosspoint pitch [default {defaults.pitch_mm}]")
+    parser.add_argument("--rows", type=int, help=f"marker rows [default {defaults.rows}]")
+    parser.add_argument("--cols", type=int, help=f"marker columns [default {defaults.cols}]")
+    parser.add_argument("--seed", type=int, help=f"codebook seed [default {defaults.seed}]")
+    parser.add_argument("--dpi", type=float, default=300.0, help="resolution of the printable PNG")
+    parser.add_argument(
+        "--panels",
+        type=Path,
+        help='JSON {"polygons": [[[x, y], ...], ...]} of panel outlines in pattern metres: print only '
+        "their inside, with a cut line",
+    )
+    parser.add_argument("--margin-mm", type=float, default=10.0, help="border around the panels' bounding box")
+    parser.add_argument("--preview-px", type=int, default=2048, help="longest side of preview.png")
+    parser.add_argument(
+        "--reference-textures",
+        action="store_true",
+        help="also write reference_textures.npz: every marker's 96 px recognizer and 112 px crosspoint crop",
+    )
+    return parser
+
+
+def spec_from_args(args: argparse.Namespace) -> PatternSpec:
+    spec = PatternSpec.load(args.spec) if args.spec else PatternSpec()
+    overrides = {
+        "pitch_mm": args.pitch_mm,
+        "rows": args.rows,
+        "cols": args.cols,
+        "seed": args.seed,
+    }
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    return dataclasses.replace(spec, **overrides) if overrides else spec
+
+
+def load_panels(path: Path) -> list[np.ndarray]:
+    data = load_json(path)
+    polygons = data.get("polygons") if isinstance(data, dict) else data
+    if not isinstance(polygons, list) or not polygons:
+        raise ValueError(f'{path}: expected {{"polygons": [[[x, y], ...], ...]}} with at least one polygon')
+    try:
+        return [np.asarray(p, dtype=np.float64) for p in polygons]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: polygons must be lists of [x, y] numbers ({exc})") from exc
+
+
+def run(args: argparse.Namespace) -> dict[str, Path]:
+    """Do the work of the CLI; returns the files written."""
+    spec = spec_from_args(args)
+    polygons = validate_polygons(spec, load_panels(args.panels), str(args.panels)) if args.panels else []
+    if args.dpi <= 0 or args.preview_px < 16:
+        raise ValueError("--dpi must be > 0 and --preview-px >= 16")
+    out: Path = args.out
+    t0 = time.perf_counter()
+    table = MarkerTable.build(spec)
+    log.info("codebook and marker table: %d markers in %.1f s", table.num_markers, time.perf_counter() - t0)
+    bounds = panel_bounds(polygons, args.margin_mm * 1e-3) if polygons else spec.fabric_bounds
+    files = {
+        "spec": out / "spec.json",
+        "pattern": out / "pattern.png",
+        "table": out / "marker_table.npz",
+        "summary": out / "marker_table.json",
+        "preview": out / "preview.png",
+    }
+    spec.save(files["spec"])
+    table.save(files["table"], files["summary"])
+    image = render_region(table, bounds, args.dpi, polygons, progress=True)
+    log.info("pattern %d x %d px at %g DPI", image.shape[1], image.shape[0], args.dpi)
+    write_png(files["pattern"], image, args.dpi)
+    del image
+    side = max(bounds[2] - bounds[0], bounds[3] - bounds[1])
+    preview_dpi = min(args.dpi, math.floor(args.preview_px / (side / 0.0254)))
+    write_png(files["preview"], render_region(table, bounds, max(preview_dpi, 1e-3), polygons), preview_dpi)
+    if args.reference_textures:
+        files["references"] = out / "reference_textures.npz"
+        save_npz(
+            files["references"],
+            {
+                "marker_ids": table.marker_ids,
+                "recognizer": reference_textures(spec, table.codes, RECOGNIZER_CROP),
+                "crosspoint": reference_textures(spec, table.codes, CROSSPOINT_CROP),
+            },
+        )
+    log.info("wrote %s in %.1f s", ", ".join(p.name for p in files.values()), time.perf_counter() - t0)
+    return files
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = build_parser().parse_args(argv)
+    try:
+        run(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

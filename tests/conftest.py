@@ -1,0 +1,18 @@
+"""Shared fixtures: small real pattern specs and tables (generated, never mocked)."""
+
+import pytest
+
+from assets.pattern import MarkerTable, PatternSpec, generate_codebook
+
+
+@pytest.fixture(scope="session")
+def default_codebook():
+    """The default 4096-ID codebook (about 2 s to generate)."""
+    return generate_codebook(PatternSpec())
+
+
+@pytest.fixture(scope="session")
+def small_table(default_codebook):
+    """A 3 x 4 marker fabric with an off-zero origin, so no code path can assume origin (0, 0)."""
+    spec = PatternSpec(rows=3, cols=4, origin_xy=(0.1234, -0.0567))
+    return MarkerTable.build(spec, default_codebook)
