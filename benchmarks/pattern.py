@@ -79,9 +79,9 @@ STAGES = {
 RUNNER = """
 import json, resource, sys, time
 EXTRA = {{}}
-t0 = time.perf_counter()
+_start = time.perf_counter()
 {body}
-EXTRA["wall_s"] = time.perf_counter() - t0
+EXTRA["wall_s"] = time.perf_counter() - _start
 EXTRA["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 print("RESULT " + json.dumps(EXTRA))
 """
