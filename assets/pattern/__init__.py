@@ -16,14 +16,15 @@ Design of the appearance (why it looks the way it does)
   blurred; lines are drawn over both fill colours, so every crosspoint looks the same everywhere.
 * Identity is a 12 x 12 grid of 4 mm code modules (2 x 2 cells) filled with a mid-tone code colour or
   left white: binary luminance contrast (robust to colour shifts), coarse enough to survive blur and
-  folds (4 px per module in a 96 px recognizer crop), with 112 free bits giving a codebook whose
+  folds (8 px per module in a 96 px recognizer crop), with 107 free bits giving a codebook whose
   members are at least 32 modules apart under every rotation (`codebook`).
 * Coarse features for the five localization points: marker borders are thicker lines (0.8 mm), so
   each marker is a visible square whose corners are TL, TR, BL, BR; the marker's central 16 mm is a
   2 x 2 checker of code colour and white whose saddle is the centre point, visible at 1/8 resolution
-  and unchanged by blur; and an 8 mm code-coloured finder fills the inside of the TL corner while the
-  three other corners are always white, so orientation is unambiguous from coarse appearance alone
-  (and the checker's phase flips under a 90-degree rotation, a second cue).
+  and unchanged by blur; and an 8 mm code-coloured finder, ringed by 4 mm of white, fills the inside
+  of the TL corner while the three other corners are always white, so orientation is unambiguous
+  from coarse appearance alone (and the checker's phase flips under a 90-degree rotation, a second
+  cue).  Around every marker corner of the fabric there is thus exactly one finder square.
 """
 
 from assets.pattern.codebook import codebook_min_distance, generate_codebook, hamming_to_rotations

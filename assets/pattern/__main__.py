@@ -42,6 +42,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--pitch-mm", type=float, help=f"crosspoint pitch [default {defaults.pitch_mm}]")
     parser.add_argument("--rows", type=int, help=f"marker rows [default {defaults.rows}]")
     parser.add_argument("--cols", type=int, help=f"marker columns [default {defaults.cols}]")
+    parser.add_argument(
+        "--fabric-m",
+        type=float,
+        nargs=2,
+        metavar=("WIDTH", "HEIGHT"),
+        help="instead of --rows/--cols: the smallest marker grid covering a WIDTH x HEIGHT metre fabric",
+    )
     parser.add_argument("--seed", type=int, help=f"codebook seed [default {defaults.seed}]")
     parser.add_argument("--dpi", type=float, default=300.0, help="resolution of the printable PNG")
     parser.add_argument(
@@ -69,6 +76,10 @@ def spec_from_args(args: argparse.Namespace) -> PatternSpec:
         "seed": args.seed,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
+    if args.fabric_m is not None:
+        if args.rows is not None or args.cols is not None:
+            raise ValueError("give either --fabric-m or --rows/--cols, not both")
+        return PatternSpec.covering(*args.fabric_m, **{**spec.to_dict(), **overrides})
     return dataclasses.replace(spec, **overrides) if overrides else spec
 
 

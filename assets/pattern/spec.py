@@ -145,6 +145,8 @@ class PatternSpec:
     @classmethod
     def covering(cls, width_m: float, height_m: float, **overrides: object) -> "PatternSpec":
         """The smallest marker grid that covers a `width_m` x `height_m` fabric."""
+        if not (width_m > 0 and height_m > 0):
+            raise ValueError(f"fabric size must be positive, got {width_m} x {height_m} m")
         probe = cls(**{k: v for k, v in overrides.items() if k not in ("rows", "cols")})
         cols = max(1, math.ceil(width_m / probe.marker_size - 1e-9))
         rows = max(1, math.ceil(height_m / probe.marker_size - 1e-9))
@@ -189,8 +191,9 @@ def fixed_modules(spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:
 
     Returns (mask, value), both (n, n) with n = modules_per_side: `mask` is True where the module is
     fixed, `value` is 1 (code colour) or 0 (background) there.  The top-left 4 x 4-cell corner is the
-    orientation finder (code colour), the three other corners are background, and the central
-    8 x 8 cells are a 2 x 2 checker whose saddle is the marker's centre crosspoint.
+    orientation finder (code colour) inside a one-module background ring, so it stays a crisp square
+    whatever the code; the three other corners are background; and the central 8 x 8 cells are a
+    2 x 2 checker whose saddle is the marker's centre crosspoint.
     """
     n = spec.modules_per_side
     f = FEATURE_CELLS // spec.cells_per_module
@@ -199,6 +202,7 @@ def fixed_modules(spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:
     for rows in (slice(0, f), slice(n - f, n)):
         for cols in (slice(0, f), slice(n - f, n)):
             mask[rows, cols] = True
+    mask[: f + 1, : f + 1] = True  # finder plus its ring
     value[:f, :f] = 1
     c = n // 2
     mask[c - f : c + f, c - f : c + f] = True

@@ -42,6 +42,7 @@ class MarkerTable:
       crosspoint_index   (M, K, K) int64     global index of each marker's local (row, col) crosspoint
       crosspoint_xy      (P, 2) float64      pattern_xy of every global crosspoint, metres
       localization_xy    (M, 5, 2) float64   centre, TL, TR, BL, BR in pattern_xy, metres
+      marker_crosspoint_xy (M, K, K, 2) float64  pattern_xy of each marker's local (row, col)
       crosspoint_markers (P, 4, 3) int32     inverse lookup: (marker ID, local row, local col) for up
                                              to 4 markers sharing the crosspoint, rows of -1 after
     """
@@ -82,6 +83,10 @@ class MarkerTable:
         rows, cols = self.spec.grid_shape
         gr, gc = np.divmod(np.arange(rows * cols), cols)
         return self.spec.uv_to_xy(np.stack([gc, gr], axis=1))
+
+    @cached_property
+    def marker_crosspoint_xy(self) -> np.ndarray:
+        return self.crosspoint_xy[self.crosspoint_index]
 
     @cached_property
     def localization_xy(self) -> np.ndarray:
@@ -127,6 +132,7 @@ class MarkerTable:
                 "crosspoint_index": self.crosspoint_index,
                 "crosspoint_xy": self.crosspoint_xy,
                 "localization_xy": self.localization_xy,
+                "marker_crosspoint_xy": self.marker_crosspoint_xy,
                 "crosspoint_markers": self.crosspoint_markers,
                 "spec_json": np.frombuffer(_spec_json(self.spec), dtype=np.uint8),
             },

@@ -32,6 +32,13 @@ def test_cli_writes_everything_deterministically(tmp_path):
     assert refs["recognizer"].shape == (6, 96, 96, 3) and refs["crosspoint"].shape == (6, 112, 112, 3)
 
 
+def test_cli_fabric_size(tmp_path):
+    assert main(["--out", str(tmp_path), "--fabric-m", "0.1", "0.05", "--dpi", "50", "--pitch-mm", "2.5"]) == 0
+    assert MarkerTable.load(tmp_path / "marker_table.npz").spec.rows == 1  # 60 mm markers
+    assert MarkerTable.load(tmp_path / "marker_table.npz").spec.cols == 2
+    assert main(["--out", str(tmp_path), "--fabric-m", "0.1", "0.05", "--rows", "2"]) == 2
+
+
 def test_cli_panels(tmp_path):
     panels = tmp_path / "panels.json"
     panels.write_text(json.dumps({"polygons": [[[0.01, 0.01], [0.1, 0.01], [0.05, 0.08]]]}))

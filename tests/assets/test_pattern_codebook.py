@@ -1,4 +1,5 @@
 import dataclasses
+import hashlib
 
 import numpy as np
 import pytest
@@ -44,3 +45,10 @@ def test_smaller_codebook_is_a_prefix(default_codebook):
 def test_impossible_distance_is_a_clear_error():
     with pytest.raises(ValueError, match="min_code_distance"):
         generate_codebook(PatternSpec(num_ids=16, rows=2, cols=2, min_code_distance=140))
+
+
+def test_default_codebook_never_changes(default_codebook):
+    """Garments printed with the default codebook exist in the world: its bytes are a contract.
+    If this fails after a numpy upgrade, the random stream changed; pin the old codebook as data."""
+    digest = hashlib.sha256(default_codebook.tobytes()).hexdigest()
+    assert digest == "992492aa4fb81ba9cb4c97e53c4ef2546796b4a269ccc098d2fef1253c779669"

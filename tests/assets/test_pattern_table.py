@@ -6,7 +6,8 @@ from assets.pattern import MarkerTable, localization_rc, render_region, xy_to_pi
 
 def test_crosspoint_spacing_equals_pitch(small_table):
     spec = small_table.spec
-    xy = small_table.crosspoint_xy[small_table.crosspoint_index]  # (M, 25, 25, 2)
+    xy = small_table.marker_crosspoint_xy  # (M, 25, 25, 2)
+    assert xy.shape == (small_table.num_markers, 25, 25, 2)
     step_col = np.diff(xy, axis=2)
     step_row = np.diff(xy, axis=1)
     assert np.allclose(step_col, [spec.pitch, 0.0], atol=1e-12)
