@@ -1,0 +1,1 @@
+"""The Blender UI over the whole pipeline: panels, operators, and review of results."""

@@ -1,0 +1,1 @@
+"""Making synthetic captures: dressing, cloth simulation, Blender rendering, ground truth, datasets."""

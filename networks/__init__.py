@@ -1,0 +1,1 @@
+"""The three networks (Marker Localizer, Marker Recognizer, Crosspoint Localizer) and the Detector."""

@@ -1,0 +1,1 @@
+"""Calibrated multi-view images to complete, intersection-free 4D garment sequences."""
