@@ -1,7 +1,8 @@
 """The marker table: where every marker, localization point and crosspoint is on the fabric.
 
-Marker IDs are laid out row-major over the R x C marker grid (marker (i, j) has ID ``i * C + j``) and
-each uses codebook row ID.  The five localization points of a marker are, in its own frame (row 0 at
+Marker IDs are laid out row-major over the R x C marker grid (marker (i, j) has ID
+``first_id + i * C + j``) and each uses codebook row ID; a garment gives each panel its own tiling
+and a `first_id` after the previous panel's, so IDs are unique across the garment.  The five localization points of a marker are, in its own frame (row 0 at
 the top as printed): centre = crosspoint (12, 12), TL = (0, 0), TR = (0, 24), BL = (24, 0),
 BR = (24, 24) for the default 25 x 25 crosspoints; the orientation finder is the code-coloured square
 inside the TL corner and the centre is the saddle of the central checker.
@@ -49,13 +50,21 @@ class MarkerTable:
 
     spec: PatternSpec
     codes: np.ndarray
+    first_id: int = 0
 
     @classmethod
-    def build(cls, spec: PatternSpec, codebook: np.ndarray | None = None) -> "MarkerTable":
-        """The table for `spec`; `codebook` (num_ids, n, n) is generated from the spec if not given."""
+    def build(cls, spec: PatternSpec, codebook: np.ndarray | None = None, first_id: int = 0) -> "MarkerTable":
+        """The table for `spec` with IDs from `first_id`; `codebook` (num_ids, n, n) is generated
+        from the spec if not given."""
         if codebook is None:
             codebook = generate_codebook(spec)
-        return cls(spec=spec, codes=codebook[: spec.rows * spec.cols])
+        count = spec.rows * spec.cols
+        if first_id < 0 or first_id + count > len(codebook):
+            raise ValueError(
+                f"markers {first_id}..{first_id + count - 1} do not fit the codebook of {len(codebook)} IDs; "
+                "raise num_ids"
+            )
+        return cls(spec=spec, codes=codebook[first_id : first_id + count], first_id=first_id)
 
     @property
     def num_markers(self) -> int:
@@ -63,11 +72,11 @@ class MarkerTable:
 
     @cached_property
     def marker_ids(self) -> np.ndarray:
-        return np.arange(self.num_markers, dtype=np.int32)
+        return self.first_id + np.arange(self.num_markers, dtype=np.int32)
 
     @cached_property
     def marker_rc(self) -> np.ndarray:
-        return np.stack(np.divmod(self.marker_ids, self.spec.cols), axis=1).astype(np.int32)
+        return np.stack(np.divmod(self.marker_ids - self.first_id, self.spec.cols), axis=1).astype(np.int32)
 
     @cached_property
     def crosspoint_index(self) -> np.ndarray:
@@ -135,6 +144,7 @@ class MarkerTable:
                 "marker_crosspoint_xy": self.marker_crosspoint_xy,
                 "crosspoint_markers": self.crosspoint_markers,
                 "spec_json": np.frombuffer(_spec_json(self.spec), dtype=np.uint8),
+                "first_id": np.int64(self.first_id),
             },
         )
         if json_path is not None:
@@ -146,6 +156,7 @@ class MarkerTable:
         return {
             "spec": spec.to_dict(),
             "markers": self.num_markers,
+            "first_id": self.first_id,
             "marker_grid": [spec.rows, spec.cols],
             "marker_size_m": spec.marker_size,
             "crosspoints": spec.num_crosspoints,
@@ -172,7 +183,8 @@ class MarkerTable:
             raise ValueError(
                 f"{npz_path}: codes has shape {codes.shape}, expected {(spec.rows * spec.cols, n, n)}"
             )
-        return cls(spec=spec, codes=codes.astype(np.uint8))
+        first_id = int(data["first_id"]) if "first_id" in data else 0
+        return cls(spec=spec, codes=codes.astype(np.uint8), first_id=first_id)
 
 
 def _spec_json(spec: PatternSpec) -> bytes:
