@@ -228,13 +228,18 @@ class Template:
 def load_npz_keys(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
     """Read only `keys` from a template npz (np.load decompresses members on access)."""
     try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in keys if k not in data.files]
-            if missing:
-                raise ValueError(f"{path}: not a complete template (missing {', '.join(missing)})")
-            return {k: data[k] for k in keys}
-    except (OSError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: cannot read template ({exc})") from exc
+        data = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: not a template npz ({exc})") from exc
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: not a template npz (a single array)")
+    with data:
+        missing = [k for k in keys if k not in data.files]
+        if missing:
+            raise ValueError(f"{path}: not a complete template (missing {', '.join(missing)})")
+        return {k: data[k] for k in keys}
 
 
 def _text(s: str) -> np.ndarray:
