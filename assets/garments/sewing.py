@@ -15,7 +15,7 @@ JSON format (metres, panel frames as seen from the outside, i.e. the printed sid
             {"name": "neck", "curve": {"type": "cubic", "control": [[x, y], [x, y]]}}
           ],
           "placement": {"body_part": "torso_front",      # optional; dressing needs it
-                        "rotation_deg": [rx, ry, rz],    # XYZ Euler, world frame (Z up)
+                        "rotation_deg": [rx, ry, rz],    # extrinsic XYZ: R = Rz Ry Rx (scipy "xyz")
                         "translation": [x, y, z]}        # where the panel frame's origin goes
         }
       ],
