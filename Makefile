@@ -10,12 +10,14 @@ DEMO_OUT ?= out/demo
 
 demo: $(STAMP)
 	$(BIN)/python -m assets.pattern --out $(DEMO_OUT)/pattern
+	$(BIN)/python -m assets.garments build shirt --levels 12,4,2 --out $(DEMO_OUT)/shirt
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/pattern.py
+	$(BIN)/python benchmarks/garments.py
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

@@ -1,0 +1,149 @@
+"""Build garment templates from sewing patterns.
+
+    python -m assets.garments build shirt --levels 12,4,2,1 --out out/shirt
+    python -m assets.garments build my_pattern.json --out out/mine          # our format or GarmentCode
+    python -m assets.garments list
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import sys
+import time
+from pathlib import Path
+
+
+from assets.fileio import load_json, save_json
+from assets.garments.defaults import DEFAULT_GARMENTS, default_pattern
+from assets.garments.export import FORMATS, export_level, flat_positions, placed_positions
+from assets.garments.garmentcode import garmentcode_from_dict
+from assets.garments.mesh import triangle_quality
+from assets.garments.sewing import PatternError, SewingPattern
+from assets.garments.template import LEVELS_MM, Template
+from assets.pattern.raster import write_png
+from assets.pattern.spec import PatternSpec
+
+log = logging.getLogger("assets.garments")
+
+
+def load_pattern(name_or_path: str) -> SewingPattern:
+    """A default garment by name, or a JSON file in our format or GarmentCode's."""
+    if name_or_path in DEFAULT_GARMENTS:
+        return default_pattern(name_or_path)
+    path = Path(name_or_path)
+    if not path.exists():
+        raise ValueError(f"'{name_or_path}' is neither a default garment ({', '.join(DEFAULT_GARMENTS)}) nor a file")
+    data = load_json(path)
+    if isinstance(data, dict) and "pattern" in data:
+        return garmentcode_from_dict(data, str(path))
+    return SewingPattern.from_dict(data, str(path))
+
+
+def level_summary(template: Template, mm: int) -> dict[str, object]:
+    level = template.level(mm)
+    area, min_angle = triangle_quality(level.pattern_xy, level.faces)
+    grid = (level.flags[level.faces] & 1).all(axis=1)
+    return {
+        "spacing_mm": mm,
+        "vertices": level.num_vertices,
+        "sewn_vertices": level.num_sewn_vertices,
+        "triangles": int(len(level.faces)),
+        "seam_pairs": int(len(level.seam_pairs)),
+        "crosspoint_vertices": int((level.crosspoint >= 0).sum()),
+        "min_angle_band_deg": float(min_angle[~grid].min()) if (~grid).any() else None,
+        "area_m2": float(area.sum()),
+    }
+
+
+def build(args: argparse.Namespace) -> dict[str, object]:
+    pattern = load_pattern(args.garment)
+    levels = tuple(int(v) for v in args.levels.split(","))
+    if any(v <= 0 for v in levels):
+        raise ValueError(f"--levels must be positive whole millimetres, got {args.levels}")
+    spec = dataclasses.replace(PatternSpec(), pitch_mm=args.pitch_mm, seed=args.seed)
+    out: Path = args.out
+    t0 = time.perf_counter()
+    template = Template.build(pattern, spec, args.dpi)
+    texture = out / "pattern_texture.png"
+    sheet = template.layout.render(pattern, progress=True)
+    write_png(texture, sheet, args.dpi)
+    del sheet
+    summaries = []
+    formats = [f for f in args.formats.split(",") if f]
+    unknown = sorted(set(formats) - set(FORMATS))
+    if unknown:
+        raise ValueError(f"--formats: unknown {', '.join(unknown)} (use {', '.join(FORMATS)})")
+    for mm in levels:
+        t = time.perf_counter()
+        template.level(mm)
+        summary = level_summary(template, mm)
+        summary["build_s"] = time.perf_counter() - t
+        summaries.append(summary)
+        positions = flat_positions(template, mm) if args.flat else placed_positions(template, mm)
+        for fmt in formats:
+            export_level(template, mm, out / f"{pattern.name}_{mm}mm.{fmt}", positions, texture)
+    template.save(out / "template.npz", levels)
+    pattern.save(out / "pattern.json")
+    result = {
+        "garment": pattern.name,
+        "panels": [p.name for p in pattern.panels],
+        "panel_area_m2": float(sum(p.area() for p in pattern.panels)),
+        "markers": template.layout.num_markers,
+        "sheet_px": list(template.layout.size_px),
+        "dpi": args.dpi,
+        "levels": summaries,
+        "seconds": time.perf_counter() - t0,
+    }
+    save_json(out / "summary.json", result)
+    print(f"{pattern.name}: {len(pattern.panels)} panels, {result['markers']} markers, "
+          f"sheet {template.layout.size_px[0]} x {template.layout.size_px[1]} px at {args.dpi:g} DPI")
+    print("| level | vertices | triangles | seam pairs | crosspoint vertices | min band angle | build s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for s in summaries:
+        print(f"| {s['spacing_mm']} mm | {s['vertices']} | {s['triangles']} | {s['seam_pairs']} | "
+              f"{s['crosspoint_vertices']} | {s['min_angle_band_deg']:.1f} | {s['build_s']:.2f} |")
+    return result
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m assets.garments",
+        description="Garment templates: sewing pattern -> printable pattern texture and meshes at several "
+        "resolutions whose vertices know their place on the printed fabric.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("build", help="build a template", formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    b.add_argument("garment", help=f"a default garment ({', '.join(DEFAULT_GARMENTS)}) or a pattern JSON "
+                   "(this project's format or GarmentCode's specification)")
+    b.add_argument("--out", type=Path, required=True, help="output folder")
+    b.add_argument("--levels", default=",".join(str(v) for v in LEVELS_MM[:3]),
+                   help="grid spacings in mm, comma-separated (the reference's levels: 12,4,2,1)")
+    b.add_argument("--dpi", type=float, default=300.0, help="resolution of the pattern texture / print file")
+    b.add_argument("--pitch-mm", type=float, default=PatternSpec.pitch_mm, help="crosspoint pitch")
+    b.add_argument("--seed", type=int, default=PatternSpec.seed, help="marker codebook seed")
+    b.add_argument("--formats", default="obj,ply", help=f"mesh files per level, from {','.join(FORMATS)}")
+    b.add_argument("--flat", action="store_true", help="write meshes flat as printed instead of placed around the body")
+    sub.add_parser("list", help="list the default garments")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = build_parser().parse_args(argv)
+    if args.command == "list":
+        for name in DEFAULT_GARMENTS:
+            pattern = default_pattern(name)
+            print(f"{name}: {', '.join(p.name for p in pattern.panels)}")
+        return 0
+    try:
+        build(args)
+    except (ValueError, PatternError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
