@@ -43,7 +43,7 @@ TRIANGLE_ONLY = """
     for panel, n in zip(pattern.panels, counts):
         outline = np.concatenate([panel.edge_points(k, c)[:-1] for k, c in enumerate(n)])
         seg = np.stack([np.arange(len(outline)), (np.arange(len(outline)) + 1) % len(outline)], 1)
-        out = triangle.triangulate({{"vertices": outline, "segments": seg}}, f"pq20Ya{{h * h / 2:.12g}}Q")
+        out = triangle.triangulate({{"vertices": outline, "segments": seg}}, f"pq20Ya{{h * h / 2:.15f}}Q")
         vertices += len(out["vertices"]); triangles += len(out["triangles"])
     R["build_s"] = time.perf_counter() - t0
     R["vertices"] = vertices

@@ -109,8 +109,8 @@ def main() -> None:
         rows.append((name.format(**fmt), result))
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, python {platform.python_version()}, "
           f"{__import__('os').cpu_count()} cores; {time.strftime('%Y-%m-%d')}")
-    print(f"| stage | wall s | render s | peak RSS GiB | notes |")
-    print(f"|---|---:|---:|---:|---|")
+    print("| stage | wall s | render s | peak RSS GiB | notes |")
+    print("|---|---:|---:|---:|---|")
     for name, r in rows:
         notes = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                           for k, v in r.items() if k not in ("wall_s", "render_s", "peak_rss_gib"))

@@ -15,12 +15,13 @@ import time
 from pathlib import Path
 
 
+from assets.cli import run_cli
 from assets.fileio import load_json, save_json
 from assets.garments.defaults import DEFAULT_GARMENTS, default_pattern
 from assets.garments.export import FORMATS, export_level, flat_positions, placed_positions
 from assets.garments.garmentcode import garmentcode_from_dict
 from assets.garments.mesh import triangle_quality
-from assets.garments.sewing import PatternError, SewingPattern
+from assets.garments.sewing import SewingPattern
 from assets.garments.template import LEVELS_MM, Template
 from assets.pattern.raster import write_png
 from assets.pattern.spec import PatternSpec
@@ -129,20 +130,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def list_defaults() -> None:
+    for name in DEFAULT_GARMENTS:
+        print(f"{name}: {', '.join(p.name for p in default_pattern(name).panels)}")
+
+
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     args = build_parser().parse_args(argv)
-    if args.command == "list":
-        for name in DEFAULT_GARMENTS:
-            pattern = default_pattern(name)
-            print(f"{name}: {', '.join(p.name for p in pattern.panels)}")
-        return 0
-    try:
-        build(args)
-    except (ValueError, PatternError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return run_cli(list_defaults if args.command == "list" else lambda: build(args))
 
 
 if __name__ == "__main__":

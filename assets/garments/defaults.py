@@ -51,6 +51,7 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
+from assets.cli import run_cli
 from assets.fileio import load_json
 from assets.garments.sewing import Curve, Edge, Panel, Placement, Seam, SeamSide, SewingPattern, sample_curve, validate
 
@@ -473,7 +474,6 @@ def default_pattern(name: str, measurements: BodyMeasurements = BodyMeasurements
 
 
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     parser = argparse.ArgumentParser(
         prog="python -m assets.garments.defaults",
         description="Draft the default sewing patterns (shirt, skirt, pants, suit jacket) from body "
@@ -484,16 +484,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="JSON object of BodyMeasurements fields in metres (e.g. {\"chest_girth\": 1.02}); "
                         "fields left out keep the average-adult defaults")
     args = parser.parse_args(argv)
-    try:
+
+    def write_all() -> None:
         measurements = BodyMeasurements.load(args.measurements) if args.measurements else BodyMeasurements()
         for name in DEFAULT_GARMENTS:
             path = args.out / f"{name}.json"
             default_pattern(name, measurements).save(path)
             log.info("wrote %s", path)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+
+    return run_cli(write_all)
 
 
 if __name__ == "__main__":

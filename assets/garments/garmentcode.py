@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from assets.cli import run_cli
 from assets.fileio import load_json
 from assets.garments.sewing import (
     Curve,
@@ -363,14 +364,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
+
+    def convert() -> None:
         pattern = load_garmentcode(args.input)
         pattern.save(args.output)
-    except (PatternError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"{args.output}: {len(pattern.panels)} panels, {len(pattern.seams)} seams")
-    return 0
+        print(f"{args.output}: {len(pattern.panels)} panels, {len(pattern.seams)} seams")
+
+    return run_cli(convert)
 
 
 if __name__ == "__main__":

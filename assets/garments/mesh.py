@@ -159,9 +159,10 @@ def mesh_panel(
     ids, first = np.unique(labels.ravel(), return_index=True)
     sj, si = np.unravel_index(first[ids > 0], labels.shape)  # one kept cell per component
     holes = np.stack([xs[si] + h / 2, ys[sj] + h / 2], axis=1)
+    # the area bound in fixed point: Triangle's option parser cannot read "1e-05"
     band = triangle.triangulate(
         {"vertices": band_vertices, "segments": segments, "holes": holes},
-        f"pq{min_angle_deg:g}YYa{h * h:.12g}Q",
+        f"pq{min_angle_deg:g}YYa{h * h:.15f}Q",
     )
     band_faces = band["triangles"].astype(np.int64)
     n_band_in = len(band_vertices)

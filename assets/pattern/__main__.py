@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from assets.cli import run_cli
 from assets.fileio import load_json, save_npz
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
 from assets.pattern.raster import panel_bounds, render_region, validate_polygons, write_png
@@ -136,14 +137,8 @@ def run(args: argparse.Namespace) -> dict[str, Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     args = build_parser().parse_args(argv)
-    try:
-        run(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return run_cli(lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,19 @@
+"""What every command-line tool of the project shares: logging set-up and how bad input is reported."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from typing import Callable
+
+
+def run_cli(action: Callable[[], object]) -> int:
+    """Run a CLI's work.  Bad input (ValueError, including PatternError, or a missing/unreadable file)
+    is printed as ``error: ...`` on stderr with exit status 2, never as a traceback."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        action()
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
