@@ -14,6 +14,7 @@ shirt) costs nothing until used.
   uv         (V, 2) float32   texture coordinates on the sheet (origin bottom-left)
   crosspoint (V,) int64       garment-global crosspoint index at this vertex, or -1
   seam_pairs (S, 2) int32     vertex pairs to sew
+  seam       (S,) int16       which seam of pattern.seams each pair belongs to
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from assets.garments.sewing import SewingPattern
 from assets.pattern.spec import PatternSpec
 
 LEVELS_MM = (12, 4, 2, 1)
-_LEVEL_KEYS = ("pattern_xy", "panel", "faces", "flags", "uv", "crosspoint", "seam_pairs")
+_LEVEL_KEYS = ("pattern_xy", "panel", "faces", "flags", "uv", "crosspoint", "seam_pairs", "seam")
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class Level:
     uv: np.ndarray
     crosspoint: np.ndarray
     seam_pairs: np.ndarray
+    seam: np.ndarray
 
     @property
     def num_vertices(self) -> int:
@@ -177,6 +179,8 @@ class Template:
             uv=uv,
             crosspoint=crosspoint,
             seam_pairs=np.concatenate(pairs).astype(np.int32) if pairs else np.zeros((0, 2), np.int32),
+            seam=np.concatenate([np.full(len(p), i, np.int16) for i, p in enumerate(pairs)]) if pairs
+            else np.zeros(0, np.int16),
         )
 
     def _crosspoints(self, panel: int, xy: np.ndarray) -> np.ndarray:

@@ -47,6 +47,23 @@ def test_seam_sides_have_matching_vertices(template, mm):
     assert level.num_sewn_vertices == level.num_vertices - len(pairs)
 
 
+@pytest.mark.parametrize("garment", ["shirt", "skirt", "pants", "suit"])
+def test_default_garments_meet_the_quality_bounds(garment):
+    from assets.garments.defaults import default_pattern
+
+    template = Template.build(default_pattern(garment))
+    for mm in (12, 4):
+        level = template.level(mm)
+        area, min_angle = triangle_quality(level.pattern_xy, level.faces)
+        assert (area > 0).all()
+        assert min_angle.min() >= 20.0 - 1e-6, (garment, mm, min_angle.min())
+        exact = sum(p.area() for p in template.pattern.panels)
+        assert abs(area.sum() - exact) / exact < 1e-3
+        # per seam, both sides have the same number of vertices and every pair is in one seam
+        counts = np.bincount(level.seam, minlength=len(template.pattern.seams))
+        assert (counts >= 2).all() and len(level.seam) == len(level.seam_pairs)
+
+
 def test_grid_nodes_coincide_with_crosspoints(template):
     pitch = template.layout.spec.pitch
     for mm in (2, 1):
