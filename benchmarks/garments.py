@@ -14,10 +14,9 @@ import argparse
 import json
 import os
 import platform
-import subprocess
-import sys
-import textwrap
 import time
+
+from common import run_fresh
 
 HYBRID = """
     from assets.garments.defaults import default_pattern
@@ -51,23 +50,6 @@ TRIANGLE_ONLY = """
     R["crosspoint_vertices"] = 0
 """
 
-RUNNER = """
-import json, resource, time
-R = {{}}
-{body}
-R["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-print("RESULT " + json.dumps(R))
-"""
-
-
-def run(body: str) -> dict:
-    code = RUNNER.format(body=textwrap.dedent(body))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    if out.returncode != 0:
-        raise RuntimeError(out.stderr[-3000:])
-    return json.loads([l for l in out.stdout.splitlines() if l.startswith("RESULT ")][-1][7:])
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--garments", default="shirt,skirt,pants,suit")
@@ -79,9 +61,9 @@ def main() -> None:
         for mm in (int(v) for v in args.levels.split(",")):
             if mm == 1 and garment != "shirt":
                 continue  # the target names the 1 mm shirt; the others follow the same scaling
-            rows.append((garment, mm, "hybrid grid + CDT band", run(HYBRID.format(garment=garment, mm=mm))))
+            rows.append((garment, mm, "hybrid grid + CDT band", run_fresh(HYBRID.format(garment=garment, mm=mm))))
             if mm in (4, 2) and garment == "shirt":
-                rows.append((garment, mm, "baseline: Triangle only", run(TRIANGLE_ONLY.format(garment=garment, mm=mm))))
+                rows.append((garment, mm, "baseline: Triangle only", run_fresh(TRIANGLE_ONLY.format(garment=garment, mm=mm))))
     print(f"machine: {platform.machine()}, python {platform.python_version()}, {os.cpu_count()} cores; "
           f"{time.strftime('%Y-%m-%d')}")
     print("| garment | level | method | vertices | triangles | crosspoint vertices | build s | peak RSS GiB |")

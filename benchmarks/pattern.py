@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
-import subprocess
-import sys
-import textwrap
 import time
+
+from common import run_fresh
 
 STAGES = {
     "codebook (4096 IDs)": """
@@ -34,8 +34,8 @@ STAGES = {
         table = MarkerTable.build(spec)
         t0 = time.perf_counter()
         image = render_region(table, (0, 0, {size}, {size}), {dpi})
-        EXTRA["pixels"] = f"{{image.shape[1]}} x {{image.shape[0]}}"
-        EXTRA["render_s"] = time.perf_counter() - t0
+        R["pixels"] = f"{{image.shape[1]}} x {{image.shape[0]}}"
+        R["render_s"] = time.perf_counter() - t0
     """,
     "render + write PNG {size} m @ {dpi} DPI": """
         import tempfile, os
@@ -45,7 +45,7 @@ STAGES = {
         image = render_region(table, (0, 0, {size}, {size}), {dpi})
         with tempfile.TemporaryDirectory() as d:
             write_png(os.path.join(d, "p.png"), image, {dpi})
-            EXTRA["png_mb"] = os.path.getsize(os.path.join(d, "p.png")) / 1e6
+            R["png_mb"] = os.path.getsize(os.path.join(d, "p.png")) / 1e6
     """,
     "baseline: 4x4 supersampled point sampling (extrapolated)": """
         import numpy as np
@@ -69,32 +69,12 @@ STAGES = {
         rgb = np.where(line[..., None], ink, np.where(fill[..., None] > 0, code, bg))
         strip = rgb.reshape(rows, ss, width, ss, 3).mean(axis=(1, 3))
         elapsed = time.perf_counter() - t0
-        EXTRA["render_s"] = elapsed * np.ceil({size} * ppm) / rows
+        R["render_s"] = elapsed * np.ceil({size} * ppm) / rows
         exact = render_region(table, (0, spec.fabric_bounds[3] - rows / ppm, width / ppm, spec.fabric_bounds[3]), {dpi})
-        EXTRA["mean_abs_err_8bit"] = float(np.abs(np.rint(strip) - exact[:rows]).mean())
-        EXTRA["max_abs_err_8bit"] = float(np.abs(np.rint(strip) - exact[:rows]).max())
+        R["mean_abs_err_8bit"] = float(np.abs(np.rint(strip) - exact[:rows]).mean())
+        R["max_abs_err_8bit"] = float(np.abs(np.rint(strip) - exact[:rows]).max())
     """,
 }
-
-RUNNER = """
-import json, resource, sys, time
-EXTRA = {{}}
-_start = time.perf_counter()
-{body}
-EXTRA["wall_s"] = time.perf_counter() - _start
-EXTRA["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-print("RESULT " + json.dumps(EXTRA))
-"""
-
-
-def run_stage(body: str) -> dict:
-    code = RUNNER.format(body=textwrap.dedent(body))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    if out.returncode != 0:
-        raise RuntimeError(out.stderr)
-    line = [l for l in out.stdout.splitlines() if l.startswith("RESULT ")][-1]
-    return json.loads(line[len("RESULT "):])
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -105,10 +85,10 @@ def main() -> None:
     rows = []
     for name, body in STAGES.items():
         fmt = {"size": args.size_m, "dpi": args.dpi}
-        result = run_stage(body.format(**fmt))
+        result = run_fresh(body.format(**fmt))
         rows.append((name.format(**fmt), result))
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, python {platform.python_version()}, "
-          f"{__import__('os').cpu_count()} cores; {time.strftime('%Y-%m-%d')}")
+          f"{os.cpu_count()} cores; {time.strftime('%Y-%m-%d')}")
     print("| stage | wall s | render s | peak RSS GiB | notes |")
     print("|---|---:|---:|---:|---|")
     for name, r in rows:
