@@ -53,7 +53,17 @@ from scipy.spatial.transform import Rotation
 
 from assets.cli import run_cli
 from assets.fileio import load_json
-from assets.garments.sewing import Curve, Edge, Panel, Placement, Seam, SeamSide, SewingPattern, sample_curve, validate
+from assets.garments.sewing import (
+    Curve,
+    Edge,
+    Panel,
+    Placement,
+    Seam,
+    SeamSide,
+    SewingPattern,
+    curve_length,
+    validate,
+)
 
 log = logging.getLogger("assets.garments.defaults")
 
@@ -197,11 +207,6 @@ def _cubic(c1: tuple[float, float], c2: tuple[float, float]) -> Curve:
     return Curve("cubic", control=tuple((round(float(x), 6) + 0.0, round(float(y), 6) + 0.0) for x, y in (c1, c2)))
 
 
-def _curve_length(start: tuple[float, float], end: tuple[float, float], curve: Curve) -> float:
-    points = sample_curve(np.asarray(start), np.asarray(end), curve, 256)
-    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
-
-
 def _mirror_edge(edge: Edge, name: str) -> Edge:
     """`edge` reflected across the y axis and run backwards (as it is in a mirrored outline)."""
     control = tuple((-x + 0.0, y) for x, y in reversed(edge.curve.control))
@@ -282,7 +287,7 @@ def _sleeve(m: BodyMeasurements, style: _BodiceStyle, armhole_length: float) -> 
         return _cubic((0.55 * bicep, base), (0.45 * bicep, base + height))
 
     def excess(height: float) -> float:
-        return _curve_length((bicep, 0.0), (0.0, height), cap(height, 0.0)) - target
+        return curve_length(np.array([bicep, 0.0]), np.array([0.0, height]), cap(height, 0.0)) - target
 
     if not excess(1e-3) < 0 < excess(0.8 * length):
         raise ValueError(f"sleeve: no cap of a {2 * bicep:.3f} m wide, {length:.3f} m long sleeve fits a "

@@ -67,6 +67,7 @@ from assets.garments.sewing import (
     Seam,
     SeamSide,
     SewingPattern,
+    parse_floats,
     polygon_area,
     validate,
 )
@@ -171,7 +172,7 @@ def garmentcode_from_dict(data: Any, source: str = "garmentcode") -> SewingPatte
 def _read_panel(raw: Any, units: float, coords: str, where: str, name: str) -> _Draft:
     if not isinstance(raw, dict):
         raise PatternError(f"{where}: expected an object")
-    vertices = _numbers(raw.get("vertices"), (-1, 2), f"{where}: vertices") / units
+    vertices = parse_floats(raw.get("vertices"), (-1, 2), f"{where}: vertices") / units
     raw_edges = raw.get("edges")
     n = len(vertices)
     if not isinstance(raw_edges, list) or len(raw_edges) != n or n < 2:
@@ -200,8 +201,8 @@ def _read_panel(raw: Any, units: float, coords: str, where: str, name: str) -> _
                               f"{where}, edge #{k}"))
         for k, e in enumerate(raw_edges)
     ]
-    angles = _numbers(raw.get("rotation", [0, 0, 0]), (3,), f"{where}: rotation")
-    translation = _numbers(raw.get("translation", [0, 0, 0]), (3,), f"{where}: translation") / units
+    angles = parse_floats(raw.get("rotation", [0, 0, 0]), (3,), f"{where}: rotation")
+    translation = parse_floats(raw.get("translation", [0, 0, 0]), (3,), f"{where}: translation") / units
     rotation = C_GC_TO_WORLD @ Rotation.from_euler(GC_EULER, angles, degrees=True).as_matrix()
     label = raw.get("label") if isinstance(raw.get("label"), str) else ""
     return _Draft(name, label, vertices, edges, rotation, C_GC_TO_WORLD @ translation, names)
@@ -214,7 +215,7 @@ def _curve(raw: Any, start: np.ndarray, end: np.ndarray, units: float, coords: s
     kind, params = ("quadratic", [raw]) if isinstance(raw, list) else (
         (raw.get("type"), raw.get("params")) if isinstance(raw, dict) else (None, None))
     if kind == "circle":
-        radius, large_arc, right = _numbers(params, (3,), f"{where}: circle params [radius, large_arc, right]")
+        radius, large_arc, right = parse_floats(params, (3,), f"{where}: circle params [radius, large_arc, right]")
         radius /= units
         half = float(np.linalg.norm(end - start)) / 2
         if radius < half * (1 - 1e-6):
@@ -224,7 +225,7 @@ def _curve(raw: Any, start: np.ndarray, end: np.ndarray, units: float, coords: s
         return Curve("arc", sagitta=float(-sagitta if right else sagitta))
     if kind in ("quadratic", "cubic"):
         count = 1 if kind == "quadratic" else 2
-        control = _numbers(params, (count, 2), f"{where}: {kind} params")
+        control = parse_floats(params, (count, 2), f"{where}: {kind} params")
         if coords == "absolute":
             control = control / units
         else:
@@ -332,18 +333,6 @@ def _read_stitch(raw: Any, drafts: dict[str, _Draft], where: str) -> Seam:
         log.warning("%s: %s.%s and %s.%s are sewn the way their 3D placement does not suggest",
                     where, sides[0].panel, sides[0].edge, sides[1].panel, sides[1].edge)
     return Seam(sides[0], sides[1], bool(reverse))
-
-
-def _numbers(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise PatternError(f"{where}: expected numbers, got {value!r}") from None
-    if array.ndim != len(shape) or any(s not in (-1, a) for s, a in zip(shape, array.shape)):
-        raise PatternError(f"{where}: expected shape {shape}, got {array.shape}")
-    if not np.isfinite(array).all():
-        raise PatternError(f"{where}: not finite")
-    return array
 
 
 # ---- CLI ---------------------------------------------------------------------------------------

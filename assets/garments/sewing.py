@@ -107,8 +107,8 @@ class Panel:
         return sample_curve(start, end, self.edges[k].curve, segments)
 
     def edge_length(self, k: int) -> float:
-        dense = self.edge_points(k, _SAMPLES_PER_CURVE if self.edges[k].curve.type else 1)
-        return float(np.linalg.norm(np.diff(dense, axis=0), axis=1).sum())
+        start, end = self.vertices[k], self.vertices[(k + 1) % len(self.vertices)]
+        return curve_length(start, end, self.edges[k].curve)
 
     def outline(self, spacing: float) -> np.ndarray:
         """(P, 2) closed outline (last point not repeated) with segments of about `spacing`."""
@@ -190,6 +190,12 @@ def polygon_area(points: np.ndarray) -> float:
     """Signed area of a closed polygon (P, 2); positive when counter-clockwise."""
     x, y = points[:, 0], points[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def curve_length(start: np.ndarray, end: np.ndarray, curve: Curve) -> float:
+    """Arc length of `curve` from `start` to `end` (curves sampled densely), metres."""
+    dense = sample_curve(start, end, curve, _SAMPLES_PER_CURVE if curve.type else 1)
+    return float(np.linalg.norm(np.diff(dense, axis=0), axis=1).sum())
 
 
 def sample_curve(start: np.ndarray, end: np.ndarray, curve: Curve, segments: int) -> np.ndarray:
@@ -326,11 +332,12 @@ def validate(pattern: SewingPattern, source: str = "pattern") -> None:
 
 
 # ---- dict conversion ---------------------------------------------------------------------------
-def _floats(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+def parse_floats(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """`value` as a finite float64 array of `shape` (-1: any length), or PatternError naming `where`."""
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise PatternError(f"{where}: expected numbers") from None
+        raise PatternError(f"{where}: expected numbers, got {value!r}") from None
     if array.ndim != len(shape) or any(s != -1 and s != a for s, a in zip(shape, array.shape)):
         raise PatternError(f"{where}: expected shape {shape}, got {array.shape}")
     if not np.isfinite(array).all():
@@ -345,9 +352,9 @@ def _curve_from_dict(data: Any, where: str) -> Curve:
         raise PatternError(f"{where}: curve must be an object with type one of {', '.join(CURVE_TYPES)}")
     kind = data["type"]
     if kind == "arc":
-        return Curve("arc", sagitta=float(_floats(data.get("sagitta"), (), f"{where}: sagitta")))
+        return Curve("arc", sagitta=float(parse_floats(data.get("sagitta"), (), f"{where}: sagitta")))
     count = 1 if kind == "quadratic" else 2
-    control = _floats(data.get("control"), (count, 2), f"{where}: control")
+    control = parse_floats(data.get("control"), (count, 2), f"{where}: control")
     return Curve(kind, control=tuple(tuple(map(float, c)) for c in control))
 
 
@@ -355,7 +362,7 @@ def _panel_from_dict(data: Any, where: str) -> Panel:
     if not isinstance(data, dict) or not isinstance(data.get("name"), str):
         raise PatternError(f"{where}: needs a string 'name'")
     where = where.split(": panel #")[0] + f": panel '{data['name']}'"
-    vertices = _floats(data.get("vertices"), (-1, 2), f"{where}: vertices")
+    vertices = parse_floats(data.get("vertices"), (-1, 2), f"{where}: vertices")
     raw_edges = data.get("edges")
     if not isinstance(raw_edges, list) or len(raw_edges) != len(vertices) or len(vertices) < 2:
         raise PatternError(f"{where}: needs one edge per vertex (edge k runs vertex k -> k+1), got "
@@ -372,8 +379,8 @@ def _panel_from_dict(data: Any, where: str) -> Panel:
             raise PatternError(f"{where}: placement needs a string 'body_part'")
         placement = Placement(
             p["body_part"],
-            tuple(_floats(p.get("rotation_deg", [0, 0, 0]), (3,), f"{where}: placement.rotation_deg").tolist()),
-            tuple(_floats(p.get("translation", [0, 0, 0]), (3,), f"{where}: placement.translation").tolist()),
+            tuple(parse_floats(p.get("rotation_deg", [0, 0, 0]), (3,), f"{where}: placement.rotation_deg").tolist()),
+            tuple(parse_floats(p.get("translation", [0, 0, 0]), (3,), f"{where}: placement.translation").tolist()),
         )
     return Panel(data["name"], vertices, tuple(edges), placement)
 
