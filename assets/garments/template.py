@@ -106,10 +106,13 @@ class Prolongation:
 class Template:
     """A garment template: pattern + layout + lazily built or loaded levels."""
 
-    def __init__(self, pattern: SewingPattern, layout: SheetLayout, source: Path | None = None):
+    def __init__(
+        self, pattern: SewingPattern, layout: SheetLayout, source: Path | None = None, stored: tuple[int, ...] = ()
+    ):
         self.pattern = pattern
         self.layout = layout
-        self._source = source
+        self._source = source  # npz holding the levels in `stored`, read on demand
+        self._stored = stored
         self._levels: dict[int, Level] = {}
 
     @classmethod
@@ -197,7 +200,7 @@ class Template:
     def save(self, path: str | Path, levels: tuple[int, ...] | None = None) -> None:
         """Write pattern, layout and the given levels (default: every level built or on file)."""
         if levels is None:
-            levels = tuple(sorted(set(self._levels) | set(self._stored_levels()), reverse=True))
+            levels = tuple(sorted(set(self._levels) | set(self._stored), reverse=True))
         arrays: dict[str, np.ndarray] = {
             "pattern_json": _text(json.dumps(self.pattern.to_dict())),
             "layout_json": _text(json.dumps(self.layout.to_dict())),
@@ -210,19 +213,13 @@ class Template:
     @classmethod
     def load(cls, path: str | Path) -> "Template":
         path = Path(path)
-        data = load_npz_keys(path, ("pattern_json", "layout_json"))
+        data = load_npz_keys(path, ("pattern_json", "layout_json", "levels_mm"))
         pattern = SewingPattern.from_dict(json.loads(data["pattern_json"].tobytes()), f"{path}:pattern_json")
         layout = SheetLayout.from_dict(json.loads(data["layout_json"].tobytes()), f"{path}:layout_json")
-        return cls(pattern, layout, source=path)
-
-    def _stored_levels(self) -> list[int]:
-        if self._source is None:
-            return []
-        with np.load(self._source, allow_pickle=False) as data:
-            return [int(v) for v in data["levels_mm"]] if "levels_mm" in data.files else []
+        return cls(pattern, layout, source=path, stored=tuple(int(v) for v in data["levels_mm"]))
 
     def _read_level(self, spacing_mm: int) -> Level | None:
-        if spacing_mm not in self._stored_levels():
+        if spacing_mm not in self._stored:
             return None
         keys = tuple(f"L{spacing_mm}/{k}" for k in _LEVEL_KEYS)
         data = load_npz_keys(self._source, keys)
