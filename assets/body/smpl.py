@@ -1,0 +1,1 @@
+def load_smpl(path): raise NotImplementedError
