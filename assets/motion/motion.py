@@ -156,7 +156,7 @@ def resample(motion: Motion, fps: float = SIMULATION_FPS) -> Motion:
 
     def rotations(poses: np.ndarray) -> np.ndarray:
         q = rotvec_to_quat(poses)
-        t = np.broadcast_to(frac[:, None], poses.shape[:2])
+        t = np.broadcast_to(frac[:, None], (count, poses.shape[1]))
         return quat_to_rotvec(slerp(q[lo], q[lo + 1], t))
 
     trans = motion.trans[lo] * (1.0 - frac[:, None]) + motion.trans[lo + 1] * frac[:, None]

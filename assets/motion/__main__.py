@@ -1,0 +1,99 @@
+"""Motions on bodies from the command line.
+
+    python -m assets.motion list
+    python -m assets.motion preview walk --body default --out out/walk        # PNG + posed sequence
+    python -m assets.motion preview capture.npz --body SMPL_NEUTRAL.npz --out out/amass --meshes obj
+    python -m assets.motion convert 01_01.bvh --out 01_01_motion.npz          # BVH or AMASS -> motion
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from assets.body import load_body
+from assets.cli import run_cli
+from assets.fileio import save_json
+from assets.motion.export import preview_frames, render_preview, save_posed_sequence, write_frame_meshes
+from assets.motion.motion import SIMULATION_FPS, TRANSITION_SECONDS, pose_motion, resample, with_transition
+from assets.motion.sources import load_motion
+
+log = logging.getLogger("assets.motion")
+
+
+def _motion_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seconds", type=float, default=None, help="length of a built-in motion (default: its own)")
+    parser.add_argument("--speed", type=float, default=1.0, help="built-in motions: cycle speed multiplier")
+    parser.add_argument("--amplitude", type=float, default=1.0, help="built-in motions: joint angle scale")
+    parser.add_argument("--fps", type=float, default=SIMULATION_FPS, help="resample to this rate (default 120)")
+
+
+def preview(args: argparse.Namespace) -> None:
+    body = load_body(args.body)
+    motion = load_motion(args.motion, body, args.seconds, args.speed, args.amplitude, args.fps)
+    motion = resample(motion, args.fps)
+    if args.transition != "none":
+        motion = with_transition(motion, args.transition, args.transition_seconds)
+    out = Path(args.out)
+    posed = pose_motion(body, motion)
+    motion.save(out / "motion.npz")
+    save_posed_sequence(out / "body_sequence.npz", posed, motion.fps, body=body.name, motion=motion.name)
+    frames = preview_frames(args.frames, motion.num_frames)
+    render_preview(out / "preview.png", posed, frames, title=f"{motion.name} on {body.name} body")
+    if args.meshes:
+        write_frame_meshes(out / "meshes", posed, args.meshes)
+    save_json(out / "summary.json", {
+        "motion": motion.name, "source": motion.source, "body": body.name, "frames": motion.num_frames,
+        "fps": motion.fps, "seconds": motion.duration, "preview_frames": frames.tolist(),
+    })  # fmt: skip
+    log.info("%s: %d frames at %g Hz on the %s body -> %s", motion.name, motion.num_frames, motion.fps, body.name, out)
+
+
+def convert(args: argparse.Namespace) -> None:
+    body = load_body(args.body) if args.body else None
+    motion = load_motion(args.file, body)
+    if args.fps:
+        motion = resample(motion, args.fps)
+    motion.save(args.out)
+    log.info("%s: %d frames at %g Hz -> %s", args.file, motion.num_frames, motion.fps, args.out)
+
+
+def list_motions(args: argparse.Namespace) -> None:
+    from assets.motion.builtin import BUILTIN_MOTIONS, builtin_motion
+
+    for name in sorted(BUILTIN_MOTIONS):
+        motion = builtin_motion(name)
+        print(f"{name:12s} {motion.duration:5.1f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m assets.motion", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("preview", help="pose a body through a motion; write a PNG preview and the sequence")
+    p.add_argument("motion", help="built-in motion name, AMASS .npz, saved motion .npz or .bvh")
+    p.add_argument("--body", default="default", help="'default' (free body) or an SMPL-family model file")
+    p.add_argument("--out", required=True, help="output folder")
+    _motion_args(p)
+    p.add_argument("--transition", choices=("T", "A", "none"), default="T",
+                   help="prepend a transition from this dressing pose (default T, as the simulator does)")
+    p.add_argument("--transition-seconds", type=float, default=TRANSITION_SECONDS)
+    p.add_argument("--frames", type=int, default=6, help="frames drawn in the preview")
+    p.add_argument("--meshes", choices=("obj", "ply"), help="also write one mesh per frame")
+    p.set_defaults(action=preview)
+    c = sub.add_parser("convert", help="convert a BVH or AMASS file to a motion .npz (Z up, SMPL 24 joints)")
+    c.add_argument("file", help=".bvh or AMASS .npz")
+    c.add_argument("--out", required=True, help="motion .npz to write")
+    c.add_argument("--body", help="retarget BVH onto / take AMASS pelvis offsets from this body")
+    c.add_argument("--fps", type=float, help="resample to this rate (default: keep the file's)")
+    c.set_defaults(action=convert)
+    ls = sub.add_parser("list", help="list the built-in motions")
+    ls.set_defaults(action=list_motions)
+    args = parser.parse_args(argv)
+    return run_cli(lambda: args.action(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
