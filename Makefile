@@ -11,6 +11,7 @@ DEMO_OUT ?= out/demo
 demo: $(STAMP)
 	$(BIN)/python -m assets.pattern --out $(DEMO_OUT)/pattern
 	$(BIN)/python -m assets.garments build shirt --levels 12,4,2 --out $(DEMO_OUT)/shirt
+	$(BIN)/python -m assets.motion preview walk --body default --out $(DEMO_OUT)/walk
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -18,6 +19,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/pattern.py
 	$(BIN)/python benchmarks/garments.py
+	$(BIN)/python benchmarks/body.py
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
