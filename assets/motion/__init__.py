@@ -1,5 +1,7 @@
 """Motions: SMPL-layout pose sequences that drive bodies (see `Motion`)."""
 
+from assets.motion.amass import read_amass
+from assets.motion.bvh import parse_bvh, read_bvh, retarget_to_smpl
 from assets.motion.motion import (
     A_POSE_ARM_DEG,
     SIMULATION_FPS,
@@ -22,4 +24,8 @@ __all__ = [
     "pose_motion",
     "resample",
     "with_transition",
+    "read_amass",
+    "read_bvh",
+    "parse_bvh",
+    "retarget_to_smpl",
 ]

@@ -143,14 +143,17 @@ class Motion:
 
 
 def resample(motion: Motion, fps: float = SIMULATION_FPS) -> Motion:
-    """The motion at `fps` over the same time span: joint rotations by quaternion slerp between the
-    two nearest source frames, root positions linearly.  The first frame is kept exactly."""
+    """The motion at `fps` over the same time span (to the nearest frame): joint rotations by
+    quaternion slerp between the two nearest source frames, root positions linearly.  The first
+    frame is kept exactly."""
     if fps <= 0:
         raise ValueError(f"fps must be positive, got {fps}")
     if motion.num_frames == 1 or fps == motion.fps:
         return motion.replace(fps=float(fps))
-    count = int(np.floor(motion.duration * fps + 1e-9)) + 1
-    position = np.arange(count) * (motion.fps / fps)  # in source frames
+    # Round (not floor) the span so a 1/120.0048 s BVH frame time does not lose the last frame; the
+    # last sample may then land up to half a frame past the end and holds the last pose.
+    count = int(np.round(motion.duration * fps)) + 1
+    position = np.minimum(np.arange(count) * (motion.fps / fps), motion.num_frames - 1)  # in source frames
     lo = np.minimum(np.floor(position).astype(int), motion.num_frames - 2)
     frac = position - lo
 

@@ -52,6 +52,10 @@ def test_resample_slerps_rotations_and_keeps_the_span():
     slow = resample(motion, 10.0)
     assert slow.num_frames == 11
     np.testing.assert_allclose(slow.poses[:, 18, 2], motion.poses[::3, 18, 2], atol=1e-12)
+    # A frame time of 1/120.0048 s (as BVH files write 0.008333) keeps every frame at 120 Hz.
+    almost = resample(motion.replace(fps=120.0048), 120.0)
+    assert almost.num_frames == motion.num_frames
+    np.testing.assert_allclose(almost.poses[-1], motion.poses[-1], atol=1e-12)
 
 
 def test_resample_takes_the_short_way_round():
