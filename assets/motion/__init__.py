@@ -1,6 +1,7 @@
 """Motions: SMPL-layout pose sequences that drive bodies (see `Motion`)."""
 
 from assets.motion.amass import read_amass
+from assets.motion.builtin import BUILTIN_MOTIONS, builtin_motion, list_builtin_motions
 from assets.motion.bvh import parse_bvh, read_bvh, retarget_to_smpl
 from assets.motion.motion import (
     A_POSE_ARM_DEG,
@@ -24,6 +25,9 @@ __all__ = [
     "pose_motion",
     "resample",
     "with_transition",
+    "BUILTIN_MOTIONS",
+    "builtin_motion",
+    "list_builtin_motions",
     "read_amass",
     "read_bvh",
     "parse_bvh",

@@ -61,11 +61,10 @@ def convert(args: argparse.Namespace) -> None:
 
 
 def list_motions(args: argparse.Namespace) -> None:
-    from assets.motion.builtin import BUILTIN_MOTIONS, builtin_motion
+    from assets.motion.builtin import BUILTIN_MOTIONS
 
     for name in sorted(BUILTIN_MOTIONS):
-        motion = builtin_motion(name)
-        print(f"{name:12s} {motion.duration:5.1f} s")
+        print(f"{name:12s} {BUILTIN_MOTIONS[name].seconds:5.1f} s")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,9 +1,12 @@
 """Built-in motions: procedural, natural-looking pose sequences, so the pipeline needs no motion data.
 
-Each motion is a few seconds of smooth joint-angle curves (sinusoids, periodic bumps and smootherstep
-envelopes, so angular accelerations stay bounded) in SMPL's 24-joint layout and the project's frame (Z up,
-metres, the body facing -Y, its left along +X; see `assets.body.model`).  Every motion starts and ends in
-its neutral pose (standing, arms hanging; the T-pose for 'tpose') at rest, eased in and out.
+Each motion is a few seconds of smooth joint-angle curves (sinusoids, raised-cosine bumps, smootherstep
+envelopes and, for gaits, curvature-penalised Fourier series through textbook keyframes, so angular
+accelerations stay bounded) in SMPL's 24-joint layout and the project's frame (Z up,
+metres, the body facing -Y, its left along +X; see `assets.body.model`).  Every motion starts and ends at
+rest: the motions in place in their neutral pose (standing, arms hanging; the T-pose for 'tpose'), eased
+in and out; walk and run in a stride's double-support stance, their stride clock speeding up from and
+slowing down to a standstill.
 
 The root path comes from the body (`grounded_trans`): the pelvis height keeps the lowest point of the
 soles on the ground (z = 0) and, for motions with planted feet, the pelvis moves so that the feet on the
@@ -11,7 +14,8 @@ ground do not slide.  So a walk advances by its own strides, and a squat sits ba
 
 ``speed`` multiplies every cycle frequency (strides, squats, turns per motion); ``amplitude`` scales every
 excursion from the neutral pose (joint angles, the jump's flight, the spin's turn): 0 holds the neutral
-pose, 1 is natural, and much beyond 1.5 leaves the range of human joints.
+pose, 1 is natural; above about 1.2 the forearms of 'run' and 'arm_swing' reach the torso, and joint
+accelerations grow with amplitude and with the square of speed (bounded for amplitude and speed 1).
 
 Signs, checked against the default body (rotation vectors are in the parent's rest-aligned frame, for
 the left side; the right side mirrors them through the body's sagittal plane, x -> -x):
@@ -27,7 +31,9 @@ from typing import Callable
 
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
+from scipy.ndimage import gaussian_filter1d
 
+from assets.body.default import default_body
 from assets.body.model import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, BodyModel
 from assets.motion.motion import SIMULATION_FPS, Motion, body_poses
 from assets.rotations import matrix_to_rotvec, rotvec_to_matrix
@@ -39,6 +45,10 @@ ARM_HANG_DEG = 75.0
 ELBOW_REST_DEG = 10.0
 #: Softness (metres) of the minimum over contact points that decides which foot is on the ground.
 CONTACT_SOFTNESS = 0.005
+#: A swinging foot counts this much (metres) higher than it is when finding the foot the body moves over.
+SWING_CLEARANCE = 0.05
+#: Standard deviation of the Gaussian that low-passes the root path (see `grounded_trans`).
+ROOT_SMOOTHING_SECONDS = 0.03
 _J = {name: j for j, name in enumerate(SMPL_JOINT_NAMES)}
 _SPINE_SHARE = {"spine1": 0.3, "spine2": 0.3, "spine3": 0.4}
 _FOOT_SEGMENTS = ("ankle", "foot")
@@ -57,13 +67,6 @@ def _bump(x: np.ndarray, centre: float, half_width: float) -> np.ndarray:
     """Raised-cosine bump: 1 at `centre`, falling to 0 (zero slope) at centre +- half_width, 0 beyond."""
     u = np.clip((x - centre) / half_width, -1.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
-
-
-def _cyclic_bump(phase: np.ndarray, centre: float, concentration: float) -> np.ndarray:
-    """Periodic bump in [0, 1] of a stride phase (radians), peaking at `centre` (fraction of the stride);
-    a von Mises shape whose width falls as 1/sqrt(concentration)."""
-    floor = np.exp(-2.0 * concentration)
-    return (np.exp(concentration * (np.cos(phase - 2.0 * np.pi * centre) - 1.0)) - floor) / (1.0 - floor)
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,18 @@ class Clock:
         """(T,) the amplitude, eased in over the first `ramp` seconds and out over the last."""
         return self.amplitude * smootherstep(self.t / ramp) * smootherstep((self.seconds - self.t) / ramp)
 
+    def eased_time(self, ramp: float) -> np.ndarray:
+        """(T,) seconds of a clock that starts from a standstill, runs at full rate after `ramp` seconds
+        and stops again at the end: the integral of the smootherstep ease in and out (ramps shortened
+        to half the length when they would overlap)."""
+        ramp = min(ramp, self.seconds / 2.0)
+
+        def eased(x):  # integral of smootherstep from 0 to x
+            u = np.clip(x, 0.0, 1.0)
+            return u**4 * (u * (u - 3.0) + 2.5) + np.maximum(x - 1.0, 0.0)
+
+        return ramp * (eased(self.t / ramp) - eased((self.t - self.seconds + ramp) / ramp))
+
 
 # -- poses from anatomical angles ----------------------------------------------------------------------
 
@@ -111,38 +126,36 @@ class _Pose:
         rotation = np.broadcast_to(np.eye(3), (self.frames, 3, 3))
         for axis, degrees in turns:
             mirror = -1.0 if side < 0 and axis != X else 1.0
-            rotation = self.turn(axis, mirror * np.asarray(degrees)) @ rotation
+            rotation = self.turn(axis, mirror * degrees) @ rotation
         self.rotations[:, _J[name]] = rotation
 
-    def root(self, tilt=0.0, lean=0.0, yaw=0.0) -> None:
-        """Pelvis in the world: forward `tilt`, `lean` to the left (left side up), turn `yaw` to the left."""
-        self.set("pelvis", (Y, -lean), (X, tilt), (Z, yaw))
+    def root(self, tilt=0.0, hike=0.0, yaw=0.0) -> None:
+        """Pelvis in the world: forward `tilt`, left side raised by `hike`, turned to the left by `yaw`."""
+        self.set("pelvis", (Y, -hike), (X, tilt), (Z, yaw))
 
     def leg(self, side: int, hip, knee, dorsi=0.0, toes=0.0, adduct=0.0, outward=0.0) -> None:
         """Hip flexion, knee flexion, ankle dorsiflexion, toe extension, hip adduction and outward turn."""
-        self.set("hip", (Z, outward), (Y, adduct), (X, -np.asarray(hip)), side=side)
+        self.set("hip", (Z, outward), (Y, adduct), (X, -hip), side=side)
         self.set("knee", (X, knee), side=side)
-        self.set("ankle", (X, -np.asarray(dorsi)), side=side)
-        self.set("foot", (X, -np.asarray(toes)), side=side)
+        self.set("ankle", (X, -dorsi), side=side)
+        self.set("foot", (X, -toes), side=side)
 
     def arm(self, side: int, lower=ARM_HANG_DEG, flex=0.0, forward=0.0, elbow=ELBOW_REST_DEG, outward=0.0,
             shrug=0.0) -> None:
         """Shoulder: turn `outward` about the arm, `lower` below horizontal, swing `forward` in the
         horizontal plane, `flex` forward in the sagittal plane (in that order); then the elbow's flexion
         and the collar's `shrug` (raising the shoulder)."""
-        self.set("collar", (Y, -np.asarray(shrug)), side=side)
-        self.set("shoulder", (X, -np.asarray(outward)), (Y, lower), (Z, -np.asarray(forward)),
-                 (X, -np.asarray(flex)), side=side)
-        self.set("elbow", (Z, -np.asarray(elbow)), side=side)
+        self.set("collar", (Y, -shrug), side=side)
+        self.set("shoulder", (X, -outward), (Y, lower), (Z, -forward), (X, -flex), side=side)
+        self.set("elbow", (Z, -elbow), side=side)
 
     def trunk(self, flex=0.0, bend=0.0, twist=0.0, nod=0.0, look=0.0) -> None:
         """Spine flexion, lateral bend to the left, twist to the left (shared over spine1..3); head `nod`
         (flexion) and `look` (turn to the left), shared over neck and head."""
         for joint, share in _SPINE_SHARE.items():
-            self.set(joint, (Z, share * np.asarray(twist)), (Y, share * np.asarray(bend)),
-                     (X, share * np.asarray(flex)))
+            self.set(joint, (Z, share * twist), (Y, share * bend), (X, share * flex))
         for joint in ("neck", "head"):
-            self.set(joint, (Z, 0.5 * np.asarray(look)), (X, 0.5 * np.asarray(nod)))
+            self.set(joint, (Z, 0.5 * look), (X, 0.5 * nod))
 
     def poses(self) -> np.ndarray:
         """(T, 24, 3) axis-angle radians."""
@@ -152,93 +165,132 @@ class _Pose:
 @dataclass(frozen=True)
 class Kinematics:
     """What a generator makes: poses (T, 24, 3) radians, extra pelvis ``lift`` (T,) metres above the
-    grounded height (a jump's flight), and whether feet on the ground stay put (``planted``)."""
+    grounded height (a jump's flight), whether feet on the ground stay put (``planted``), and which feet
+    may carry the body: ``support`` (T, 2) for the left and right foot, 1 standing, 0 swinging through
+    the air (None: both may)."""
 
     poses: np.ndarray
     lift: np.ndarray | float = 0.0
     planted: bool = True
+    support: np.ndarray | None = None
 
 
 # -- gaits ---------------------------------------------------------------------------------------------
 
 
+Keyframes = tuple[tuple[float, float], ...]
+#: Harmonics and curvature penalty of the smooth periodic curves through gait keyframes.
+_HARMONICS = 6
+_CURVATURE_PENALTY = 0.01
+
+
 @dataclass(frozen=True)
 class GaitStyle:
-    """A walking or running stride.  Angles in degrees; phases as fractions of the stride from this
-    leg's heel strike; bumps are (degrees, centre, concentration) of `_cyclic_bump`."""
+    """A walking or running stride.  Sagittal leg angles are keyframes (percent of the stride from this
+    leg's heel strike, degrees), the rest amplitudes in degrees; the right leg runs half a stride behind."""
 
     stride_hz: float
     ramp_seconds: float
-    hip: tuple[float, float]  # mean flexion, amplitude of its cosine
-    knee: tuple[tuple[float, float, float], ...]
-    ankle: tuple[tuple[float, float, float], ...]  # dorsiflexion (+) and push-off (-)
-    toes: tuple[tuple[float, float, float], ...]
-    hip_adduction: float
-    pelvis_list: float
-    pelvis_yaw: float
-    pelvis_tilt: float  # forward lean of the pelvis
+    toe_off: float  # percent of the stride: the foot is in the air from here to the heel strike
+    hip: Keyframes  # flexion
+    knee: Keyframes  # flexion
+    ankle: Keyframes  # dorsiflexion (toes up) +, plantarflexion -
+    toes: Keyframes  # extension
+    hip_adduction: tuple[float, float]  # mean (feet under the body), swing with the pelvis list
+    pelvis_list: float  # the swing side drops
+    pelvis_yaw: float  # the swing side leads
+    pelvis_tilt: float  # forward
     trunk_flex: float
     trunk_counter: float  # thorax twist against the pelvis
     arm_swing: float
     arm_lower: float
-    arm_forward: float  # horizontal swing of the arms towards the midline
+    arm_forward: float  # arms swing towards the midline
     elbow: tuple[float, float]  # mean flexion, swing
 
 
 WALK = GaitStyle(
-    stride_hz=0.9, ramp_seconds=1.0, hip=(10.0, 21.0),
-    knee=((3.0, 0.0, 0.0), (14.0, 0.14, 3.5), (55.0, 0.72, 1.6)),
-    ankle=((2.0, 0.0, 0.0), (-6.0, 0.06, 6.0), (12.0, 0.40, 3.0), (-24.0, 0.62, 5.0)),
-    toes=((25.0, 0.57, 6.0),),
-    hip_adduction=4.0, pelvis_list=4.0, pelvis_yaw=5.0, pelvis_tilt=2.0, trunk_flex=2.0, trunk_counter=8.0,
-    arm_swing=16.0, arm_lower=ARM_HANG_DEG, arm_forward=0.0, elbow=(20.0, 10.0),
+    stride_hz=0.9, ramp_seconds=1.0, toe_off=62.0,
+    hip=((0, 22), (10, 20), (20, 12), (30, 2), (40, -8), (50, -15), (56, -17), (62, -12), (70, 4), (80, 18),
+         (88, 24), (100, 22)),
+    knee=((0, 4), (6, 10), (15, 17), (25, 12), (35, 6), (42, 5), (50, 10), (60, 36), (67, 55), (73, 60), (80, 50),
+          (90, 22), (96, 7), (100, 4)),
+    ankle=((0, 0), (7, -6), (15, -1), (30, 6), (45, 10), (52, 6), (57, -3), (62, -16), (70, -8), (80, 1), (90, 2),
+           (100, 0)),
+    toes=((0, 0), (30, 0), (45, 8), (55, 25), (62, 30), (70, 12), (80, 0), (100, 0)),
+    hip_adduction=(5.0, 6.0), pelvis_list=4.0, pelvis_yaw=5.0, pelvis_tilt=2.0, trunk_flex=2.0,
+    trunk_counter=8.0, arm_swing=16.0, arm_lower=ARM_HANG_DEG, arm_forward=0.0, elbow=(20.0, 10.0),
 )  # fmt: skip
 RUN = GaitStyle(
-    stride_hz=1.35, ramp_seconds=1.0, hip=(18.0, 30.0),
-    knee=((10.0, 0.0, 0.0), (25.0, 0.16, 4.0), (90.0, 0.70, 1.4)),
-    ankle=((6.0, 0.0, 0.0), (14.0, 0.18, 3.0), (-32.0, 0.42, 4.0)),
-    toes=((20.0, 0.38, 6.0),),
-    hip_adduction=5.0, pelvis_list=5.0, pelvis_yaw=7.0, pelvis_tilt=5.0, trunk_flex=6.0, trunk_counter=12.0,
-    arm_swing=28.0, arm_lower=80.0, arm_forward=8.0, elbow=(85.0, 12.0),
+    stride_hz=1.3, ramp_seconds=1.0, toe_off=40.0,
+    hip=((0, 28), (10, 22), (20, 10), (30, -2), (40, -10), (50, -2), (60, 14), (70, 28), (80, 37), (86, 39),
+         (92, 37), (100, 28)),
+    knee=((0, 18), (10, 34), (18, 38), (28, 28), (38, 18), (48, 40), (58, 72), (68, 88), (76, 84), (86, 58),
+          (94, 32), (100, 18)),
+    ankle=((0, 5), (10, 14), (20, 18), (30, 8), (40, -20), (48, -14), (58, -2), (70, 5), (80, 6), (90, 5),
+           (100, 5)),
+    toes=((0, 0), (20, 3), (32, 20), (40, 30), (48, 15), (58, 0), (100, 0)),
+    hip_adduction=(5.0, 7.0), pelvis_list=5.0, pelvis_yaw=7.0, pelvis_tilt=5.0, trunk_flex=6.0,
+    trunk_counter=12.0, arm_swing=28.0, arm_lower=80.0, arm_forward=8.0, elbow=(85.0, 12.0),
 )  # fmt: skip
 
 
-def _bumps(phase: np.ndarray, bumps: tuple[tuple[float, float, float], ...]) -> np.ndarray:
-    """(T,) degrees: the sum of `_cyclic_bump`s (a zero concentration is a constant)."""
-    out = np.zeros_like(phase)
-    for degrees, centre, concentration in bumps:
-        out = out + (degrees if concentration == 0 else degrees * _cyclic_bump(phase, centre, concentration))
-    return out
+def _fourier_basis(phase: np.ndarray) -> np.ndarray:
+    """(N, 2H + 1): 1, cos(k phase), sin(k phase) for k = 1..H at phases (N,) radians."""
+    k = np.multiply.outer(phase, np.arange(1, _HARMONICS + 1))
+    return np.concatenate([np.ones(np.shape(phase) + (1,)), np.cos(k), np.sin(k)], axis=-1)
+
+
+def periodic_curve(keys: Keyframes, phase: np.ndarray) -> np.ndarray:
+    """(T,) degrees at `phase` (T,) radians of a smooth periodic curve through `keys` (percent, degrees):
+    the Fourier series of `_HARMONICS` harmonics that fits them best under a penalty on its curvature,
+    so its second derivative (the angular acceleration) stays small."""
+    at = np.array([key[0] for key in keys]) * (2.0 * np.pi / 100.0)
+    value = np.array([key[1] for key in keys], dtype=np.float64)
+    basis = _fourier_basis(at)
+    k = np.arange(1, _HARMONICS + 1, dtype=np.float64)
+    penalty = np.diag(np.concatenate([[0.0], k**4, k**4]))
+    coefficients = np.linalg.solve(basis.T @ basis + _CURVATURE_PENALTY * penalty, basis.T @ value)
+    return _fourier_basis(phase) @ coefficients
 
 
 def gait(clock: Clock, style: GaitStyle) -> Kinematics:
-    """A straight walk or run along -Y: the left leg strikes the ground at phase 0, the right half a
-    stride later; arms swing against the legs; the pelvis rotates, drops and sways, the thorax twists
-    against it.  Eased in from and out to standing over `style.ramp_seconds`."""
-    gain = clock.envelope(style.ramp_seconds)
-    phase = clock.phase(style.stride_hz)
+    """A straight walk or run along -Y, starting and stopping with both feet on the ground (one heel
+    striking, the other foot about to push off): the stride's clock speeds up from a standstill over
+    `style.ramp_seconds` and slows to one at the end (`Clock.eased_time`), so the steps are the natural
+    ones throughout and planted feet never drag; the stride rate is rounded down to end on a heel strike.
+    The arms swing against the legs; the pelvis turns, drops on the swing side and shifts over the
+    stance foot; the thorax twists against it and the head keeps looking ahead."""
+    gain = clock.amplitude
+    elapsed = clock.eased_time(style.ramp_seconds)
+    strides = np.floor(2.0 * style.stride_hz * clock.speed * elapsed[-1]) / 2.0  # end on a heel strike
+    phase = 2.0 * np.pi * strides * elapsed / elapsed[-1]
     pose = _Pose(len(clock.t))
+    support = []
     for side, offset in ((1, 0.0), (-1, np.pi)):
         p = phase + offset
         pose.leg(side,
-                 hip=gain * (style.hip[0] + style.hip[1] * np.cos(p + 0.25)),
-                 knee=gain * _bumps(p, style.knee),
-                 dorsi=gain * _bumps(p, style.ankle),
-                 toes=gain * _bumps(p, style.toes),
-                 adduct=gain * style.hip_adduction * np.cos(p - 0.9))
-        counter = -np.cos(p + 0.25)  # the arm swings forward as this side's leg swings back
+                 hip=gain * periodic_curve(style.hip, p),
+                 knee=gain * periodic_curve(style.knee, p),
+                 dorsi=gain * periodic_curve(style.ankle, p),
+                 toes=gain * periodic_curve(style.toes, p),
+                 adduct=gain * (style.hip_adduction[0] + style.hip_adduction[1] * np.cos(p - 1.0)))
+        counter = -np.cos(p + 0.75)  # forward as this side's hip extends (its flexion peaks at 88 %)
         pose.arm(side,
                  lower=ARM_HANG_DEG + gain * (style.arm_lower - ARM_HANG_DEG),
                  flex=gain * style.arm_swing * counter,
                  forward=gain * style.arm_forward,
                  elbow=ELBOW_REST_DEG + gain * (style.elbow[0] - ELBOW_REST_DEG + style.elbow[1] * counter))
+        # On the ground from heel strike to toe-off, with smootherstep edges 2 % of a stride wide.
+        stride = np.mod(p / (2.0 * np.pi), 1.0)
+        edge, toe_off = 0.02, style.toe_off / 100.0
+        support.append(1.0 - smootherstep((stride - toe_off) / edge) * smootherstep((1.0 - stride) / edge))
     pose.root(tilt=gain * (style.pelvis_tilt + 1.5 * np.cos(2.0 * phase)),
-              lean=gain * style.pelvis_list * np.cos(phase - 0.9),
+              hike=gain * style.pelvis_list * np.cos(phase - 1.0),
               yaw=-gain * style.pelvis_yaw * np.cos(phase))
     pose.trunk(flex=gain * style.trunk_flex, twist=gain * style.trunk_counter * np.cos(phase),
                nod=-gain * (style.pelvis_tilt + style.trunk_flex),
                look=-gain * (style.trunk_counter - style.pelvis_yaw) * np.cos(phase))
-    return Kinematics(pose.poses())
+    return Kinematics(pose.poses(), support=np.stack(support, axis=1))
 
 
 def walk(clock: Clock) -> Kinematics:
@@ -326,13 +378,13 @@ def arm_swing(clock: Clock) -> Kinematics:
 
 
 def bend(clock: Clock) -> Kinematics:
-    """A forward bend from the hips with the arms hanging towards the shins (first half), then side
-    bends to the left and right with the arms overhead (second half)."""
+    """Every 4 s: a forward bend from the hips with the arms hanging towards the shins, then side bends
+    to the left and right with the arms overhead."""
     gain = clock.envelope(0.3)
-    half = clock.seconds / 2.0
-    forward = gain * _bump(clock.t, half / 2.0, half / 2.0)
-    overhead = gain * _bump(clock.t, 1.5 * half, half / 2.0)
-    lateral = overhead * np.sin(2.0 * np.pi * (clock.t - half) / half)  # left, then right
+    s = clock.cycle_time(4.0)
+    forward = gain * _bump(s, 1.0, 1.0)
+    overhead = gain * _bump(s, 3.0, 1.0)
+    lateral = overhead * np.sin(np.pi * (s - 2.0))  # left, then right
     pose = _Pose(len(clock.t))
     for side in (1, -1):
         pose.leg(side, hip=forward * 50.0, knee=forward * 8.0, dorsi=forward * 8.0)
@@ -347,11 +399,11 @@ def spin(clock: Clock) -> Kinematics:
     arms a little out, the head and thorax leading the turn."""
     x = clock.t / clock.seconds
     turning = clock.amplitude * 16.0 * x * x * (1.0 - x) * (1.0 - x)  # turn rate, 1 at its peak
-    phase = clock.phase(2.0)
+    phase = clock.phase(1.25)
     pose = _Pose(len(clock.t))
     for side, offset in ((1, 0.0), (-1, np.pi)):
-        step = turning * np.maximum(np.sin(phase + offset), 0.0) ** 2
-        pose.leg(side, hip=25.0 * step, knee=45.0 * step, dorsi=10.0 * step)
+        step = turning * np.maximum(np.sin(phase + offset), 0.0) ** 2  # each foot lifts in turn
+        pose.leg(side, hip=25.0 * step, knee=40.0 * step, dorsi=10.0 * step)
         pose.arm(side, lower=ARM_HANG_DEG - 20.0 * turning, elbow=ELBOW_REST_DEG + 15.0 * turning)
     pose.root(yaw=clock.amplitude * 360.0 * clock.speed * smootherstep(x))
     pose.trunk(twist=15.0 * turning, look=20.0 * turning)
@@ -375,7 +427,7 @@ def tpose(clock: Clock) -> Kinematics:
     breath = clock.envelope(0.5) * np.sin(clock.phase(0.25))
     pose = _Pose(len(clock.t))
     for side in (1, -1):
-        pose.arm(side, lower=2.0 * breath, elbow=1.0 + breath, shrug=breath)
+        pose.arm(side, lower=2.0 * breath, elbow=breath, shrug=breath)
     pose.trunk(flex=-1.5 * breath)
     return Kinematics(pose.poses())
 
@@ -410,9 +462,9 @@ def list_builtin_motions() -> list[str]:
     return sorted(BUILTIN_MOTIONS)
 
 
-def _contact_points(body: BodyModel) -> tuple[np.ndarray, np.ndarray]:
+def _contact_points(body: BodyModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The soles' extreme points (heel, toe tip, inner and outer edge of each foot): their segments'
-    joint indices (K,) and rest positions (K, 3), metres."""
+    joint indices (K,), rest positions (K, 3) metres, and feet (K,) 0 left, 1 right."""
     vertices, _ = body.rest()
     segment = np.argmax(body.weights, axis=1)
     joints, points = [], []
@@ -426,37 +478,47 @@ def _contact_points(body: BodyModel) -> tuple[np.ndarray, np.ndarray]:
                 k = index[pick(vertices[index, axis])]
                 joints.append(segment[k])
                 points.append(vertices[k])
-    return np.array(joints), np.array(points)
+    return np.array(joints), np.array(points), np.repeat([0, 1], len(joints) // 2)
+
+
+def _soft_min(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Soft minimum over the last axis (`CONTACT_SOFTNESS` metres) and the weights (sum 1) it gives
+    each value: about 1 for the lowest, falling by e per `CONTACT_SOFTNESS` above it."""
+    low = values.min(axis=-1, keepdims=True)
+    weights = np.exp(-(values - low) / CONTACT_SOFTNESS)
+    total = weights.sum(axis=-1, keepdims=True)
+    return (low - CONTACT_SOFTNESS * np.log(total))[..., 0], weights / total
 
 
 def grounded_trans(body: BodyModel, poses: np.ndarray, fps: float, lift: np.ndarray | float = 0.0,
-                   planted: bool = True) -> np.ndarray:
+                   planted: bool = True, support: np.ndarray | None = None) -> np.ndarray:
     """Root positions (T, 3) metres that keep `body`, posed by `poses` (T, 24, 3), on the ground.
 
-    Height: the lowest contact point of the soles (a soft minimum, `CONTACT_SOFTNESS`) at z = 0, so a
-    flat-footed stance stands exactly on the ground, plus `lift` (T,) metres.  Horizontal: starting
-    above the origin, the pelvis moves against the horizontal velocity of the contact points relative
-    to it, weighted towards the lowest, so the feet on the ground do not slide (`planted`); otherwise
-    it stays above the origin.  Frames are `1 / fps` seconds apart."""
+    Height: the soft minimum of the soles' contact points on the ground, as when standing flat-footed
+    at rest (so a flat stance stands exactly on z = 0), plus `lift` (T,) metres.  Horizontal: starting
+    above the origin, the pelvis moves against the horizontal velocity of the contact points relative to
+    it, weighted towards the lowest, so the feet on the ground do not slide (`planted`); otherwise it
+    stays above the origin; a foot whose `support` (T, 2) is 0 counts `SWING_CLEARANCE` higher there,
+    so a low swinging foot does not drag the body back.  Both are low-passed (Gaussian,
+    `ROOT_SMOOTHING_SECONDS`): a change of supporting foot would otherwise jolt the pelvis, which a
+    garment simulation feels as a force spike.  Frames are `1 / fps` seconds apart."""
     frames = len(poses)
     motion = Motion(poses=poses, trans=np.zeros((frames, 3)), fps=fps)
     _, rest_joints = body.rest()
     rotations, positions = body.joint_transforms(body_poses(body, motion), np.zeros((frames, 3)), rest_joints)
-    segments, points = _contact_points(body)
-    contacts = positions[:, segments] + np.einsum("tkab,kb->tka", rotations[:, segments], points - rest_joints[segments])
-    height = contacts[..., 2]
-    low = height.min(axis=1, keepdims=True)
-    weights = np.exp(-(height - low) / CONTACT_SOFTNESS)
-    soft_min = low[:, 0] - CONTACT_SOFTNESS * np.log(weights.sum(axis=1))
-    weights /= weights.sum(axis=1, keepdims=True)
-    rest = points[:, 2]  # standing flat-footed, as at rest: the soft minimum there is the target
-    rest_soft_min = rest.min() - CONTACT_SOFTNESS * np.log(np.exp(-(rest - rest.min()) / CONTACT_SOFTNESS).sum())
+    segments, points, feet = _contact_points(body)
+    offsets = points - rest_joints[segments]
+    contacts = positions[:, segments] + np.einsum("tkab,kb->tka", rotations[:, segments], offsets)
+    lowest, weights = _soft_min(contacts[..., 2])
+    if support is not None:
+        _, weights = _soft_min(contacts[..., 2] + SWING_CLEARANCE * (1.0 - support[:, feet]))
+    sigma = ROOT_SMOOTHING_SECONDS * fps
     trans = np.zeros((frames, 3))
-    trans[:, 2] = rest_soft_min - soft_min + lift
+    trans[:, 2] = gaussian_filter1d(_soft_min(points[:, 2])[0] - lowest + lift, sigma, mode="nearest")
     if planted and frames > 1:
-        velocity = np.gradient(contacts[..., :2], 1.0 / fps, axis=0)
-        trans[:, :2] = cumulative_trapezoid(-np.einsum("tk,tka->ta", weights, velocity), dx=1.0 / fps, axis=0,
-                                            initial=0.0)
+        velocity = -np.einsum("tk,tka->ta", weights, np.gradient(contacts[..., :2], 1.0 / fps, axis=0))
+        velocity = gaussian_filter1d(velocity, sigma, axis=0, mode="nearest")
+        trans[:, :2] = cumulative_trapezoid(velocity, dx=1.0 / fps, axis=0, initial=0.0)
     return trans
 
 
@@ -478,13 +540,13 @@ def builtin_motion(
     for label, value in (("seconds", seconds), ("fps", fps), ("speed", speed)):
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"built-in motion {name!r}: {label} must be positive, got {value}")
+    frames = int(round(seconds * fps)) + 1
+    if frames < 2:
+        raise ValueError(f"built-in motion {name!r}: {seconds} s at {fps} Hz is less than one frame interval")
     if not (np.isfinite(amplitude) and amplitude >= 0):
         raise ValueError(f"built-in motion {name!r}: amplitude must be >= 0, got {amplitude}")
-    if body is None:
-        from assets.body.default import default_body
-
-        body = default_body()
-    t = np.arange(int(round(seconds * fps)) + 1) / fps
+    body = default_body() if body is None else body
+    t = np.arange(frames) / fps
     made = entry.generate(Clock(t=t, seconds=t[-1], speed=float(speed), amplitude=float(amplitude)))
-    trans = grounded_trans(body, made.poses, fps, made.lift, made.planted)
+    trans = grounded_trans(body, made.poses, fps, made.lift, made.planted, made.support)
     return Motion(poses=made.poses, trans=trans, fps=float(fps), name=name, source="builtin")

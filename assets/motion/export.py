@@ -66,13 +66,15 @@ def render_preview(
 
     frames = preview_frames(6, len(posed.vertices)) if frames is None else np.asarray(frames)
     view = rotvec_to_matrix(np.array([0.0, 0.0, np.deg2rad(PREVIEW_VIEW_DEG)]))
-    all_points = posed.vertices[frames].reshape(-1, 3) @ view.T
-    lo, hi = all_points.min(axis=0), all_points.max(axis=0)
+    # Every panel is centred on its own root joint (a walk travels metres) at one common scale.
+    centre = posed.joints[frames, 0] * np.array([1.0, 1.0, 0.0])
+    points = (posed.vertices[frames] - centre[:, None]) @ view.T
+    lo, hi = points.reshape(-1, 3).min(axis=0), points.reshape(-1, 3).max(axis=0)
     fig, axes = plt.subplots(1, len(frames), figsize=(2.2 * len(frames), 4.2), squeeze=False)
     light = np.array([-0.4, -1.0, 0.6])
     light /= np.linalg.norm(light)
-    for ax, t in zip(axes[0], frames):
-        tri = (posed.vertices[t] @ view.T)[posed.faces]  # (F, 3, 3): x right, y depth (away), z up
+    for ax, t, frame_points in zip(axes[0], frames, points):
+        tri = frame_points[posed.faces]  # (F, 3, 3): x right, y depth (away), z up
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         visible = normal[:, 1] < 0.0  # facing the camera, which looks along +y
