@@ -75,7 +75,7 @@ def main() -> None:
     build = run_fresh(BUILD)
     print(f"machine: {platform.machine()}, python {platform.python_version()}, {os.cpu_count()} cores; "
           f"{time.strftime('%Y-%m-%d')}")
-    print(f"| task | method | frames | vertices | time s | output MiB | peak RSS GiB |")
+    print("| task | method | frames | vertices | time s | output MiB | peak RSS GiB |")
     print("|---|---|---:|---:|---:|---:|---:|")
     print(f"| pose | default body, vectorised LBS (24 joints, float32) | {args.frames} | {ours['vertices']} | "
           f"{ours['pose_s']:.2f} | {ours['output_mib']:.0f} | {ours['peak_rss_gib']:.2f} |")
