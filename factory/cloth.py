@@ -1,0 +1,274 @@
+"""Cloth dynamics by projective dynamics (Bouaziz et al. 2014), with the reference's energies.
+
+Model (`ClothModel`, static) and state (`ClothState`: positions, velocities) are separate; a step is
+`ProjectiveDynamics.step(state, collider, pin_targets) -> ClothState`.  Implicit Euler: each step
+minimises over the new positions x
+
+    E(x) = 1/(2 h^2) (x - y)^T M (x - y)                inertia; y = x_n + h v_n + h^2 g
+         + membrane_weight / 2 * sum_t A_t |F_t(x) - R_t|^2    As-Rigid-As-Possible membrane
+         + bending_weight / 2 * sum_e 3 / (A_e0 + A_e1) |K_e x|^2    quadratic bending (Bergou 2006)
+         + contact_weight / 2 * sum_i a_i max(0, r - d_i(x))^2       penalty contact with a collider
+         + pin_weight / 2 * sum_p m_p |x_p - target_p|^2              pinned vertices (tests, hangers)
+
+(air drag scales the velocity in y by 1 / (1 + air_damping h) before the step)
+with h the timestep (s), M the lumped masses (kg), A_t the rest area of triangle t (m^2), F_t its
+3 x 2 deformation gradient from the flat rest shape (the sewing pattern), R_t the nearest 3 x 2 matrix
+with orthonormal columns, K_e the cotangent stencil of the hinge at edge e (4 vertices) in the flat
+rest shape, a_i the rest area around vertex i, d_i its signed distance to the collider surface and r
+the contact radius.  Units: membrane_weight N/m (energy per area per squared strain), bending_weight
+N m (J), contact_weight N/m^3 (energy per area per squared metre of penetration), density g/m^2.
+
+Local step: R_t from the SVD of F_t; contact targets on the surface offset by r.  Global step: one
+sparse symmetric positive definite system per coordinate, all three sharing the matrix; the matrix
+changes only when the set of vertices in contact changes (it is then factorised again).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.spatial import cKDTree
+
+_REST_EDGES = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])  # (x0, x1, x2) -> (x1 - x0, x2 - x0)
+
+
+@dataclass(frozen=True)
+class ClothParams:
+    """The reference's simulation numbers (see the module docstring for how each enters the energy)."""
+
+    timestep: float = 1.0 / 120.0
+    membrane_weight: float = 1.0e5
+    bending_weight: float = 1.0e-2
+    density: float = 1.0e2  # g/m^2
+    contact_weight: float = 1.0e8
+    contact_radius: float = 1.0e-3
+    pin_weight: float = 1.0e8
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    iterations: int = 10
+    #: Air drag (1/s): velocities lose this fraction per second, implicitly (v / (1 + c h)).  The
+    #: reference names no damping; without any, a hanging cloth swings for tens of seconds, as implicit
+    #: Euler at 1/120 s damps slow modes very little.
+    air_damping: float = 1.0
+    #: Vertices this far (m) outside the contact radius also enter the contact set of a step, so a
+    #: vertex that reaches the body during the step is caught.
+    contact_margin: float = 5.0e-3
+
+
+@dataclass(frozen=True)
+class ClothState:
+    positions: np.ndarray  # (V, 3) metres
+    velocities: np.ndarray  # (V, 3) metres per second
+
+
+def _triangle_frames(rest: np.ndarray) -> np.ndarray:
+    """Rest triangles (F, 3, 2) or (F, 3, 3) -> their flat 2D shapes (F, 3, 2) in a per-triangle frame."""
+    if rest.shape[-1] == 2:
+        return rest
+    e1 = rest[:, 1] - rest[:, 0]
+    e2 = rest[:, 2] - rest[:, 0]
+    u = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+    n = np.cross(e1, e2)
+    v = np.cross(n / np.linalg.norm(n, axis=1, keepdims=True), u)
+    local = rest - rest[:, :1]
+    return np.stack([np.einsum("fjk,fk->fj", local, u), np.einsum("fjk,fk->fj", local, v)], axis=2)
+
+
+def _hinges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior edges: (E, 2) the two faces sharing each edge, and (E, 4) local corner indices
+    (edge start and end in the first face, the opposite corner in the first face, in the second)."""
+    corner_a = np.repeat(np.arange(3)[None], len(faces), 0).ravel()
+    face = np.repeat(np.arange(len(faces)), 3)
+    a = faces[face, corner_a]
+    b = faces[face, (corner_a + 1) % 3]
+    key = np.minimum(a, b).astype(np.int64) * (faces.max() + 1) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    same = key[order][1:] == key[order][:-1]
+    first, second = order[:-1][same], order[1:][same]
+    f0, f1 = face[first], face[second]
+    c0 = corner_a[first]
+    # corner in f1 opposite the shared edge: the one that is neither endpoint
+    v0, v1 = a[first], b[first]
+    opposite1 = np.argmax((faces[f1] != v0[:, None]) & (faces[f1] != v1[:, None]), axis=1)
+    return np.stack([f0, f1], 1), np.stack([c0, (c0 + 1) % 3, (c0 + 2) % 3, opposite1], 1)
+
+
+def _cot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cotangent of the angle between 2D vectors a and b (..., 2)."""
+    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return np.sum(a * b, axis=-1) / np.abs(cross)
+
+
+@dataclass(frozen=True, eq=False)
+class ClothModel:
+    """Static cloth data: faces (F, 3), masses (V,), vertex areas (V,), triangle rest areas (F,),
+    the membrane operator G (2F x V) with F_t columns = G X, and the bending matrix Q (V x V)."""
+
+    faces: np.ndarray
+    masses: np.ndarray
+    vertex_areas: np.ndarray
+    areas: np.ndarray
+    gradient: sp.csr_matrix
+    bending: sp.csr_matrix
+    params: ClothParams
+
+    @classmethod
+    def build(cls, faces: np.ndarray, rest: np.ndarray, params: ClothParams = ClothParams()) -> "ClothModel":
+        """`rest`: per-face rest corners (F, 3, 2) in pattern metres, or rest positions (V, 3)."""
+        faces = np.asarray(faces, dtype=np.int64)
+        count = int(faces.max()) + 1
+        rest = np.asarray(rest, dtype=np.float64)
+        corners = _triangle_frames(rest[faces] if rest.ndim == 2 else rest)  # (F, 3, 2)
+        edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=2)  # (F, 2, 2)
+        det = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
+        if np.any(np.abs(det) < 1e-14):
+            raise ValueError(f"cloth: {int((np.abs(det) < 1e-14).sum())} degenerate rest triangles")
+        areas = 0.5 * np.abs(det)
+        stencil = _REST_EDGES @ np.linalg.inv(edges)  # (F, 3, 2): F_t = X_t^T stencil_t
+        rows = (2 * np.arange(len(faces))[:, None, None] + np.arange(2)[None, None, :]).repeat(3, 1)
+        cols = np.broadcast_to(faces[:, :, None], rows.shape)
+        gradient = sp.csr_matrix((stencil.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * len(faces), count))
+        vertex_areas = np.bincount(faces.ravel(), np.repeat(areas / 3.0, 3), minlength=count)
+        masses = vertex_areas * params.density * 1e-3
+        bending = _bending_matrix(faces, corners, areas, count)
+        return cls(faces, masses, vertex_areas, areas, gradient, bending, params)
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.masses)
+
+    def membrane_matrix(self) -> sp.csr_matrix:
+        weights = sp.diags(np.repeat(self.areas, 2))
+        return (self.gradient.T @ weights @ self.gradient).tocsr()
+
+    def deformation(self, positions: np.ndarray) -> np.ndarray:
+        """Deformation gradients (F, 3, 2) of positions (V, 3)."""
+        return (self.gradient @ positions).reshape(-1, 2, 3).transpose(0, 2, 1)
+
+    def edge_strain(self, positions: np.ndarray) -> np.ndarray:
+        """Largest principal stretch minus 1 per triangle (F,): 0.05 is 5 % stretched."""
+        singular = np.linalg.svd(self.deformation(positions), compute_uv=False)
+        return np.maximum(singular[:, 0] - 1.0, 1.0 - singular[:, 1])
+
+
+def _bending_matrix(faces: np.ndarray, corners: np.ndarray, areas: np.ndarray, count: int) -> sp.csr_matrix:
+    """Q = sum_e 3 / (A_e0 + A_e1) K_e^T K_e over interior edges (Bergou et al. 2006), flat rest."""
+    pair, local = _hinges(faces)
+    f0, f1 = pair[:, 0], pair[:, 1]
+    p = corners[f0]  # (E, 3, 2)
+    e = np.arange(len(f0))
+    x0, x1, x2 = p[e, local[:, 0]], p[e, local[:, 1]], p[e, local[:, 2]]
+    # The second triangle in the first one's frame is not needed: cotangents are intrinsic.
+    q = corners[f1]
+    v0 = faces[f0, local[:, 0]]
+    v1 = faces[f0, local[:, 1]]
+    i0 = np.argmax(faces[f1] == v0[:, None], axis=1)
+    i1 = np.argmax(faces[f1] == v1[:, None], axis=1)
+    y0, y1, y3 = q[e, i0], q[e, i1], q[e, local[:, 3]]
+    cot_a0 = _cot(x1 - x0, x2 - x0)  # angle at x0 in the first triangle
+    cot_a1 = _cot(x0 - x1, x2 - x1)
+    cot_b0 = _cot(y1 - y0, y3 - y0)
+    cot_b1 = _cot(y0 - y1, y3 - y1)
+    k = np.stack([cot_a1 + cot_b1, cot_a0 + cot_b0, -(cot_a0 + cot_a1), -(cot_b0 + cot_b1)], axis=1)
+    verts = np.stack([v0, v1, faces[f0, local[:, 2]], faces[f1, local[:, 3]]], axis=1)
+    scale = 3.0 / (areas[f0] + areas[f1])
+    values = scale[:, None, None] * k[:, :, None] * k[:, None, :]
+    rows = np.broadcast_to(verts[:, :, None], values.shape)
+    cols = np.broadcast_to(verts[:, None, :], values.shape)
+    return sp.csr_matrix((values.ravel(), (rows.ravel(), cols.ravel())), shape=(count, count))
+
+
+class MeshCollider:
+    """A closed triangle mesh the cloth stays outside of, for one frame: signed distance to the tangent
+    plane of the nearest vertex (vertex normals), accurate near the surface where contact happens."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        import trimesh
+
+        mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), faces, process=False)
+        self.vertices = mesh.vertices.view(np.ndarray)
+        self.normals = mesh.vertex_normals.view(np.ndarray)
+        self.tree = cKDTree(self.vertices)
+
+    def signed_distance(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (N,) (negative inside) and outward normals (N, 3) at points (N, 3)."""
+        _, nearest = self.tree.query(points)
+        normals = self.normals[nearest]
+        return np.einsum("nk,nk->n", points - self.vertices[nearest], normals), normals
+
+
+class ProjectiveDynamics:
+    """Local-global solver for `ClothModel` (see the module docstring)."""
+
+    def __init__(self, model: ClothModel, pinned: np.ndarray | None = None):
+        self.model = model
+        p = model.params
+        self.pinned = np.zeros(model.num_vertices, bool) if pinned is None else np.asarray(pinned, bool)
+        self.base = (
+            sp.diags(model.masses / p.timestep**2)
+            + p.membrane_weight * model.membrane_matrix()
+            + p.bending_weight * model.bending
+            + sp.diags(p.pin_weight * model.masses * self.pinned)
+        ).tocsc()
+        self._contact_key: bytes | None = None
+        self._factor = None
+
+    def _solver(self, contact: np.ndarray):
+        key = np.packbits(contact).tobytes()
+        if key != self._contact_key:
+            p = self.model.params
+            matrix = self.base + sp.diags(p.contact_weight * self.model.vertex_areas * contact)
+            self._factor = spla.splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A")
+            self._contact_key = key
+        return self._factor
+
+    def energy(self, x: np.ndarray, inertia_target: np.ndarray, pin_targets: np.ndarray | None = None,
+               collider: MeshCollider | None = None) -> float:
+        """E(x) of the module docstring (joules) for the step whose inertia target is `inertia_target`."""
+        m, p = self.model, self.model.params
+        value = 0.5 / p.timestep**2 * np.sum(m.masses[:, None] * (x - inertia_target) ** 2)
+        u, _, vt = np.linalg.svd(m.deformation(x), full_matrices=False)
+        value += 0.5 * p.membrane_weight * np.sum(m.areas[:, None, None] * (m.deformation(x) - u @ vt) ** 2)
+        value += 0.5 * p.bending_weight * np.sum(x * (m.bending @ x))
+        if pin_targets is not None:
+            value += 0.5 * p.pin_weight * np.sum(m.masses[self.pinned, None] * (x[self.pinned] - pin_targets) ** 2)
+        if collider is not None:
+            d, _ = collider.signed_distance(x)
+            value += 0.5 * p.contact_weight * np.sum(m.vertex_areas * np.maximum(0.0, p.contact_radius - d) ** 2)
+        return float(value)
+
+    def step(self, state: ClothState, collider: MeshCollider | None = None,
+             pin_targets: np.ndarray | None = None, energies: list[float] | None = None) -> ClothState:
+        """Advance one timestep.  `pin_targets` (P, 3): where the pinned vertices are held this step
+        (required when any are pinned); `energies`, when given, receives E(x) after every global
+        solve (for tests)."""
+        m, p = self.model, self.model.params
+        h = p.timestep
+        x0 = state.positions
+        y = x0 + h * state.velocities / (1.0 + p.air_damping * h) + h * h * np.asarray(p.gravity)
+        if self.pinned.any() and (pin_targets is None or np.shape(pin_targets) != (int(self.pinned.sum()), 3)):
+            raise ValueError(f"cloth step: pin_targets must be ({int(self.pinned.sum())}, 3) for the pinned vertices")
+        contact = np.zeros(m.num_vertices, bool)
+        if collider is not None:
+            d_start, _ = collider.signed_distance(y)
+            contact = d_start < p.contact_radius + p.contact_margin
+        factor = self._solver(contact)
+        inertia_rhs = (m.masses / h**2)[:, None] * y
+        pin_rhs = np.zeros_like(y)
+        pin_rhs[self.pinned] = p.pin_weight * m.masses[self.pinned, None] * pin_targets
+        x = y.copy()
+        area_weights = np.repeat(m.areas, 2)[:, None]
+        for _ in range(p.iterations):
+            u, _, vt = np.linalg.svd(m.deformation(x), full_matrices=False)
+            rotations = (u @ vt).transpose(0, 2, 1).reshape(-1, 3)  # rows 2t + k = column k of R_t
+            rhs = inertia_rhs + pin_rhs + p.membrane_weight * (m.gradient.T @ (area_weights * rotations))
+            if contact.any():
+                d, normals = collider.signed_distance(x[contact])
+                target = x[contact] + np.maximum(0.0, p.contact_radius - d)[:, None] * normals
+                rhs[contact] += (p.contact_weight * m.vertex_areas[contact])[:, None] * target
+            x = factor.solve(rhs)
+            if energies is not None:
+                energies.append(self.energy(x, y, pin_targets if self.pinned.any() else None, collider))
+        return ClothState(positions=x, velocities=(x - x0) / h)
