@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from assets.body import SMPL_JOINT_NAMES, SMPL_PARENTS, BodyModel, build_default_body, default_body
+from assets.body import SMPL_JOINT_NAMES, SMPL_PARENTS, BodyModel, build_default_body, default_body, load_body
 from assets.body.default import DEFAULT_BODY_PATH
 
 J = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
@@ -29,6 +29,7 @@ def test_save_load_round_trip(tmp_path):
     body = default_body()
     body.save(tmp_path / "b.npz")
     back = BodyModel.load(tmp_path / "b.npz")
+    assert load_body(str(tmp_path / "b.npz")).num_vertices == body.num_vertices
     np.testing.assert_array_equal(back.rest((0.2, 0.7, 0.4))[0], body.rest((0.2, 0.7, 0.4))[0])
     np.savez(tmp_path / "broken.npz", faces=np.zeros((1, 3)))
     with pytest.raises(ValueError, match=r"broken\.npz: missing array"):
