@@ -157,22 +157,20 @@ def build_default_body() -> BodyModel:
     weights /= weights.sum(axis=1, keepdims=True)
     joints = np.einsum("jb,cbk->cjk", joint_regressor(labels), bone_heads)
 
-    # An A-posed model, one "corner" per shape; pose each into the T-pose with shared rotations.
-    a_pose = _corner_model(faces, weights, vertices, joints)
-    poses = t_pose_rotations(a_pose.rest(DEFAULT_SHAPE)[1])
-    posed_v, posed_j = [], []
-    for c in range(len(vertices)):
-        single = _corner_model(faces, weights, vertices[c : c + 1], joints[c : c + 1], anchors=None)
-        posed = single.pose(poses[None], betas=np.zeros(0))
-        v = posed.vertices[0].astype(np.float64)
-        shift = np.array([posed.joints[0, 0, 0], posed.joints[0, 0, 1], v[:, 2].min()])
-        posed_v.append(v - shift)
-        posed_j.append(posed.joints[0] - shift)
-    return _corner_model(faces, weights, np.stack(posed_v), np.stack(posed_j), name="default")
+    # Every corner shape turned into the T-pose by the same joint rotations (found on the mean shape),
+    # through this project's skinning; each corner then stands on z = 0 with its pelvis on the Z axis.
+    a_pose = _corner_model(faces, weights, vertices, joints, name="default-a-pose")
+    poses = np.repeat(t_pose_rotations(a_pose.rest(DEFAULT_SHAPE)[1])[None], len(vertices), axis=0)
+    world_r, world_t = a_pose.joint_transforms(poses, None, joints)
+    offsets = world_t - np.einsum("cjab,cjb->cja", world_r, joints)
+    posed = np.einsum("vj,cjab,cvb->cva", weights, world_r, vertices) + np.einsum("vj,cja->cva", weights, offsets)
+    shift = np.concatenate([world_t[:, 0, :2], posed[:, :, 2].min(axis=1)[:, None]], axis=1)[:, None]
+    return _corner_model(faces, weights, posed - shift, world_t - shift, name="default")
 
 
-def _corner_model(faces, weights, vertices, joints, anchors=SHAPE_ANCHORS, name="default-a-pose") -> BodyModel:
-    """A BodyModel over corner shapes (C, V, 3) and joints (C, 24, 3): the mean plus corner offsets."""
+def _corner_model(faces, weights, vertices, joints, name) -> BodyModel:
+    """The default body's model over corner shapes (C, V, 3) and joints (C, 24, 3): their mean plus
+    offsets, on the `SHAPE_ANCHORS` grid."""
     mean_v, mean_j = vertices.mean(axis=0), joints.mean(axis=0)
     return BodyModel(
         name=name,
@@ -186,9 +184,9 @@ def _corner_model(faces, weights, vertices, joints, anchors=SHAPE_ANCHORS, name=
         joint_template=mean_j,
         joint_shape_dirs=joints - mean_j,
         pose_dirs=None,
-        shape_names=SHAPE_NAMES if anchors is not None else ("corner",),
-        default_betas=np.array(DEFAULT_SHAPE if anchors is not None else (1.0,)),
-        shape_anchors=None if anchors is None else tuple(np.array(a) for a in anchors),
+        shape_names=SHAPE_NAMES,
+        default_betas=np.array(DEFAULT_SHAPE),
+        shape_anchors=tuple(np.array(a) for a in SHAPE_ANCHORS),
     )
 
 

@@ -174,17 +174,19 @@ class BodyModel:
         """World rotations (T, J, 3, 3) and joint positions (T, J, 3) of every joint.
 
         ``poses (T, J, 3)`` axis-angle; ``trans (T, 3)`` root joint positions (None: where it rests);
-        ``joints (J, 3)`` rest joint positions."""
+        ``joints`` rest joint positions, (J, 3) or one skeleton per frame (T, J, 3)."""
         rotations = rotvec_to_matrix(poses)
+        joints = np.broadcast_to(joints, poses.shape[:2] + (3,))
         world_r = np.empty_like(rotations)
         world_t = np.empty(poses.shape[:2] + (3,))
         for j, parent in enumerate(self.parents):  # over joints (tens), vectorised over frames
             if parent < 0:
                 world_r[:, j] = rotations[:, j]
-                world_t[:, j] = joints[j] if trans is None else trans
+                world_t[:, j] = joints[:, j] if trans is None else trans
             else:
                 world_r[:, j] = world_r[:, parent] @ rotations[:, j]
-                world_t[:, j] = world_t[:, parent] + world_r[:, parent] @ (joints[j] - joints[parent])
+                bone = joints[:, j] - joints[:, parent]
+                world_t[:, j] = world_t[:, parent] + np.einsum("tab,tb->ta", world_r[:, parent], bone)
         return world_r, world_t
 
     def pose(self, poses: np.ndarray, trans: np.ndarray | None = None, betas: np.ndarray | None = None) -> PosedBody:

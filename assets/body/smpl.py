@@ -48,22 +48,18 @@ class _Captured:
     """Plain stand-in for the pickled objects we accept but do not import (chumpy arrays, scipy
     sparse matrices of any scipy version): it only records its pickled state."""
 
-    kind = "object"
-
-    def __init__(self, *args):
-        self.args = args
-        self.state = {}
+    state: dict = {}
 
     def __setstate__(self, state):
         self.state = state if isinstance(state, dict) else {"state": state}
 
 
 class _Chumpy(_Captured):
-    kind = "chumpy"
+    pass
 
 
 class _Sparse(_Captured):
-    kind = "sparse"
+    format = "csc"
 
 
 def _numpy_attr(module: str, name: str):
