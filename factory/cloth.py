@@ -160,7 +160,7 @@ def _bending_matrix(faces: np.ndarray, corners: np.ndarray, areas: np.ndarray, c
     p = corners[f0]  # (E, 3, 2)
     e = np.arange(len(f0))
     x0, x1, x2 = p[e, local[:, 0]], p[e, local[:, 1]], p[e, local[:, 2]]
-    # The second triangle in the first one's frame is not needed: cotangents are intrinsic.
+    # Each triangle's angles come from its own rest frame: cotangents are intrinsic.
     q = corners[f1]
     v0 = faces[f0, local[:, 0]]
     v1 = faces[f0, local[:, 1]]
@@ -229,8 +229,9 @@ class ProjectiveDynamics:
         """E(x) of the module docstring (joules) for the step whose inertia target is `inertia_target`."""
         m, p = self.model, self.model.params
         value = 0.5 / p.timestep**2 * np.sum(m.masses[:, None] * (x - inertia_target) ** 2)
-        u, _, vt = np.linalg.svd(m.deformation(x), full_matrices=False)
-        value += 0.5 * p.membrane_weight * np.sum(m.areas[:, None, None] * (m.deformation(x) - u @ vt) ** 2)
+        deformation = m.deformation(x)
+        u, _, vt = np.linalg.svd(deformation, full_matrices=False)
+        value += 0.5 * p.membrane_weight * np.sum(m.areas[:, None, None] * (deformation - u @ vt) ** 2)
         value += 0.5 * p.bending_weight * np.sum(x * (m.bending @ x))
         if pin_targets is not None:
             value += 0.5 * p.pin_weight * np.sum(m.masses[self.pinned, None] * (x[self.pinned] - pin_targets) ** 2)
