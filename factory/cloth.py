@@ -122,6 +122,7 @@ class ClothModel:
     gradient: sp.csr_matrix
     bending: sp.csr_matrix
     params: ClothParams
+    rest_edge_lengths: np.ndarray  # (F, 3) length of edge (k, k+1) of each triangle at rest
 
     @classmethod
     def build(cls, faces: np.ndarray, rest: np.ndarray, params: ClothParams = ClothParams()) -> "ClothModel":
@@ -142,7 +143,8 @@ class ClothModel:
         vertex_areas = np.bincount(faces.ravel(), np.repeat(areas / 3.0, 3), minlength=count)
         masses = vertex_areas * params.density * 1e-3
         bending = _bending_matrix(faces, corners, areas, count)
-        return cls(faces, masses, vertex_areas, areas, gradient, bending, params)
+        lengths = np.linalg.norm(corners - np.roll(corners, -1, axis=1), axis=2)
+        return cls(faces, masses, vertex_areas, areas, gradient, bending, params, lengths)
 
     @property
     def num_vertices(self) -> int:
@@ -155,6 +157,11 @@ class ClothModel:
     def deformation(self, positions: np.ndarray) -> np.ndarray:
         """Deformation gradients (F, 3, 2) of positions (V, 3)."""
         return (self.gradient @ positions).reshape(-1, 2, 3).transpose(0, 2, 1)
+
+    def edge_length_strain(self, positions: np.ndarray) -> np.ndarray:
+        """(F, 3) length / rest length - 1 of every triangle edge: the health check's edge strain."""
+        tri = positions[self.faces]
+        return np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2) / self.rest_edge_lengths - 1.0
 
     def edge_strain(self, positions: np.ndarray) -> np.ndarray:
         """Largest principal stretch minus 1 per triangle (F,): 0.05 is 5 % stretched."""

@@ -94,8 +94,9 @@ class BodyMeasurements:
     hip_girth: float = 0.98
     #: across the back from shoulder point (acromion) to shoulder point
     shoulder_width: float = 0.42
-    #: shoulder point to wrist bone along the straight arm
-    arm_length: float = 0.60
+    #: shoulder point to wrist bone along the straight arm (0.47 as measured on the default body: with
+    #: a longer arm the sleeves cover its hands and catch on the thumbs when dressed)
+    arm_length: float = 0.47
     #: around the base of the neck
     neck_girth: float = 0.38
     #: floor to the natural waist

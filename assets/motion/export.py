@@ -57,6 +57,7 @@ def preview_frames(count: int, frames: int) -> np.ndarray:
 def render_preview(
     path: str | os.PathLike, posed: PosedBody, frames: np.ndarray | None = None, title: str = "", dpi: int = 100,
     extra: tuple[tuple[np.ndarray, np.ndarray, tuple[float, float, float]], ...] = (),
+    labels: list[str] | None = None,
 ) -> None:
     """Draw the given frames (default: 6 spread over the sequence) side by side into a PNG.  `extra`
     meshes (vertices (T, V, 3) on the same frames, faces, RGB colour), e.g. a garment, are drawn with
@@ -92,7 +93,7 @@ def render_preview(
         ax.set_xlim(lo[0] - 0.05, hi[0] + 0.05)
         ax.set_ylim(lo[2] - 0.05, hi[2] + 0.05)
         ax.set_aspect("equal")
-        ax.set_title(f"frame {t}", fontsize=8)
+        ax.set_title(labels[i] if labels else f"frame {t}", fontsize=8)
         ax.axis("off")
     if title:
         fig.suptitle(title, fontsize=10)

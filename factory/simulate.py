@@ -1,0 +1,331 @@
+"""Simulate a garment on a body through a motion: the factory's simulator.
+
+    python -m factory.simulate --garment shirt --motion walk --body default --frames 240 --out out/sim
+
+The garment is dressed on the body (`factory.dressing`, cached as ``dressed.npz`` in the output
+folder), the motion is resampled to 1 / timestep (120 Hz) and led in by a transition from the
+dressing pose, and the cloth (`factory.cloth`) follows the body frame by frame.  Frame 0 is the
+dressed garment at the transition's start.
+
+Output folder:
+  sequence.npz     positions (T, V, 3) float32, faces (F, 3) int32 (the sewn mesh of the template
+                   level), body_poses (T, 24, 3), body_trans (T, 3), body_betas, fps, the last
+                   frame's velocities (so a longer rerun continues it), and `meta`
+                   (JSON: garment, level, motion, body, shape, cloth and dressing parameters, seed,
+                   transition frames, timing and health per run)
+  checkpoint.npz   while running: the frames so far and the last velocities, written atomically every
+                   `checkpoint_every` frames; a rerun with the same settings resumes from it
+  dressed.npz      the dressed garment (reused by reruns with the same garment, body and dressing)
+  preview.png      a few frames of body and garment
+
+Health: after every frame, no NaN, the deepest vertex inside the body under `max_penetration` and the
+largest edge strain under `max_strain`; a failing frame stops the run with `SimulationError` naming
+it, and the frames before it stay in ``checkpoint.npz``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import logging
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from assets.body import load_body
+from assets.body.model import BodyModel
+from assets.cli import run_cli
+from assets.fileio import load_npz, save_npz
+from assets.garments import Template
+from assets.motion.motion import SIMULATION_FPS, Motion, body_poses, motion_betas, resample, with_transition
+from assets.motion.sources import load_motion
+from factory.cloth import ClothModel, ClothParams, ClothState, MeshCollider, ProjectiveDynamics
+from factory.dressing import DressedGarment, DressingError, DressingParams, dress
+
+log = logging.getLogger(__name__)
+
+
+class SimulationError(RuntimeError):
+    """A frame failed its health check (or the inputs cannot be simulated)."""
+
+
+@dataclass(frozen=True)
+class HealthLimits:
+    #: deepest a vertex may be inside the body (m)
+    max_penetration: float = 0.01
+    #: largest edge strain (length / rest length - 1)
+    max_strain: float = 1.0
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    garment: str
+    motion: str
+    body: str = "default"
+    frames: int = 240
+    betas: tuple[float, ...] | None = None
+    seed: int = 0
+    transition_seconds: float = 1.0
+    motion_speed: float = 1.0
+    cloth: ClothParams = field(default_factory=ClothParams)
+    dressing: DressingParams = field(default_factory=DressingParams)
+    health: HealthLimits = field(default_factory=HealthLimits)
+    checkpoint_every: int = 24
+
+    def key(self) -> str:
+        """What makes two runs the same simulation (resume only continues an identical one)."""
+        data = asdict(self)
+        data.pop("frames")
+        data.pop("checkpoint_every")
+        return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+@dataclass
+class FrameHealth:
+    penetration: float
+    strain: float
+
+
+def load_template(garment: str) -> Template:
+    """A default garment name, a pattern JSON (ours or GarmentCode) or a saved template `.npz`."""
+    if garment.endswith(".npz"):
+        return Template.load(garment)
+    from assets.garments.__main__ import load_pattern
+
+    return Template.build(load_pattern(garment))
+
+
+def load_simulation_motion(config: SimulationConfig, body: BodyModel) -> Motion:
+    """The motion at 1 / timestep (120 Hz), long enough for `config.frames` after the transition."""
+    fps = 1.0 / config.cloth.timestep
+    needed = config.frames / fps - config.transition_seconds + 0.5
+    # built-in motions in whole 10 s blocks, so runs of different lengths (a resumed, longer run)
+    # share their first frames exactly
+    seconds = 10.0 * max(1, int(np.ceil(needed / 10.0)))
+    motion = load_motion(config.motion, body=body, seconds=seconds, speed=config.motion_speed, fps=fps)
+    return motion if abs(motion.fps - fps) < 1e-9 else resample(motion, fps)
+
+
+def with_dressing_transition(config: SimulationConfig, motion: Motion, dressed: DressedGarment) -> Motion:
+    """`motion` led in from the dressing pose, `config.frames` long.  The body starts in the dressing
+    pose at the motion's first (x, y) and the dressing height."""
+    fps = 1.0 / config.cloth.timestep
+    transition = config.transition_seconds
+    start = np.array([motion.trans[0, 0], motion.trans[0, 1], dressed.body_trans[2]])
+    motion = with_transition(motion, dressed.dressing_pose, transition, start_trans=start)
+    if motion.num_frames < config.frames:
+        raise SimulationError(f"motion '{config.motion}' gives {motion.num_frames} frames at {fps:g} Hz with the "
+                              f"transition; {config.frames} were asked for")
+    return motion.frames(0, config.frames)
+
+
+def _dressed(config: SimulationConfig, template: Template, body: BodyModel, betas, out: Path,
+             progress: bool) -> DressedGarment:
+    path = out / "dressed.npz"
+    key = hashlib.sha256(json.dumps([config.garment, config.body, list(np.asarray(betas, float)),
+                                     asdict(config.dressing)], default=str).encode()).hexdigest()[:16]
+    if path.exists():
+        cached = DressedGarment.load(path)
+        if cached.report.get("key") == key:
+            log.info("reusing %s", path)
+            return cached
+    garment = dress(template, body, betas, config.dressing, progress=progress)
+    garment = dataclasses.replace(garment, report={**garment.report, "key": key})
+    garment.save(path)
+    return garment
+
+
+def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -> Path:
+    """Run (or resume) the simulation into folder `out`; returns the path of ``sequence.npz``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if config.frames < 1:
+        raise ValueError(f"frames must be >= 1, got {config.frames}")
+    body = load_body(config.body)
+    template = load_template(config.garment)
+    motion = load_simulation_motion(config, body)
+    if config.betas is not None:
+        betas = np.asarray(config.betas, np.float64)
+    else:
+        own = motion_betas(body, motion)
+        betas = body.default_betas if own is None else own
+    sequence_path, checkpoint_path = out / "sequence.npz", out / "checkpoint.npz"
+    key = config.key()
+    if sequence_path.exists():
+        done = load_npz(sequence_path, required=("positions", "meta"))
+        if json.loads(str(done["meta"])).get("key") == key and len(done["positions"]) >= config.frames:
+            log.info("%s already holds %d frames of this simulation", sequence_path, len(done["positions"]))
+            return sequence_path
+    try:
+        dressed = _dressed(config, template, body, betas, out, progress)
+    except DressingError as exc:
+        raise SimulationError(str(exc)) from exc
+    motion = with_dressing_transition(config, motion, dressed)
+    shape = betas
+    posed = body.pose(body_poses(body, motion), motion.trans, shape)
+    offset = motion.trans[0] - dressed.body_trans
+
+    model = ClothModel.build(dressed.faces, dressed.rest_corners, config.cloth)
+    solver = ProjectiveDynamics(model)
+    positions = np.zeros((config.frames, model.num_vertices, 3), np.float32)
+    state = ClothState(dressed.positions + offset, np.zeros_like(dressed.positions))
+    positions[0] = state.positions
+    start, health = 1, []
+    resume_from = checkpoint_path if checkpoint_path.exists() else sequence_path  # a shorter finished run
+    if resume_from.exists():
+        saved = load_npz(resume_from, required=("positions", "velocities", "meta"))
+        saved_meta = json.loads(str(saved["meta"]))
+        if saved_meta.get("key") == key and saved["positions"].shape[1:] == positions.shape[1:]:
+            start = min(len(saved["positions"]), config.frames)
+            positions[:start] = saved["positions"][:start]
+            state = ClothState(saved["positions"][start - 1].astype(np.float64), saved["velocities"].astype(np.float64))
+            health = saved_meta.get("health", [])[:start]
+            log.info("resuming %s from frame %d", out, start)
+        else:
+            log.warning("%s is from a different simulation; starting over", resume_from)
+
+    meta = {
+        "key": key, "garment": template.name, "garment_spec": config.garment, "level_mm": dressed.level_mm,
+        "motion": config.motion, "motion_name": motion.name, "body": config.body, "body_betas": list(map(float, shape)),
+        "fps": 1.0 / config.cloth.timestep, "transition_frames": int(round(config.transition_seconds / config.cloth.timestep)),
+        "seed": config.seed, "config": json.loads(json.dumps(asdict(config), default=str)),
+        "dressing": dressed.report, "health_limits": asdict(config.health),
+    }
+
+    def save_checkpoint(frames: int) -> None:
+        save_npz(checkpoint_path, {"positions": positions[:frames], "velocities": state.velocities.astype(np.float32),
+                                   "meta": np.array(json.dumps({**meta, "health": health}))})
+
+    started = time.perf_counter()
+    bar = tqdm(total=config.frames, initial=start, desc=f"simulating {template.name}", unit="frame",
+               disable=not progress)
+    for frame in range(start, config.frames):
+        collider = MeshCollider(posed.vertices[frame], body.faces)
+        state = solver.step(state, collider)
+        check = _health(model, collider, state.positions)
+        problem = _problem(check, config.health, state.positions)
+        if problem:
+            save_checkpoint(frame)
+            bar.close()
+            raise SimulationError(f"frame {frame} of {out}: {problem}; frames 0..{frame - 1} are kept in {checkpoint_path}")
+        positions[frame] = state.positions
+        health.append([check.penetration, check.strain])
+        bar.update()
+        bar.set_postfix(pen_mm=f"{check.penetration * 1e3:.1f}", strain=f"{check.strain:.3f}")
+        if (frame + 1) % config.checkpoint_every == 0:
+            save_checkpoint(frame + 1)
+    bar.close()
+    elapsed = time.perf_counter() - started
+    simulated = config.frames - start
+    meta["seconds_per_frame"] = elapsed / simulated if simulated else None
+    meta["max_penetration_mm"] = 1e3 * max((h[0] for h in health), default=0.0)
+    meta["max_strain"] = max((h[1] for h in health), default=0.0)
+    save_npz(sequence_path, {
+        "positions": positions, "velocities": state.velocities.astype(np.float32),
+        "faces": dressed.faces.astype(np.int32), "body_poses": motion.poses,
+        "body_trans": motion.trans, "body_betas": np.asarray(shape, np.float64), "fps": np.array(meta["fps"]),
+        "meta": np.array(json.dumps({**meta, "health": health})),
+    })
+    checkpoint_path.unlink(missing_ok=True)
+    log.info("%s: %d frames, %.3f s per frame, max penetration %.2f mm, max strain %.3f", sequence_path,
+             config.frames, meta["seconds_per_frame"] or 0.0, meta["max_penetration_mm"], meta["max_strain"])
+    return sequence_path
+
+
+def _health(model: ClothModel, collider: MeshCollider, x: np.ndarray) -> FrameHealth:
+    if not np.isfinite(x).all():
+        return FrameHealth(float("nan"), float("nan"))
+    d, _ = collider.signed_distance(x)
+    return FrameHealth(float(max(0.0, -d.min())), float(np.abs(model.edge_length_strain(x)).max()))
+
+
+def _problem(check: FrameHealth, limits: HealthLimits, x: np.ndarray) -> str:
+    if not np.isfinite(x).all():
+        return f"{int((~np.isfinite(x)).any(axis=1).sum())} vertices are NaN or infinite"
+    if check.penetration > limits.max_penetration:
+        return f"a vertex is {check.penetration * 1e3:.1f} mm inside the body (limit {limits.max_penetration * 1e3:.1f} mm)"
+    if check.strain > limits.max_strain:
+        return f"an edge is strained {check.strain:.2f} (limit {limits.max_strain:.2f})"
+    return ""
+
+
+def write_preview(sequence_path: str | Path, png: str | Path, body: BodyModel | None = None, frames: int = 4) -> None:
+    """Draw a few frames of a simulated sequence (body and garment) into a PNG."""
+    from assets.motion.export import preview_frames
+    from assets.motion.export import render_preview
+
+    data = load_npz(sequence_path, required=("positions", "faces", "body_poses", "body_trans", "body_betas", "meta"))
+    meta = json.loads(str(data["meta"]))
+    body = body or load_body(meta["body"])
+    pick = preview_frames(frames, len(data["positions"]))
+    posed = body.pose(data["body_poses"][pick], data["body_trans"][pick], data["body_betas"])
+    render_preview(png, posed, frames=np.arange(len(pick)), labels=[f"frame {t}" for t in pick],
+                   title=f"{meta['garment']} on {meta['motion']}",
+                   extra=((data["positions"][pick], data["faces"], (0.25, 0.45, 0.85)),))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m factory.simulate", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--garment", required=True, help="default garment name, pattern JSON or template .npz")
+    parser.add_argument("--motion", required=True, help="built-in motion, AMASS .npz, motion .npz or .bvh")
+    parser.add_argument("--body", default="default", help="'default' or an SMPL-family model file")
+    parser.add_argument("--betas", help="body shape, comma-separated (default: the body's default)")
+    parser.add_argument("--frames", type=int, default=240, help="frames at 120 Hz, the transition included")
+    parser.add_argument("--out", required=True, type=Path, help="output folder (resumes what is there)")
+    parser.add_argument("--level", type=int, default=DressingParams.level_mm, help="template level (mm)")
+    parser.add_argument("--pose", choices=("A", "T"), default=DressingParams.pose, help="dressing pose")
+    parser.add_argument("--transition-seconds", type=float, default=1.0)
+    parser.add_argument("--speed", type=float, default=1.0, help="built-in motions: speed multiplier")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--iterations", type=int, default=ClothParams.iterations, help="local-global iterations per step")
+    for name in ("membrane_weight", "bending_weight", "density", "contact_weight", "contact_radius"):
+        parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(ClothParams, name))
+    parser.add_argument("--max-penetration-mm", type=float, default=HealthLimits.max_penetration * 1e3)
+    parser.add_argument("--max-strain", type=float, default=HealthLimits.max_strain)
+    parser.add_argument("--no-preview", action="store_true")
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> SimulationConfig:
+    cloth = ClothParams(iterations=args.iterations, membrane_weight=args.membrane_weight,
+                        bending_weight=args.bending_weight, density=args.density,
+                        contact_weight=args.contact_weight, contact_radius=args.contact_radius)
+    betas = None
+    if args.betas:
+        try:
+            betas = tuple(float(v) for v in args.betas.split(","))
+        except ValueError as exc:
+            raise ValueError(f"--betas must be comma-separated numbers, got {args.betas!r}") from exc
+    return SimulationConfig(
+        garment=args.garment, motion=args.motion, body=args.body, frames=args.frames, betas=betas, seed=args.seed,
+        transition_seconds=args.transition_seconds, motion_speed=args.speed, cloth=cloth,
+        dressing=DressingParams(level_mm=args.level, pose=args.pose, cloth=cloth),
+        health=HealthLimits(args.max_penetration_mm * 1e-3, args.max_strain),
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def action() -> None:
+        sequence = simulate(config_from_args(args), args.out)
+        if not args.no_preview:
+            write_preview(sequence, args.out / "preview.png")
+        print(sequence)
+
+    try:
+        return run_cli(action)
+    except SimulationError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

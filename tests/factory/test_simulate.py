@@ -1,0 +1,94 @@
+"""Dressing the default shirt on the default body and simulating it through a short walk (real
+solver, real body, the 12 mm training level; the dressing runs once per test session)."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from assets.body import load_body
+from assets.garments import Template
+from assets.garments.defaults import default_pattern
+from factory.cloth import ClothModel, MeshCollider
+from factory.dressing import DressedGarment, DressingError, dress, dressing_body
+from factory.simulate import HealthLimits, SimulationConfig, SimulationError, simulate
+
+FRAMES = 6
+
+
+@pytest.fixture(scope="session")
+def shirt_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("shirt_walk")
+    config = SimulationConfig(garment="shirt", motion="walk", frames=FRAMES)
+    return config, out, simulate(config, out, progress=False)
+
+
+def test_dressing_closes_every_seam_outside_the_body(shirt_run):
+    _, out, _ = shirt_run
+    dressed = DressedGarment.load(out / "dressed.npz")
+    assert dressed.report["seam_gap_mm"] < 1.0
+    level = Template.build(default_pattern("shirt")).level(12)
+    # merged: one vertex per seam pair, and every seam edge now has a triangle on both sides
+    assert len(dressed.positions) == level.num_sewn_vertices < level.num_vertices
+    edges = np.sort(np.concatenate([dressed.faces[:, [0, 1]], dressed.faces[:, [1, 2]], dressed.faces[:, [2, 0]]]), 1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    sewn = level.sewn_index[level.seam_pairs[:, 0]]
+    seam_edges = np.isin(unique, sewn).all(axis=1)
+    assert seam_edges.sum() > 100
+    assert (counts[seam_edges] == 2).mean() > 0.95  # the seam lines are interior (hem and cuff ends are not)
+    body = load_body("default")
+    d, _ = MeshCollider(dressing_body(body).vertices, body.faces).signed_distance(dressed.positions)
+    assert d.min() > -1e-3
+    # it hangs on the shoulders: nothing above the top of the head, the hem below the waist
+    assert dressed.positions[:, 2].max() < 1.70 and dressed.positions[:, 2].min() < 1.0
+
+
+def test_short_walk_has_bounded_strain_and_keeps_outside_the_body(shirt_run):
+    config, out, path = shirt_run
+    data = np.load(path)
+    meta = json.loads(str(data["meta"]))
+    assert data["positions"].shape == (FRAMES, len(DressedGarment.load(out / "dressed.npz").positions), 3)
+    assert data["positions"].dtype == np.float32 and np.isfinite(data["positions"]).all()
+    assert meta["garment"] == "shirt" and meta["motion"] == "walk" and meta["fps"] == 120.0
+    assert meta["max_strain"] < 0.5 and meta["max_penetration_mm"] < 2.0
+    model = ClothModel.build(data["faces"], DressedGarment.load(out / "dressed.npz").rest_corners)
+    assert np.abs(model.edge_length_strain(data["positions"][-1].astype(float))).max() < 0.5
+
+
+def test_a_longer_rerun_continues_the_finished_frames(shirt_run):
+    config, out, path = shirt_run
+    before = np.load(path)["positions"]
+    longer = simulate(dataclasses.replace(config, frames=FRAMES + 2), out, progress=False)
+    after = np.load(longer)["positions"]
+    assert after.shape[0] == FRAMES + 2
+    np.testing.assert_array_equal(after[:FRAMES], before)
+
+
+def test_a_failing_frame_stops_the_run_and_keeps_the_frames_before_it(shirt_run, tmp_path):
+    config, out, _ = shirt_run
+    (tmp_path / "dressed.npz").write_bytes((out / "dressed.npz").read_bytes())  # reuse the dressing
+    strict = dataclasses.replace(config, frames=4, health=HealthLimits(max_penetration=0.01, max_strain=1e-9))
+    with pytest.raises(SimulationError, match=r"frame 1 of .*strained.*frames 0\.\.0 are kept"):
+        simulate(strict, tmp_path, progress=False)
+    kept = np.load(tmp_path / "checkpoint.npz")["positions"]
+    assert kept.shape[0] == 1
+    assert not (tmp_path / "sequence.npz").exists()
+
+
+def test_a_panel_without_a_placement_hint_cannot_be_dressed():
+    pattern = default_pattern("shirt")
+    panels = list(pattern.panels)
+    panels[2] = dataclasses.replace(panels[2], placement=None)
+    template = Template.build(dataclasses.replace(pattern, panels=tuple(panels)))
+    with pytest.raises(DressingError, match=r"panel 'sleeve_left' has no placement hint"):
+        dress(template, load_body("default"), progress=False)
+
+
+def test_cli_reports_an_unknown_garment_without_a_traceback(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "factory.simulate", "--garment", "cape", "--motion", "walk",
+                          "--frames", "4", "--out", str(tmp_path)], capture_output=True, text=True)
+    assert run.returncode == 2
+    assert "'cape' is neither a default garment" in run.stderr and "Traceback" not in run.stderr
