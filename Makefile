@@ -12,6 +12,7 @@ demo: $(STAMP)
 	$(BIN)/python -m assets.pattern --out $(DEMO_OUT)/pattern
 	$(BIN)/python -m assets.garments build shirt --levels 12,4,2 --out $(DEMO_OUT)/shirt
 	$(BIN)/python -m assets.motion preview walk --body default --out $(DEMO_OUT)/walk
+	$(BIN)/python -m factory.simulate --garment shirt --motion walk --body default --frames 360 --out $(DEMO_OUT)/shirt_walk
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -20,6 +21,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/pattern.py
 	$(BIN)/python benchmarks/garments.py
 	$(BIN)/python benchmarks/body.py
+	$(BIN)/python benchmarks/simulate.py
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

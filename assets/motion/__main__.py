@@ -76,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--body", default="default", help="'default' (free body) or an SMPL-family model file")
     p.add_argument("--out", required=True, help="output folder")
     _motion_args(p)
-    p.add_argument("--transition", choices=("T", "A", "none"), default="T",
-                   help="prepend a transition from this dressing pose (default T, as the simulator does)")
+    p.add_argument("--transition", choices=("T", "A", "none"), default="A",
+                   help="prepend a transition from this dressing pose (default A, as the simulator does)")
     p.add_argument("--transition-seconds", type=float, default=TRANSITION_SECONDS)
     p.add_argument("--frames", type=int, default=6, help="frames drawn in the preview")
     p.add_argument("--meshes", choices=("obj", "ply"), help="also write one mesh per frame")

@@ -64,3 +64,16 @@ def test_cloth_dropped_on_a_sphere_stays_outside():
     assert 0.1 < top < 0.1 + 3 * params.contact_radius
     assert state.positions[:, 2].min() < 0.09
     assert np.isfinite(state.positions).all()
+
+
+def test_closed_form_polar_factor_matches_the_svd():
+    from factory.cloth import nearest_rotations
+
+    deformation = np.random.default_rng(0).normal(size=(500, 3, 2))
+    deformation[0] = 0.0  # collapsed to a point
+    deformation[1, :, 1] = deformation[1, :, 0]  # collapsed to a line
+    u, _, vt = np.linalg.svd(deformation, full_matrices=False)
+    rotations = nearest_rotations(deformation)
+    np.testing.assert_allclose(rotations[2:], (u @ vt)[2:], atol=1e-10)
+    np.testing.assert_allclose(np.einsum("fki,fkj->fij", rotations, rotations), np.broadcast_to(np.eye(2), (500, 2, 2)),
+                               atol=1e-10)
