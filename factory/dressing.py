@@ -94,6 +94,8 @@ class DressingParams:
     #: air drag (1/s) while sewing: the panels should close, not swing
     sew_damping: float = 30.0
     settle_seconds: float = 0.5
+    #: the garment fails to dress when its mean height drops more than this (m) while settling
+    max_settle_drop: float = 0.05
     cloth: ClothParams = field(default_factory=ClothParams)
 
 
@@ -279,6 +281,12 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     for _ in range(int(round(params.settle_seconds / params.cloth.timestep))):
         state = settle.step(state, collider)
     depth = float(max(0.0, -collider.signed_distance(state.positions)[0].min()))
+    drop = float(sewn[:, 2].mean() - state.positions[:, 2].mean())
+    if drop > params.max_settle_drop:
+        raise DressingError(
+            f"cannot dress '{template.name}': the sewn garment does not hold on the body (it slid "
+            f"{drop * 100:.0f} cm down while settling: its panels closed around the wrong side of a body part)",
+            state.positions)
     report = {
         "sew_steps": steps, "seam_gap_mm": sew_gap * 1e3, "final_seam_weight": weight,
         "max_penetration_mm": depth * 1e3, "max_strain": float(sewn_model.edge_strain(state.positions).max()),
