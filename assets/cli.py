@@ -7,12 +7,16 @@ import sys
 from typing import Callable
 
 
-def run_cli(action: Callable[[], object]) -> int:
+def run_cli(action: Callable[[], object], failures: tuple[type[Exception], ...] = ()) -> int:
     """Run a CLI's work.  Bad input (ValueError, including PatternError, or a missing/unreadable file)
-    is printed as ``error: ...`` on stderr with exit status 2, never as a traceback."""
+    is printed as ``error: ...`` on stderr with exit status 2, never as a traceback; the work's own
+    `failures` (a simulation that blew up, a garment that cannot be dressed) likewise with status 1."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         action()
+    except failures as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

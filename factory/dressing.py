@@ -95,7 +95,7 @@ class DressingParams:
     sew_damping: float = 30.0
     settle_seconds: float = 0.5
     #: the garment fails to dress when its mean height drops more than this (m) while settling
-    max_settle_drop: float = 0.05
+    max_settle_drop: float = 0.15
     cloth: ClothParams = field(default_factory=ClothParams)
 
 
@@ -324,7 +324,6 @@ def write_preview(garment: DressedGarment, body: BodyModel, png: str | Path) -> 
 
 def main(argv: list[str] | None = None) -> int:
     import argparse
-    import sys
 
     from assets.body import load_body
     from assets.cli import run_cli
@@ -358,11 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         print("|---|---|---|---|---|---|---|")
         print("\n".join(rows))
 
-    try:
-        return run_cli(action)
-    except DressingError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    return run_cli(action, failures=(DressingError,))
 
 
 if __name__ == "__main__":

@@ -43,7 +43,7 @@ from assets.body.model import BodyModel
 from assets.cli import run_cli
 from assets.fileio import load_npz, save_npz
 from assets.garments import Template
-from assets.motion.motion import SIMULATION_FPS, Motion, body_poses, motion_betas, resample, with_transition
+from assets.motion.motion import Motion, body_poses, motion_betas, resample, with_transition
 from assets.motion.sources import load_motion
 from factory.cloth import ClothModel, ClothParams, ClothState, MeshCollider, ProjectiveDynamics
 from factory.dressing import DressedGarment, DressingError, DressingParams, dress
@@ -320,11 +320,7 @@ def main(argv: list[str] | None = None) -> int:
             write_preview(sequence, args.out / "preview.png")
         print(sequence)
 
-    try:
-        return run_cli(action)
-    except SimulationError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    return run_cli(action, failures=(SimulationError,))
 
 
 if __name__ == "__main__":
