@@ -289,21 +289,14 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
             state.positions)
     report = {
         "sew_steps": steps, "seam_gap_mm": sew_gap * 1e3, "final_seam_weight": weight,
-        "max_penetration_mm": depth * 1e3, "max_strain": float(sewn_model.edge_strain(state.positions).max()),
-        "seconds": time.perf_counter() - started, "params": _jsonable(asdict(params)),
+        "max_penetration_mm": depth * 1e3,
+        "max_strain": float(np.abs(sewn_model.edge_length_strain(state.positions)).max()),
+        "seconds": time.perf_counter() - started, "params": asdict(params),
     }
     log.info("dressed %s (%d mm level): %d sewing steps, gap %.2f mm, penetration %.2f mm, %.1f s", template.name,
              params.level_mm, steps, sew_gap * 1e3, depth * 1e3, report["seconds"])
     return DressedGarment(template.name, params.level_mm, level.sewn_faces.copy(), rest_corners, state.positions,
                           np.asarray(betas, np.float64), dressed.trans, dressed.pose, report)
-
-
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (tuple, list)):
-        return [_jsonable(v) for v in value]
-    return value
 
 
 def write_preview(garment: DressedGarment, body: BodyModel, png: str | Path) -> None:

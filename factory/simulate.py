@@ -79,15 +79,21 @@ class SimulationConfig:
     checkpoint_every: int = 24
 
     def key(self) -> str:
-        """What makes two runs the same simulation (resume only continues an identical one)."""
+        """What makes two runs the same simulation (resume only continues an identical one); length,
+        checkpointing and health limits do not change the frames."""
         data = asdict(self)
-        data.pop("frames")
-        data.pop("checkpoint_every")
-        return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
+        for name in ("frames", "checkpoint_every", "health"):
+            data.pop(name)
+        return _digest(data)
+
+
+def _digest(value: object) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 @dataclass
 class FrameHealth:
+    bad_vertices: int  # NaN or infinite
     penetration: float
     strain: float
 
@@ -128,8 +134,7 @@ def with_dressing_transition(config: SimulationConfig, motion: Motion, dressed: 
 def _dressed(config: SimulationConfig, template: Template, body: BodyModel, betas, out: Path,
              progress: bool) -> DressedGarment:
     path = out / "dressed.npz"
-    key = hashlib.sha256(json.dumps([config.garment, config.body, list(np.asarray(betas, float)),
-                                     asdict(config.dressing)], default=str).encode()).hexdigest()[:16]
+    key = _digest([config.garment, config.body, list(np.asarray(betas, float)), asdict(config.dressing)])
     if path.exists():
         cached = DressedGarment.load(path)
         if cached.report.get("key") == key:
@@ -167,8 +172,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
     except DressingError as exc:
         raise SimulationError(str(exc)) from exc
     motion = with_dressing_transition(config, motion, dressed)
-    shape = betas
-    posed = body.pose(body_poses(body, motion), motion.trans, shape)
+    posed = body.pose(body_poses(body, motion), motion.trans, betas)
     offset = motion.trans[0] - dressed.body_trans
 
     model = ClothModel.build(dressed.faces, dressed.rest_corners, config.cloth)
@@ -192,7 +196,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
 
     meta = {
         "key": key, "garment": template.name, "garment_spec": config.garment, "level_mm": dressed.level_mm,
-        "motion": config.motion, "motion_name": motion.name, "body": config.body, "body_betas": list(map(float, shape)),
+        "motion": config.motion, "motion_name": motion.name, "body": config.body, "body_betas": list(map(float, betas)),
         "fps": 1.0 / config.cloth.timestep, "transition_frames": int(round(config.transition_seconds / config.cloth.timestep)),
         "seed": config.seed, "config": json.loads(json.dumps(asdict(config), default=str)),
         "dressing": dressed.report, "health_limits": asdict(config.health),
@@ -209,7 +213,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
         collider = MeshCollider(posed.vertices[frame], body.faces)
         state = solver.step(state, collider)
         check = _health(model, collider, state.positions)
-        problem = _problem(check, config.health, state.positions)
+        problem = _problem(check, config.health)
         if problem:
             save_checkpoint(frame)
             bar.close()
@@ -229,7 +233,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
     save_npz(sequence_path, {
         "positions": positions, "velocities": state.velocities.astype(np.float32),
         "faces": dressed.faces.astype(np.int32), "body_poses": motion.poses,
-        "body_trans": motion.trans, "body_betas": np.asarray(shape, np.float64), "fps": np.array(meta["fps"]),
+        "body_trans": motion.trans, "body_betas": np.asarray(betas, np.float64), "fps": np.array(meta["fps"]),
         "meta": np.array(json.dumps({**meta, "health": health})),
     })
     checkpoint_path.unlink(missing_ok=True)
@@ -239,15 +243,16 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
 
 
 def _health(model: ClothModel, collider: MeshCollider, x: np.ndarray) -> FrameHealth:
-    if not np.isfinite(x).all():
-        return FrameHealth(float("nan"), float("nan"))
+    bad = int((~np.isfinite(x)).any(axis=1).sum())
+    if bad:
+        return FrameHealth(bad, float("nan"), float("nan"))
     d, _ = collider.signed_distance(x)
-    return FrameHealth(float(max(0.0, -d.min())), float(np.abs(model.edge_length_strain(x)).max()))
+    return FrameHealth(0, float(max(0.0, -d.min())), float(np.abs(model.edge_length_strain(x)).max()))
 
 
-def _problem(check: FrameHealth, limits: HealthLimits, x: np.ndarray) -> str:
-    if not np.isfinite(x).all():
-        return f"{int((~np.isfinite(x)).any(axis=1).sum())} vertices are NaN or infinite"
+def _problem(check: FrameHealth, limits: HealthLimits) -> str:
+    if check.bad_vertices:
+        return f"{check.bad_vertices} vertices are NaN or infinite"
     if check.penetration > limits.max_penetration:
         return f"a vertex is {check.penetration * 1e3:.1f} mm inside the body (limit {limits.max_penetration * 1e3:.1f} mm)"
     if check.strain > limits.max_strain:
@@ -257,8 +262,7 @@ def _problem(check: FrameHealth, limits: HealthLimits, x: np.ndarray) -> str:
 
 def write_preview(sequence_path: str | Path, png: str | Path, body: BodyModel | None = None, frames: int = 4) -> None:
     """Draw a few frames of a simulated sequence (body and garment) into a PNG."""
-    from assets.motion.export import preview_frames
-    from assets.motion.export import render_preview
+    from assets.motion.export import preview_frames, render_preview
 
     data = load_npz(sequence_path, required=("positions", "faces", "body_poses", "body_trans", "body_betas", "meta"))
     meta = json.loads(str(data["meta"]))

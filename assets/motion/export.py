@@ -70,22 +70,25 @@ def render_preview(
 
     frames = preview_frames(6, len(posed.vertices)) if frames is None else np.asarray(frames)
     view = rotvec_to_matrix(np.array([0.0, 0.0, np.deg2rad(PREVIEW_VIEW_DEG)]))
-    layers = [(posed.vertices, posed.faces, _SKIN)] + [(v, f, np.asarray(c, float)) for v, f, c in extra]
+    # (vertices, faces, colour, two-sided): the body shows its outside only, cloth both sides
+    layers = [(posed.vertices, posed.faces, _SKIN, False)] + [(v, f, np.asarray(c, float), True) for v, f, c in extra]
     # Every panel is centred on its own root joint (a walk travels metres) at one common scale.
     centre = posed.joints[frames, 0] * np.array([1.0, 1.0, 0.0])
-    points = [(v[frames] - centre[:, None]) @ view.T for v, _, _ in layers]
+    points = [(v[frames] - centre[:, None]) @ view.T for v, _, _, _ in layers]
     stacked = np.concatenate([p.reshape(-1, 3) for p in points])
     lo, hi = stacked.min(axis=0), stacked.max(axis=0)
     fig, axes = plt.subplots(1, len(frames), figsize=(2.2 * len(frames), 4.2), squeeze=False)
     light = np.array([-0.4, -1.0, 0.6])
     light /= np.linalg.norm(light)
     for i, (ax, t) in enumerate(zip(axes[0], frames)):
-        tri = np.concatenate([p[i][f] for p, (_, f, _) in zip(points, layers)])  # x right, y depth, z up
-        base = np.concatenate([np.broadcast_to(c, (len(f), 3)) for _, f, c in layers])
+        tri = np.concatenate([p[i][f] for p, (_, f, _, _) in zip(points, layers)])  # x right, y depth, z up
+        base = np.concatenate([np.broadcast_to(c, (len(f), 3)) for _, f, c, _ in layers])
+        two_sided = np.concatenate([np.full(len(f), both) for _, f, _, both in layers])
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-        visible = normal[:, 1] < 0.0 if not extra else np.ones(len(tri), bool)  # cloth: both sides
-        shade = 0.25 + 0.75 * np.abs(normal[visible] @ light)
+        normal[two_sided & (normal[:, 1] > 0.0)] *= -1.0  # a two-sided triangle faces the camera
+        visible = normal[:, 1] < 0.0  # facing the camera, which looks along +y
+        shade = 0.25 + 0.75 * np.clip(normal[visible] @ light, 0.0, 1.0)
         order = np.argsort(-tri[visible, :, 1].mean(axis=1))  # far first
         polys = tri[visible][order][:, :, [0, 2]]
         colours = np.clip(shade[order, None] * base[visible][order], 0.0, 1.0)
