@@ -13,8 +13,8 @@ set-in sleeves with a tall cap do not fit a T-pose: the arm pokes through the sl
 2. Curve: the panels of one body part (torso, waist, neck, each arm) are rolled onto a cylinder around
    that part's axis (from its joints), length-preserving around the axis.  The radius at each height
    is the larger of the body's radius there plus `clearance` and what the panels' width needs so
-   that panels facing different ways do not overlap.  Leg panels stay flat: a cylinder around one leg
-   wide enough for the seat would cut through the other leg.  Vertices still inside the body are
+   that panels facing different ways do not overlap.  Trouser legs are rolled around the pelvis above
+   the crotch and around their own leg below it (`_wrap_legs`).  Vertices still inside the body are
    moved out along its normal.
 3. Sew: projective dynamics (`factory.cloth`) with zero-length springs between seam pairs, body
    contact and no gravity.  The springs start soft and stiffen whenever the widest gap stops closing,
@@ -93,6 +93,9 @@ class DressingParams:
     max_sew_steps: int = 1500
     #: air drag (1/s) while sewing: the panels should close, not swing
     sew_damping: float = 30.0
+    #: contact weight (1/s^2, mass-weighted like `ClothParams.contact_weight`) while sewing: ten times
+    #: the simulation's, since the seam springs reach 1e10 N/m^3 and would drag cloth into the body
+    sew_contact_weight: float = 1.0e9
     settle_seconds: float = 0.5
     #: the garment fails to dress when its mean height drops more than this (m) while settling
     max_settle_drop: float = 0.15
@@ -212,12 +215,78 @@ def curve_onto_body(template: Template, level_mm: int, body: BodyModel, dressed:
         angle = s / r
         positions[mask] = origin + along[:, None] * axis + r[:, None] * (
             np.cos(angle)[:, None] * normals + np.sin(angle)[:, None] * tangents)
-    # anything still inside the body (flat leg panels, armpits) steps outside it
+    legs = [p for p, panel in enumerate(panels) if panel.placement.body_part in ("leg_left", "leg_right")]
+    if legs:
+        _wrap_legs(positions, level.panel, panels, legs, body, dressed, clearance)
+    # anything still inside the body (armpits, the crotch) steps outside it
     collider = MeshCollider(body_vertices, body.faces)
     d, n = collider.signed_distance(positions)
     inside = d < clearance / 2
     positions[inside] += (clearance / 2 - d[inside])[:, None] * n[inside]
     return positions
+
+
+def _wrap_legs(positions: np.ndarray, panel_of: np.ndarray, panels, legs: list[int], body: BodyModel,
+               dressed: DressingBody, clearance: float, bin_height: float = 0.02, blend: float = 0.15) -> None:
+    """Step 2 for trouser legs, in place: each leg panel is rolled around the pelvis's vertical axis
+    above the crotch (its inner edge at the centre front or back, like a skirt panel) and around its
+    leg's axis below (its middle in front of or behind the leg), blended over `blend` (m) above the
+    pattern's crotch point.  Flat panels sew their inseams through the legs."""
+    joints = dict(zip(body.joint_names, dressed.joints))
+    dominant = np.asarray(body.joint_names)[np.argmax(body.weights, axis=1)]
+    pelvis = joints["pelvis"]
+    up = np.array([0.0, 0.0, 1.0])
+    lower_body = ("pelvis", "spine1", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
+    hips = np.isin(dominant, lower_body)
+    for p in legs:
+        side = panels[p].placement.body_part.split("_")[1]
+        hip, ankle = joints[f"{side}_hip"], joints[f"{side}_ankle"]
+        leg_skin = np.isin(dominant, [f"{side}_hip", f"{side}_knee", f"{side}_ankle"])
+        normal = Rotation.from_euler("xyz", panels[p].placement.rotation_deg, degrees=True).apply([0.0, 0.0, 1.0])
+        normal[2] = 0.0
+        normal /= np.linalg.norm(normal)
+        tangent = np.cross(up, normal)
+        mask = panel_of == p
+        x = positions[mask]
+        u = x @ tangent
+        z = x[:, 2]
+        inner_at_top = u[z > np.quantile(z, 0.95)]
+        # the panel's inner edge is its crotch seam: the side nearer the pelvis axis
+        inner_sign = -1.0 if abs(inner_at_top.min() - pelvis @ tangent) < abs(inner_at_top.max() - pelvis @ tangent) else 1.0
+        crotch_z = z[np.argmax(inner_sign * u)]  # the crotch point: the panel's innermost
+        w = np.clip((crotch_z + blend - z) / blend, 0.0, 1.0)
+        w = w * w * (3.0 - 2.0 * w)  # smoothstep: 0 around the pelvis, 1 around the leg
+        # per-height panel extent and cylinder radius, interpolated between 2 cm rows
+        rows = np.arange(z.min(), z.max() + bin_height, bin_height)
+        which = np.clip(np.rint((z - rows[0]) / bin_height).astype(int), 0, len(rows) - 1)
+        lo = np.array([u[which == b].min() if np.any(which == b) else np.nan for b in range(len(rows))])
+        hi = np.array([u[which == b].max() if np.any(which == b) else np.nan for b in range(len(rows))])
+        filled = ~np.isnan(lo)
+        lo = np.interp(z, rows[filled], lo[filled])
+        hi = np.interp(z, rows[filled], hi[filled])
+        inner = lo if inner_sign < 0 else hi
+        # tangential arc length from the centre seam (pelvis) or the panel's middle (leg)
+        s = (1.0 - w) * (u - inner) + w * (u - 0.5 * (lo + hi))
+        leg_axis = hip + np.outer((hip[2] - z) / (hip[2] - ankle[2]), ankle - hip)
+        centre = (1.0 - w)[:, None] * pelvis + w[:, None] * leg_axis
+        centre[:, 2] = 0.0
+        # radius: clear the skin (around whichever axis) and turn no panel more than a quarter turn
+        # either way from where it starts
+        row_radius = np.zeros(len(rows))
+        for b in range(len(rows)):
+            near = np.abs(dressed.vertices[:, 2] - rows[b]) < bin_height
+            axis_b = hip + (hip[2] - rows[b]) / (hip[2] - ankle[2]) * (ankle - hip)
+            top_r = np.linalg.norm((dressed.vertices[near & hips] - pelvis)[:, :2], axis=1).max(initial=0.0)
+            leg_r = np.linalg.norm((dressed.vertices[near & leg_skin] - axis_b)[:, :2], axis=1).max(initial=0.0)
+            here = which == b
+            wb = w[here].mean() if here.any() else 0.0
+            need = np.abs(s[here]).max(initial=0.0) / (0.95 * np.pi / 2)
+            row_radius[b] = max((1.0 - wb) * top_r + wb * leg_r + clearance, need)
+        row_radius = np.convolve(np.pad(row_radius, 2, mode="edge"), np.ones(5) / 5, mode="valid")
+        radius = np.interp(z, rows, row_radius)
+        angle = s / radius
+        positions[mask] = centre + radius[:, None] * (np.cos(angle)[:, None] * normal + np.sin(angle)[:, None] * tangent)
+        positions[mask, 2] = z
 
 
 def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
@@ -235,6 +304,7 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     # 3. sew
     rest_corners = level.pattern_xy[level.faces]
     sew_params = replace(params.cloth, gravity=(0.0, 0.0, 0.0), air_damping=params.sew_damping,
+                         contact_weight=params.sew_contact_weight,
                          contact_margin=max(params.cloth.contact_margin, 0.02))
     model = ClothModel.build(level.faces, rest_corners, sew_params)
     pairs = level.seam_pairs.astype(np.int64)
