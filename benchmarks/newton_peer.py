@@ -17,9 +17,9 @@ Our parameters are mapped onto Newton's so that both solvers minimise, to first 
   gets edge_ke = 3 * bending_weight * L / (A0 + A1) (pattern lengths and areas), rest angle 0 and no
   damping.  A single edge_ke = bending_weight would make bending about 3 / h times softer than ours on
   a mesh of edge length h (x250 at 12 mm).
-- Contact: ours is contact_weight / 2 * m_i * max(0, r - d_i)^2, a spring of stiffness
-  contact_weight * m_i (N/m) per vertex of mass m_i.  Newton's body-particle contact is a penalty
-  spring of one stiffness for all particles, contact_weight times the median vertex mass, acting when
+- Contact: ours is contact_weight / 2 * a_i * max(0, r - d_i)^2, a spring of stiffness
+  contact_weight * a_i (N/m) per vertex of rest area a_i.  Newton's body-particle contact is a penalty
+  spring of one stiffness for all particles, contact_weight times the median vertex area, acting when
   a particle comes closer than its radius r = contact_radius to the body surface (shape margin 0).
   Frictionless and undamped, as ours.  Contacts are detected once per substep, including every particle
   within r + gap of the surface (gap: the larger of 5 mm and twice the body's largest displacement per
@@ -144,7 +144,7 @@ def _build_model(
     with its Warp mesh at `body_start` (Vb, 3); parameters mapped as the module docstring says."""
     poses, areas, lengths = _pattern_geometry(rest_corners)
     vertex_areas = np.bincount(faces.ravel(), np.repeat(areas / 3.0, 3), minlength=len(start_positions))
-    contact_ke = contact_weight * float(np.median(vertex_areas[vertex_areas > 0.0])) * density_g_m2 * 1e-3  # mass-weighted
+    contact_ke = contact_weight * float(np.median(vertex_areas[vertex_areas > 0.0]))
     builder = newton.ModelBuilder(up_axis=newton.Axis.Z, gravity=GRAVITY)
     builder.add_cloth_mesh(
         pos=wp.vec3(0.0, 0.0, 0.0),

@@ -7,7 +7,7 @@ minimises over the new positions x
     E(x) = 1/(2 h^2) (x - y)^T M (x - y)                inertia; y = x_n + h v_n + h^2 g
          + membrane_weight / 2 * sum_t A_t |F_t(x) - R_t|^2    As-Rigid-As-Possible membrane
          + bending_weight / 2 * sum_e 3 / (A_e0 + A_e1) |K_e x|^2    quadratic bending (Bergou 2006)
-         + contact_weight / 2 * sum_i m_i max(0, r - d_i(x))^2       penalty contact with a collider
+         + contact_weight / 2 * sum_i a_i max(0, r - d_i(x))^2       penalty contact with a collider
          + pin_weight / 2 * sum_p m_p |x_p - target_p|^2              pinned vertices (tests, hangers)
          + 1 / 2 * sum_s k_s |x_a(s) - x_b(s)|^2                         zero-length springs (sewing)
 
@@ -17,14 +17,8 @@ with h the timestep (s), M the lumped masses (kg), A_t the rest area of triangle
 with orthonormal columns, K_e the cotangent stencil of the hinge at edge e (4 vertices) in the flat
 rest shape, a_i the rest area around vertex i, d_i its signed distance to the collider surface and r
 the contact radius.  Units: membrane_weight N/m (energy per area per squared strain), bending_weight
-N m (J), contact_weight 1/s^2 (energy per kilogram per squared metre of penetration, like the pins),
-density g/m^2, spring stiffnesses k_s N/m.
-
-The contact penalty is weighted by mass, not area: at 1e8 per unit area (N/m^3) it is 70 times stiffer
-than inertia (k h^2 / m at 1/120 s), ten local-global iterations do not converge, and the unconverged
-steps feed energy into the cloth: the default skirt's waist stretched 30 % over the hips within 0.3 s and
-slid down to the floor.  Mass-weighted (1e8 / s^2, 1e7 N/m^3 at 100 g/m^2) it holds, with the same
-contact radius and the position correction below keeping penetration under it.
+N m (J), contact_weight N/m^3 (energy per area per squared metre of penetration), density g/m^2, spring
+stiffnesses k_s N/m.
 
 Local step: R_t the polar factor of F_t (closed form); contact targets on the surface offset by r; after the last
 global solve, vertices within r of the collider are moved out to r (`contact_projection`).  Global step: one
@@ -282,7 +276,7 @@ class ProjectiveDynamics:
         key = np.packbits(contact).tobytes()
         if key != self._contact_key:
             p = self.model.params
-            matrix = self.base + sp.diags(p.contact_weight * self.model.masses * contact)
+            matrix = self.base + sp.diags(p.contact_weight * self.model.vertex_areas * contact)
             self._factor = spla.splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A")
             self._contact_key = key
         return self._factor
@@ -300,7 +294,7 @@ class ProjectiveDynamics:
             value += 0.5 * p.pin_weight * np.sum(m.masses[self.pinned, None] * (x[self.pinned] - pin_targets) ** 2)
         if collider is not None:
             d, _ = collider.signed_distance(x)
-            value += 0.5 * p.contact_weight * np.sum(m.masses * np.maximum(0.0, p.contact_radius - d) ** 2)
+            value += 0.5 * p.contact_weight * np.sum(m.vertex_areas * np.maximum(0.0, p.contact_radius - d) ** 2)
         return float(value)
 
     def step(self, state: ClothState, collider: MeshCollider | None = None,
@@ -330,7 +324,7 @@ class ProjectiveDynamics:
             if contact.any():
                 d, normals = collider.signed_distance(x[contact])
                 target = x[contact] + np.maximum(0.0, p.contact_radius - d)[:, None] * normals
-                rhs[contact] += (p.contact_weight * m.masses[contact])[:, None] * target
+                rhs[contact] += (p.contact_weight * m.vertex_areas[contact])[:, None] * target
             x = factor.solve(rhs)
             if energies is not None:
                 energies.append(self.energy(x, y, pin_targets if self.pinned.any() else None, collider))

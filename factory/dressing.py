@@ -93,10 +93,12 @@ class DressingParams:
     max_sew_steps: int = 1500
     #: air drag (1/s) while sewing: the panels should close, not swing
     sew_damping: float = 30.0
-    #: contact weight (1/s^2, mass-weighted like `ClothParams.contact_weight`) while sewing: ten times
-    #: the simulation's, since the seam springs reach 1e10 N/m^3 and would drag cloth into the body
-    sew_contact_weight: float = 1.0e9
     settle_seconds: float = 0.5
+    #: contact weight (N/m^3) while settling, a tenth of the simulation's: at 1e8 the penalty is 70x
+    #: stiffer than inertia (k h^2 / m), ten local-global iterations do not converge, and the
+    #: unconverged steps feed energy into the cloth: the skirt's waist stretched 30 % over the hips
+    #: and slid to the floor.  At 1e7 it settles at the waist.
+    settle_contact_weight: float = 1.0e7
     #: the garment fails to dress when its mean height drops more than this (m) while settling
     max_settle_drop: float = 0.15
     cloth: ClothParams = field(default_factory=ClothParams)
@@ -304,7 +306,6 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     # 3. sew
     rest_corners = level.pattern_xy[level.faces]
     sew_params = replace(params.cloth, gravity=(0.0, 0.0, 0.0), air_damping=params.sew_damping,
-                         contact_weight=params.sew_contact_weight,
                          contact_margin=max(params.cloth.contact_margin, 0.02))
     model = ClothModel.build(level.faces, rest_corners, sew_params)
     pairs = level.seam_pairs.astype(np.int64)
@@ -345,7 +346,8 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
 
     # 4. merge and settle under gravity
     sewn = level.sew(state.positions)
-    sewn_model = ClothModel.build(level.sewn_faces, rest_corners, params.cloth)
+    sewn_model = ClothModel.build(level.sewn_faces, rest_corners,
+                                  replace(params.cloth, contact_weight=params.settle_contact_weight))
     settle = ProjectiveDynamics(sewn_model)
     state = ClothState(sewn, np.zeros_like(sewn))
     for _ in range(int(round(params.settle_seconds / params.cloth.timestep))):
