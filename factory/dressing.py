@@ -241,9 +241,10 @@ def _wrap_legs(positions: np.ndarray, panel_of: np.ndarray, panels, legs: list[i
     lower_body = ("pelvis", "spine1", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")
     hips = np.isin(dominant, lower_body)
     for p in legs:
-        side = panels[p].placement.body_part.split("_")[1]
-        hip, ankle = joints[f"{side}_hip"], joints[f"{side}_ankle"]
-        leg_skin = np.isin(dominant, [f"{side}_hip", f"{side}_knee", f"{side}_ankle"])
+        _, start, end, _ = _PARTS[panels[p].placement.body_part]
+        hip, ankle = joints[start], joints[end]
+        side = start.split("_")[0]
+        leg_skin = np.isin(dominant, [start, f"{side}_knee", end])
         normal = Rotation.from_euler("xyz", panels[p].placement.rotation_deg, degrees=True).apply([0.0, 0.0, 1.0])
         normal[2] = 0.0
         normal /= np.linalg.norm(normal)
@@ -252,18 +253,20 @@ def _wrap_legs(positions: np.ndarray, panel_of: np.ndarray, panels, legs: list[i
         x = positions[mask]
         u = x @ tangent
         z = x[:, 2]
-        inner_at_top = u[z > np.quantile(z, 0.95)]
-        # the panel's inner edge is its crotch seam: the side nearer the pelvis axis
-        inner_sign = -1.0 if abs(inner_at_top.min() - pelvis @ tangent) < abs(inner_at_top.max() - pelvis @ tangent) else 1.0
+        # the panel's inner edge is its crotch seam: at the waist, the side nearer the pelvis axis
+        top = u[z > np.quantile(z, 0.95)] - pelvis @ tangent
+        inner_sign = -1.0 if abs(top.min()) < abs(top.max()) else 1.0
         crotch_z = z[np.argmax(inner_sign * u)]  # the crotch point: the panel's innermost
         w = np.clip((crotch_z + blend - z) / blend, 0.0, 1.0)
         w = w * w * (3.0 - 2.0 * w)  # smoothstep: 0 around the pelvis, 1 around the leg
         # per-height panel extent and cylinder radius, interpolated between 2 cm rows
         rows = np.arange(z.min(), z.max() + bin_height, bin_height)
         which = np.clip(np.rint((z - rows[0]) / bin_height).astype(int), 0, len(rows) - 1)
-        lo = np.array([u[which == b].min() if np.any(which == b) else np.nan for b in range(len(rows))])
-        hi = np.array([u[which == b].max() if np.any(which == b) else np.nan for b in range(len(rows))])
-        filled = ~np.isnan(lo)
+        lo = np.full(len(rows), np.inf)
+        hi = np.full(len(rows), -np.inf)
+        np.minimum.at(lo, which, u)
+        np.maximum.at(hi, which, u)
+        filled = np.isfinite(lo)
         lo = np.interp(z, rows[filled], lo[filled])
         hi = np.interp(z, rows[filled], hi[filled])
         inner = lo if inner_sign < 0 else hi
