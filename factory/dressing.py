@@ -16,8 +16,8 @@ set-in sleeves with a tall cap do not fit a T-pose: the arm pokes through the sl
    that panels facing different ways do not overlap.  Trouser legs are rolled around the pelvis above
    the crotch and around their own leg below it (`_wrap_legs`).  Vertices still inside the body are
    moved out along its normal.
-3. Sew: projective dynamics (`factory.cloth`) with zero-length springs between seam pairs, body
-   contact and no gravity.  The springs start soft and stiffen whenever the widest gap stops closing,
+3. Sew: quasi-static projective dynamics (`factory.cloth`; every step starts at rest) with
+   zero-length springs between seam pairs, body contact and no gravity.  The springs start soft and stiffen whenever the widest gap stops closing,
    until every gap is under `gap_tolerance` (1 mm) and no vertex is inside the body.
 4. Merge the seam pairs into one mesh (`Level.sew`) and let it settle under gravity for
    `settle_seconds`, so it hangs on the body: the garment at rest, ready for motion.
@@ -91,8 +91,6 @@ class DressingParams:
     near_gap: float = 0.01
     gap_tolerance: float = 1.0e-3
     max_sew_steps: int = 1500
-    #: air drag (1/s) while sewing: the panels should close, not swing
-    sew_damping: float = 30.0
     settle_seconds: float = 0.5
     #: contact weight (N/m^3) while settling, a tenth of the simulation's: at 1e8 the penalty is 70x
     #: stiffer than inertia (k h^2 / m), ten local-global iterations do not converge, and the
@@ -308,8 +306,7 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
 
     # 3. sew
     rest_corners = level.pattern_xy[level.faces]
-    sew_params = replace(params.cloth, gravity=(0.0, 0.0, 0.0), air_damping=params.sew_damping,
-                         contact_margin=max(params.cloth.contact_margin, 0.02))
+    sew_params = replace(params.cloth, gravity=(0.0, 0.0, 0.0), contact_margin=max(params.cloth.contact_margin, 0.02))
     model = ClothModel.build(level.faces, rest_corners, sew_params)
     pairs = level.seam_pairs.astype(np.int64)
     pair_area = 0.5 * (model.vertex_areas[pairs[:, 0]] + model.vertex_areas[pairs[:, 1]])
@@ -320,7 +317,11 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     bar = tqdm(total=params.max_sew_steps, desc=f"sewing {template.name}", unit="step", disable=not progress,
                leave=False)
     for steps in range(1, params.max_sew_steps + 1):
-        state = solver.step(state, collider)
+        # quasi-static: every step starts at rest.  With velocities carried over, vertices the
+        # placement left inside the buttocks were shot out by the contact penalty, tore the back
+        # crotch 19 cm apart and dragged the pants' waist 5 cm down onto the hips, where it could
+        # not close; at rest, the inertia term only limits how far a step moves the cloth.
+        state = solver.step(ClothState(state.positions, np.zeros_like(state.positions)), collider)
         gap = solver.spring_lengths(state.positions).max()
         depth = -collider.signed_distance(state.positions)[0].min()
         bar.update()
