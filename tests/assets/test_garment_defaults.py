@@ -221,9 +221,9 @@ def test_dimensions_are_plausible(pattern):
         assert skirt_girth_at_hip(pattern, M) > M.hip_girth + 0.04
     if pattern.name == "pants":
         front = pattern.panel("front_left")
-        assert np.ptp(front.vertices[:, 1]) == pytest.approx(M.waist_height, abs=0.05)  # full length
+        assert np.ptp(front.vertices[:, 1]) == pytest.approx(M.waist_height - 0.08, abs=0.01)  # hem 8 cm up
         inseam = front.edge_length(front.edge_index("inseam"))
-        assert inseam == pytest.approx(M.inseam, abs=0.06)
+        assert inseam == pytest.approx(M.inseam - 0.08 - 0.02, abs=0.02)  # hem 8 cm up, crotch 2 cm below the body
         hip = sum(np.ptp(pattern.panel(n).vertices[:, 0]) for n in ("front_left", "back_left"))
         assert hip > M.hip_girth / 2  # one leg's panels span half the hip and the crotch
 
@@ -233,10 +233,16 @@ def test_measurements_change_the_draft():
     for garment in (shirt, suit):
         grown = half_width(garment(broad), "back") - half_width(garment(), "back")
         assert grown == pytest.approx((1.10 - M.chest_girth) / 4, abs=1e-6)
-    wide = BodyMeasurements(hip_girth=1.10, waist_girth=0.95)
+    wide = BodyMeasurements(hip_girth=1.10, waist_girth=0.95, waist_height=1.05, waist_to_hip=0.20)
     for name in ("pants", "skirt"):
         before, after = default_pattern(name), default_pattern(name, wide)
         assert after.panels[0].area() > before.panels[0].area() * 1.05
+
+
+@pytest.mark.xfail(strict=True, reason="known bug: the wide skirt's front outline is reported crossing itself "
+                   "near its hem corner when the waist is at 1.08 m (fine at 1.07 m)")
+def test_a_wide_skirt_at_the_default_waist_height_drafts():
+    default_pattern("skirt", BodyMeasurements(hip_girth=1.10, waist_girth=0.95))
 
 
 LARGE = BodyMeasurements(height=1.85, chest_girth=1.30, waist_girth=1.20, hip_girth=1.28, shoulder_width=0.50,
