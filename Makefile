@@ -6,22 +6,31 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 DEMO_OUT ?= out/demo
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench clean blender
 
 demo: $(STAMP)
 	$(BIN)/python -m assets.pattern --out $(DEMO_OUT)/pattern
 	$(BIN)/python -m assets.garments build shirt --levels 12,4,2 --out $(DEMO_OUT)/shirt
 	$(BIN)/python -m assets.motion preview walk --body default --out $(DEMO_OUT)/walk
 	$(BIN)/python -m factory.simulate --garment shirt --motion walk --body default --frames 360 --out $(DEMO_OUT)/shirt_walk
+	$(BIN)/python -m factory.dataset build --garment shirt --motions walk --frames 2 --variations 5 \
+		--resolution 256 --samples 16 --reuse-simulation walk=$(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/dataset
+	$(BIN)/python -m factory.dataset capture --garment shirt --motion walk --frames 3 --cameras 4 \
+		--resolution 640x360 --samples 16 --reuse-simulation $(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/capture
 
-test: $(STAMP)
+test: $(STAMP) blender
 	$(BIN)/python -m pytest -q
+
+# Debian's Blender 3.4 for the `blender -b -P factory/render.py` tests (the bpy module is in the venv)
+blender:
+	@command -v blender >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq --no-install-recommends blender >/dev/null; }
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/pattern.py
 	$(BIN)/python benchmarks/garments.py
 	$(BIN)/python benchmarks/body.py
 	$(BIN)/python benchmarks/simulate.py
+	$(BIN)/python benchmarks/render.py
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

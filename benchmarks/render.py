@@ -1,0 +1,66 @@
+"""Benchmark the rendering factory: seconds per training image, split into scene set-up, render and
+ground truth (issue 6).
+
+The default shirt (12 mm level) walks (`factory.simulate`, reused from `--out` when already there);
+`--images` training images at 512 x 512 are rendered from a few frames with the dataset's random
+variations, with Cycles at the default samples and, for comparison in the same run, EEVEE and
+Workbench.  Ground truth (markers, visibility, localizer cells, both crop sets) is computed for every
+Cycles image.  Target: ground truth under 10 % of the render time.  Each engine runs in its own
+process.
+
+    python benchmarks/render.py [--images 4] [--samples 64] [--out out/bench_render]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+from common import run_fresh
+
+ENGINE = """
+    import json, time
+    from pathlib import Path
+    from factory.dataset import DatasetConfig, RenderSettings, build
+    config = DatasetConfig(garment="shirt", motions=("walk",), frames={frames}, variations={variations},
+                           render=RenderSettings(engine="{engine}", samples={samples}))
+    out = Path("{out}") / "{engine}"
+    t0 = time.perf_counter()
+    build(config, out, progress=False)
+    R["total_s"] = time.perf_counter() - t0
+    timing = json.loads((out / "timing.json").read_text())
+    R.update(timing)
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=2)
+    parser.add_argument("--variations", type=int, default=2)
+    parser.add_argument("--samples", type=int, default=64)
+    parser.add_argument("--engines", default="CYCLES,EEVEE,WORKBENCH")
+    parser.add_argument("--out", default="out/bench_render")
+    args = parser.parse_args()
+    rows = {}
+    for engine in args.engines.split(","):
+        rows[engine] = run_fresh(ENGINE.format(frames=args.frames, variations=args.variations, engine=engine,
+                                               samples=args.samples, out=os.path.abspath(args.out)))
+    print(f"# render benchmark, {time.strftime('%Y-%m-%d')}, {platform.node()} ({os.cpu_count()} CPUs), "
+          f"512 x 512, {args.frames * args.variations} images per engine")
+    print("| engine | samples | set-up s/image | render s/image | ground truth s/image | GT / render | images per hour |")
+    print("|---|---|---|---|---|---|---|")
+    for engine, r in rows.items():
+        n = r["images"]
+        setup, render, gt = r["setup_s"] / n, r["render_s"] / n, r["groundtruth_s"] / n
+        per_hour = 3600.0 / (setup + render + gt)
+        samples = args.samples if engine == "CYCLES" else "-"
+        print(f"| {engine} | {samples} | {setup:.2f} | {render:.2f} | {gt:.3f} | {100 * gt / render:.1f} % | "
+              f"{per_hour:.0f} |")
+    print("RESULT " + json.dumps(rows))
+
+
+if __name__ == "__main__":
+    main()

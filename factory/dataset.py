@@ -1,0 +1,655 @@
+"""Datasets: simulation -> Blender renders -> ground truth, sharded and resumable.
+
+    python -m factory.dataset build --garment shirt --motions walk,run --frames 8 --variations 5 --out out/ds
+    python -m factory.dataset build ... --shard 0/4          # a deterministic quarter of the images
+    python -m factory.dataset capture --garment shirt --motion walk --frames 12 --cameras 8 --out out/cap
+    python -m factory.dataset preview out/ds --out out/ds/contact_sheet.png
+
+Training dataset (`build`), as in the reference: one fixed camera; per simulation frame
+`variations` images (5), each with a random rotation about the vertical and a small tilt and
+translation of garment and body, an environment chosen from 10 (Blender's eight bundled HDRIs and two
+sky worlds) at a random rotation and strength, and jittered cloth and skin materials.  Every random
+choice comes from a generator seeded by (seed, motion, frame, variation), so any image can be remade
+alone.  Frames are split into train, validation and test at 22:2:1 **by simulation frame**: the
+variations of one frame never straddle splits.
+
+Layout of a dataset folder:
+  config.json                  the build's settings (a rerun with other settings is refused)
+  template.npz, texture.png    the garment template and its pattern texture at `texture_dpi`
+  sim/<motion>/                the simulations (`factory.simulate`; reused when already there)
+  scenes/<motion>.npz          the frames to render: garment and body vertices
+  jobs/<motion>-<shard>.json   render jobs (`factory.render`)
+  images/<name>.png            RGB; <name>_depth.exr (Z, float32), <name>_camera.json (K, R, t)
+  gt/<name>.npz                ground truth of every marker (`factory.groundtruth.ImageGroundTruth`)
+  samples/<name>.npz           training arrays: the Marker Localizer's cell targets (`cells`), the
+                               96 x 96 recognizer crops with their IDs, the 112 x 112 crosspoint crops
+                               with the crosspoints' crop coordinates and visibility
+  meta/<name>.json             one finished image (written last: an image is done when this exists)
+  manifest.jsonl, splits.json  every finished image with its files, split, motion, frame, variation
+
+Sharding and resume: the images are ordered by (motion, frame, variation) and `--shard i/n` takes
+every n-th from the i-th; an image whose `meta/<name>.json` exists is not redone, so a killed run
+resumes where it stopped, and several processes (or machines sharing the folder) can work on the
+shards of one dataset at once.  Each shard rewrites `manifest.jsonl` from `meta/` when it finishes.
+
+Capture (`capture`): a calibrated ring of cameras around the subject renders every frame of a
+sequence: `cameras.json` (`assets.cameras`), images per camera (``cam00/f000012.png``...), ground
+truth per image, and `garment.npz` (the ground-truth garment sequence: positions, faces, template):
+the synthetic capture reconstruction is tested and measured on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib.util
+import json
+import logging
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from assets.body import load_body
+from assets.cameras import Camera, save_cameras
+from assets.fileio import load_json, load_npz, save_json, save_npz
+from assets.garments import Template
+from factory.groundtruth import (
+    ImageGroundTruth,
+    MarkerSurface,
+    crosspoint_crops,
+    image_ground_truth,
+    localizer_targets,
+    recognizer_crops,
+)
+from factory.simulate import SimulationConfig, load_template, simulate
+
+log = logging.getLogger(__name__)
+
+PROJECT = Path(__file__).resolve().parents[1]
+#: the reference's train : validation : test ratio, by simulation frame
+SPLIT_RATIO = (22, 2, 1)
+SPLITS = ("train", "val", "test")
+#: the two sky worlds added to Blender's eight HDRIs (10 environments)
+SKY_WORLDS = 2
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    resolution: tuple[int, int] = (512, 512)  # width, height
+    engine: str = "CYCLES"
+    samples: int = 64
+    denoise: bool = True
+    device: str = "auto"
+    #: pattern texture resolution; 100 DPI is 7.9 texels per 2 mm cell
+    texture_dpi: float = 100.0
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    garment: str
+    motions: tuple[str, ...]
+    body: str = "default"
+    #: frames per motion, `frame_step` simulation frames (1/120 s) apart after the dressing transition
+    frames: int = 8
+    frame_step: int = 12
+    #: explicit simulation frame indices instead of `frames` x `frame_step` (tests, hand-picked frames)
+    frame_list: tuple[int, ...] | None = None
+    variations: int = 5
+    seed: int = 0
+    render: RenderSettings = field(default_factory=RenderSettings)
+    #: largest random tilt (degrees) and translation (m) of garment and body per variation
+    max_tilt_deg: float = 10.0
+    max_shift: float = 0.05
+    #: the camera's horizontal field of view (degrees) and how much of the frame the garment fills
+    fov_deg: float = 40.0
+    fill: float = 0.85
+
+
+# ---- plans -------------------------------------------------------------------------------------
+
+def _rng(*keys: object) -> np.random.Generator:
+    digest = hashlib.sha256(json.dumps([str(k) for k in keys]).encode()).digest()
+    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+
+def split_of_frames(units: list[tuple[str, int]], seed: int, ratio: tuple[int, int, int] = SPLIT_RATIO) -> dict:
+    """(motion, frame) units -> split name, at `ratio` (train : val : test) over a seeded shuffle;
+    with three or more units, validation and test get at least one each."""
+    order = _rng("split", seed).permutation(len(units))
+    n = len(units)
+    total = sum(ratio)
+    n_test = int(round(n * ratio[2] / total))
+    n_val = int(round(n * ratio[1] / total))
+    if n >= 3:
+        n_test, n_val = max(1, n_test), max(1, n_val)
+    names = ["test"] * n_test + ["val"] * n_val + ["train"] * (n - n_test - n_val)
+    return {units[i]: names[k] for k, i in enumerate(order)}
+
+
+def environments(bundled: list[str]) -> list[dict]:
+    """The 10 environments: Blender's bundled HDRIs (by file name) and two skies."""
+    return [{"type": "hdri", "file": name} for name in bundled] + [{"type": "sky"} for _ in range(SKY_WORLDS)]
+
+
+def variation(config: DatasetConfig, motion: str, frame: int, v: int, centre: np.ndarray, envs: list[dict]) -> dict:
+    """The random choices of one image: garment transform, environment, materials, seed."""
+    rng = _rng(config.seed, motion, frame, v)
+    tilt = np.clip(rng.normal(0.0, config.max_tilt_deg / 2, 2), -config.max_tilt_deg, config.max_tilt_deg)
+    rotation = Rotation.from_euler("zxy", [rng.uniform(0.0, 360.0), tilt[0], tilt[1]], degrees=True).as_matrix()
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = rotation @ -centre + rng.uniform(-config.max_shift, config.max_shift, 3)
+    env = dict(envs[int(rng.integers(len(envs)))])
+    if env["type"] == "hdri":
+        env.update(rotation_deg=float(rng.uniform(0.0, 360.0)), strength=float(rng.uniform(0.7, 1.3)))
+    else:
+        env.update(sun_elevation_deg=float(rng.uniform(15.0, 60.0)), sun_rotation_deg=float(rng.uniform(0.0, 360.0)),
+                   strength=float(rng.uniform(0.3, 0.6)))
+    skin = np.array([[0.85, 0.64, 0.52], [0.62, 0.43, 0.32], [0.40, 0.26, 0.18], [0.93, 0.76, 0.66]])
+    return {
+        "transform": transform.tolist(), "environment": env,
+        "cloth": {"roughness": float(rng.uniform(0.6, 0.95)), "sheen": float(rng.uniform(0.2, 0.8))},
+        "skin": {"rgb": (skin[rng.integers(len(skin))] * rng.uniform(0.9, 1.1)).clip(0, 1).tolist()},
+        "seed": int(rng.integers(2**31 - 1)),
+    }
+
+
+def fixed_camera(radius: float, settings: RenderSettings, fov_deg: float, fill: float) -> Camera:
+    """The dataset's camera, in front of the origin (-Y, looking +Y), far enough that a sphere of
+    `radius` around the origin fills `fill` of the narrower image side."""
+    width, height = settings.resolution
+    half = np.radians(fov_deg) / 2
+    narrow = min(1.0, height / width)
+    distance = radius / np.sin(np.arctan(np.tan(half) * narrow) * fill)
+    sensor = 36.0
+    focal = sensor / (2 * np.tan(half))
+    return Camera.look_at((0.0, -distance, 0.0), (0.0, 0.0, 0.0), focal_mm=focal, sensor_mm=sensor,
+                          width=width, height=height, name="fixed")
+
+
+# ---- rendering ---------------------------------------------------------------------------------
+
+def run_render_job(job: Path, out: Path, progress: bool = True):
+    """Render a job in this process when the bpy module imports (returns `factory.render.RenderReport`),
+    else with a Blender executable (returns None)."""
+    if importlib.util.find_spec("bpy") is None:
+        blender = shutil.which("blender")
+        if blender is None:
+            raise RuntimeError("rendering needs the bpy module (pip install bpy) or a Blender executable on PATH")
+        subprocess.run([blender, "-b", "--factory-startup", "-P", str(PROJECT / "factory" / "render.py"), "--",
+                        "--job", str(job), "--out", str(out)], check=True)
+        return
+    from factory.render import render_job
+
+    return render_job(job, out, progress=progress)
+
+
+def write_scene(path: Path, positions: np.ndarray, faces: np.ndarray, uv: np.ndarray, frames: np.ndarray,
+                body_vertices: np.ndarray | None, body_faces: np.ndarray | None) -> None:
+    arrays = {"garment_positions": positions.astype(np.float32), "garment_faces": faces.astype(np.int32),
+              "garment_uv": uv.astype(np.float32), "frames": frames.astype(np.int64)}
+    if body_vertices is not None:
+        arrays.update(body_vertices=body_vertices.astype(np.float32), body_faces=body_faces.astype(np.int32))
+    save_npz(path, arrays)
+
+
+def render_template(garment: str, dpi: float, out: Path) -> Template:
+    """The garment's template with its sheet laid out at `dpi`, and the texture PNG beside it."""
+    from assets.pattern.raster import write_png
+
+    base = load_template(garment)
+    template = Template.build(base.pattern, base.layout.spec, dpi)
+    if not (out / "texture.png").exists():
+        write_png(out / "texture.png", template.layout.render(template.pattern, progress=True), dpi)
+    return template
+
+
+def corner_uv(template: Template, level_mm: int) -> np.ndarray:
+    """(F, 3, 2) texture coordinates per corner of the sewn faces (seams have one UV per side)."""
+    level = template.level(level_mm)
+    return level.uv[level.faces]
+
+
+def read_depth(path: Path) -> np.ndarray:
+    """A depth EXR written by `factory.render` -> (H, W) float32."""
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path)) as exr:
+            channels = exr.channels()
+            key = "Z" if "Z" in channels else next(iter(channels))
+            return np.asarray(channels[key].pixels, dtype=np.float32)
+    except Exception as exc:  # OpenEXR raises plain RuntimeError for unreadable files
+        raise ValueError(f"{path}: not a readable depth EXR ({exc})") from exc
+
+
+def ground_truth_for(surface: MarkerSurface, template: Template, positions: np.ndarray, image_path: Path,
+                     depth_path: Path, camera: Camera) -> tuple[ImageGroundTruth, dict[str, np.ndarray]]:
+    import cv2
+
+    image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{image_path}: not a readable image")
+    image = image[:, :, ::-1].copy()
+    gt = image_ground_truth(surface, positions, camera, read_depth(depth_path))
+    rec, rec_ids = recognizer_crops(image, gt, surface.spec)
+    xp, xp_ids, xp_xy, xp_vis = crosspoint_crops(image, gt, surface.spec)
+    samples = {"cells": localizer_targets(gt), "recognizer_crops": rec, "recognizer_ids": rec_ids,
+               "crosspoint_crops": xp, "crosspoint_ids": xp_ids, "crosspoint_xy": xp_xy,
+               "crosspoint_visible": xp_vis}
+    return gt, samples
+
+
+# ---- build -------------------------------------------------------------------------------------
+
+def reuse_simulation(source: str | Path, target: Path) -> None:
+    """Copy a finished simulation folder (``sequence.npz``, ``dressed.npz``) to `target`, where
+    `factory.simulate` takes it up when it is the same simulation with enough frames."""
+    source = Path(source)
+    if not (source / "sequence.npz").is_file():
+        raise ValueError(f"{source}: no sequence.npz (not a finished simulation folder)")
+    target.mkdir(parents=True, exist_ok=True)
+    for name in ("sequence.npz", "dressed.npz"):
+        if (source / name).is_file() and not (target / name).exists():
+            shutil.copyfile(source / name, target / name)
+
+
+def _simulate_motion(config: DatasetConfig, motion: str, out: Path, frames_needed: int, progress: bool) -> Path:
+    sim_config = SimulationConfig(garment=config.garment, motion=motion, body=config.body, frames=frames_needed,
+                                  seed=config.seed)
+    return simulate(sim_config, out / "sim" / motion, progress=progress)
+
+
+def _frames_of(config: DatasetConfig, transition_frames: int) -> list[int]:
+    if config.frame_list:
+        return sorted(set(int(f) for f in config.frame_list))
+    return [transition_frames + k * config.frame_step for k in range(1, config.frames + 1)]
+
+
+def _check_config(out: Path, config: DatasetConfig) -> None:
+    path = out / "config.json"
+    current = json.loads(json.dumps(asdict(config)))
+    if path.exists():
+        saved = load_json(path)
+        if saved != current:
+            raise ValueError(f"{path}: this folder holds a dataset built with other settings; use a new --out "
+                             f"(differences: {sorted(k for k in current if saved.get(k) != current[k])})")
+    else:
+        save_json(path, current)
+
+
+def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1), progress: bool = True,
+          simulations: dict[str, str | Path] | None = None) -> Path:
+    """Build (or resume) shard `shard` = (i, n) of the dataset in `out`; returns the manifest path.
+    `simulations`: motion -> a finished simulation folder to reuse.  Timing of the images made goes
+    to ``timing.json`` (scene set-up, render, ground truth)."""
+    out = Path(out)
+    index, count = shard
+    if not 0 <= index < count:
+        raise ValueError(f"shard must be i/n with 0 <= i < n, got {index}/{count}")
+    if config.variations < 1:
+        raise ValueError(f"variations must be >= 1, got {config.variations}")
+    out.mkdir(parents=True, exist_ok=True)
+    _check_config(out, config)
+    for motion, folder in (simulations or {}).items():
+        reuse_simulation(folder, out / "sim" / motion)
+    body = load_body(config.body)
+    timing = {"images": 0, "setup_s": 0.0, "render_s": 0.0, "groundtruth_s": 0.0}
+    template = render_template(config.garment, config.render.texture_dpi, out)
+    if not (out / "template.npz").exists():
+        template.save(out / "template.npz", levels=(SimulationConfig(config.garment, "").dressing.level_mm,))
+    from factory.render import bundled_environments
+
+    envs = environments(bundled_environments())
+
+    # 1. simulate every motion; choose its frames
+    plans = []
+    transition = int(round(SimulationConfig(config.garment, "").transition_seconds * 120))
+    for motion in config.motions:
+        frames = _frames_of(config, transition)
+        sequence = load_npz(_simulate_motion(config, motion, out, max(frames) + 1, progress),
+                            required=("positions", "faces", "body_poses", "body_trans", "body_betas", "meta"))
+        plans.append((motion, frames, sequence))
+    level_mm = int(json.loads(str(plans[0][2]["meta"])).get("level_mm", 12))
+    surface = MarkerSurface.build(template, level_mm)
+    uv = corner_uv(template, level_mm)
+    if not np.array_equal(template.level(level_mm).sewn_faces, plans[0][2]["faces"]):
+        raise ValueError(f"{out}: the simulated mesh does not match the template's {level_mm} mm level")
+
+    # 2. one fixed camera for the whole dataset, fitted to the largest garment
+    radius = 0.0
+    for _, frames, sequence in plans:
+        for f in frames:
+            x = sequence["positions"][f]
+            centre = 0.5 * (x.min(0) + x.max(0))
+            radius = max(radius, float(np.linalg.norm(x - centre, axis=1).max()))
+    camera = fixed_camera(radius + config.max_shift, config.render, config.fov_deg, config.fill)
+    units = [(motion, f) for motion, frames, _ in plans for f in frames]
+    splits = split_of_frames(units, config.seed)
+    save_json(out / "splits.json", {s: [f"{m}/{f}" for (m, f), name in splits.items() if name == s] for s in SPLITS})
+
+    # 3. per motion: the scene, this shard's unfinished images as one job, render, ground truth
+    names = [(motion, f, v) for motion, frames, _ in plans for f in frames for v in range(config.variations)]
+    mine = [n for k, n in enumerate(names) if k % count == index]
+    todo = [n for n in mine if not (out / "meta" / f"{_name(*n)}.json").exists()]
+    log.info("shard %d/%d: %d images, %d to do", index, count, len(mine), len(todo))
+    for motion, frames, sequence in plans:
+        images = [n for n in todo if n[0] == motion]
+        if not images:
+            continue
+        body_vertices = body.pose(sequence["body_poses"][frames], sequence["body_trans"][frames],
+                                  sequence["body_betas"]).vertices
+        scene = out / "scenes" / f"{motion}.npz"
+        if not scene.exists():
+            write_scene(scene, sequence["positions"][frames], sequence["faces"], uv, np.asarray(frames),
+                        body_vertices, body.faces)
+        entries = {}
+        for m, f, v in images:
+            x = sequence["positions"][f]
+            choice = variation(config, motion, f, v, 0.5 * (x.min(0) + x.max(0)), envs)
+            entries[_name(m, f, v)] = {"name": _name(m, f, v), "frame": int(f), "camera": camera.to_dict(), **choice}
+        job = out / "jobs" / f"{motion}-{index}of{count}.json"
+        save_json(job, _job(config.render, Path("..") / "scenes" / f"{motion}.npz", Path("..") / "texture.png",
+                            list(entries.values())))
+        report = run_render_job(job, out / "images", progress)
+        if report is not None:
+            timing["setup_s"] += getattr(report, "setup_seconds", 0.0)
+            timing["render_s"] += report.seconds - getattr(report, "setup_seconds", 0.0)
+        started = time.perf_counter()
+        for m, f, v in tqdm(images, desc=f"ground truth {motion}", unit="image", disable=not progress):
+            name = _name(m, f, v)
+            entry = entries[name]
+            transform = np.asarray(entry["transform"])
+            positions = sequence["positions"][f].astype(np.float64) @ transform[:3, :3].T + transform[:3, 3]
+            gt, samples = ground_truth_for(surface, template, positions, out / "images" / f"{name}.png",
+                                           out / "images" / f"{name}_depth.exr", camera)
+            gt.save(out / "gt" / f"{name}.npz")
+            save_npz(out / "samples" / f"{name}.npz", samples)
+            save_json(out / "meta" / f"{name}.json", {
+                "name": name, "split": splits[(m, f)], "motion": m, "frame": int(f), "variation": v,
+                "image": f"images/{name}.png", "depth": f"images/{name}_depth.exr",
+                "camera": f"images/{name}_camera.json", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
+                "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum()),
+                "environment": entry["environment"], "transform": entry["transform"], "seed": entry["seed"],
+            })
+        timing["groundtruth_s"] += time.perf_counter() - started
+        timing["images"] += len(images)
+    save_json(out / "timing.json", timing)
+    return write_manifest(out)
+
+
+def _name(motion: str, frame: int, v: int) -> str:
+    return f"{motion}_f{frame:06d}_v{v}"
+
+
+def _job(settings: RenderSettings, scene: Path, texture: Path, images: list[dict], position: bool = False) -> dict:
+    return {
+        "version": 1, "scene": str(scene), "texture": str(texture), "resolution": list(settings.resolution),
+        "engine": {"name": settings.engine, "samples": settings.samples, "denoise": settings.denoise,
+                   "device": settings.device},
+        "passes": {"depth": True, "position": position}, "images": images,
+    }
+
+
+def write_manifest(out: Path) -> Path:
+    """`manifest.jsonl` from every finished image in `meta/`, sorted by name, atomically."""
+    from assets.fileio import atomic_path
+
+    lines = [json.dumps(load_json(p), sort_keys=True) for p in sorted((out / "meta").glob("*.json"))]
+    path = out / "manifest.jsonl"
+    with atomic_path(path) as tmp:
+        tmp.write_text("".join(line + "\n" for line in lines))
+    return path
+
+
+# ---- multi-view capture ------------------------------------------------------------------------
+
+def camera_ring(count: int, radius: float, height: float, target: np.ndarray, width: int, height_px: int,
+                focal_mm: float = 35.0) -> list[Camera]:
+    """`count` cameras evenly on a horizontal circle of `radius` at `height`, looking at `target`."""
+    cameras = []
+    for c in range(count):
+        angle = 2 * np.pi * c / count - np.pi / 2  # camera 0 in front of the subject (-Y)
+        eye = np.array([target[0] + radius * np.cos(angle), target[1] + radius * np.sin(angle), height])
+        cameras.append(Camera.look_at(eye, target, focal_mm=focal_mm, width=width, height=height_px,
+                                      name=f"cam{c:02d}"))
+    return cameras
+
+
+def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_frame: int | None = None,
+            cameras: int = 8, resolution: tuple[int, int] = (1920, 1080), render: RenderSettings = RenderSettings(),
+            body: str = "default", radius: float = 3.0, camera_height: float = 1.3, seed: int = 0,
+            progress: bool = True, simulation: str | Path | None = None) -> Path:
+    """Render `frames` consecutive simulation frames from a ring of `cameras`; returns the folder."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    render = replace(render, resolution=tuple(resolution))
+    body_model = load_body(body)
+    template = render_template(garment, render.texture_dpi, out)
+    transition = int(round(SimulationConfig(garment, motion).transition_seconds * 120))
+    start = transition if first_frame is None else first_frame
+    picked = list(range(start, start + frames))
+    if simulation is not None:
+        reuse_simulation(simulation, out / "sim")
+    sim = simulate(SimulationConfig(garment=garment, motion=motion, body=body, frames=picked[-1] + 1, seed=seed),
+                   out / "sim", progress=progress)
+    sequence = load_npz(sim, required=("positions", "faces", "body_poses", "body_trans", "body_betas", "meta"))
+    level_mm = int(json.loads(str(sequence["meta"])).get("level_mm", 12))
+    positions = sequence["positions"][picked]
+    body_vertices = body_model.pose(sequence["body_poses"][picked], sequence["body_trans"][picked],
+                                    sequence["body_betas"]).vertices
+    target = np.array([*np.asarray(sequence["body_trans"][picked]).mean(0)[:2], 1.0])
+    rig = camera_ring(cameras, radius, camera_height, target, render.resolution[0], render.resolution[1])
+    save_cameras(out / "cameras.json", rig)
+    save_npz(out / "garment.npz", {"positions": positions, "faces": sequence["faces"],
+                                   "frames": np.asarray(picked), "level_mm": np.array(level_mm),
+                                   "garment": np.array(garment), "motion": np.array(motion)})
+    template.save(out / "template.npz", levels=(level_mm,))
+    write_scene(out / "scene.npz", positions, sequence["faces"], corner_uv(template, level_mm), np.asarray(picked),
+                body_vertices, body_model.faces)
+    from factory.render import bundled_environments
+
+    hdri = bundled_environments()[_rng(seed, "capture").integers(len(bundled_environments()))]
+    surface = MarkerSurface.build(template, level_mm)
+    for cam in rig:
+        folder = out / cam.name
+        todo = [f for f in picked if not (folder / f"f{f:06d}_gt.npz").exists()]
+        if not todo:
+            continue
+        images = [{"name": f"f{f:06d}", "frame": f, "camera": cam.to_dict(), "transform": np.eye(4).tolist(),
+                   "environment": {"type": "hdri", "file": hdri, "rotation_deg": 0.0, "strength": 1.0},
+                   "cloth": {"roughness": 0.8, "sheen": 0.5}, "skin": {"rgb": [0.85, 0.64, 0.52]},
+                   "seed": seed} for f in todo]
+        job = out / "jobs" / f"{cam.name}.json"
+        save_json(job, _job(render, Path("..") / "scene.npz", Path("..") / "texture.png", images))
+        run_render_job(job, folder, progress)
+        for f in tqdm(todo, desc=f"ground truth {cam.name}", unit="image", disable=not progress):
+            gt = image_ground_truth(surface, positions[picked.index(f)].astype(np.float64), cam,
+                                    read_depth(folder / f"f{f:06d}_depth.exr"))
+            gt.save(folder / f"f{f:06d}_gt.npz")
+    return out
+
+
+# ---- contact sheet -----------------------------------------------------------------------------
+
+def draw_ground_truth(image: np.ndarray, gt: ImageGroundTruth, zoom: float = 1.0) -> np.ndarray:
+    """The image (H, W, 3) uint8, resized by `zoom`, with every visible marker's outline (green: fully
+    visible, orange: partially), its ID at the centre, and its visible crosspoints (magenta dots)."""
+    import cv2
+
+    h, w = image.shape[:2]
+    canvas = cv2.resize(image[:, :, ::-1], (int(round(w * zoom)), int(round(h * zoom))), interpolation=cv2.INTER_AREA
+                        if zoom < 1 else cv2.INTER_LINEAR)
+    for m in np.flatnonzero(gt.status > 0):
+        colour = (0, 200, 0) if gt.status[m] == 2 else (0, 160, 255)
+        for x, y in gt.crosspoints_px[m][gt.crosspoint_visible[m]][::4] * zoom:
+            canvas[min(int(y), canvas.shape[0] - 1), min(int(x), canvas.shape[1] - 1)] = (255, 0, 255)
+        corners = gt.points_px[m, [1, 2, 4, 3]] * zoom  # TL, TR, BR, BL
+        if np.isfinite(corners).all():
+            cv2.polylines(canvas, [np.round(corners).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
+        if gt.point_visible[m, 0]:
+            x, y = gt.points_px[m, 0] * zoom
+            cv2.putText(canvas, str(int(gt.marker_id[m])), (int(x) - 8, int(y) + 3), cv2.FONT_HERSHEY_PLAIN, 0.7,
+                        (255, 255, 255), 1, cv2.LINE_AA)
+    return canvas[:, :, ::-1]
+
+
+def contact_sheet(pairs: list[tuple[Path, Path]], png: str | Path, columns: int = 3, tile: int = 384) -> Path:
+    """Images with their ground truth drawn on top, tiled into one PNG: (image path, gt path) pairs."""
+    import cv2
+
+    if not pairs:
+        raise ValueError(f"{png}: no finished images to show")
+    tiles = []
+    for image_path, gt_path in pairs:
+        image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise ValueError(f"{image_path}: not a readable image")
+        drawn = draw_ground_truth(image[:, :, ::-1], ImageGroundTruth.load(gt_path), tile / max(image.shape[:2]))
+        padded = np.full((tile, tile, 3), 255, np.uint8)
+        padded[: drawn.shape[0], : drawn.shape[1]] = drawn
+        cv2.putText(padded, image_path.stem, (4, tile - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        tiles.append(padded)
+    rows = -(-len(tiles) // columns)
+    sheet = np.full((rows * tile, columns * tile, 3), 255, np.uint8)
+    for k, t in enumerate(tiles):
+        r, c = divmod(k, columns)
+        sheet[r * tile:(r + 1) * tile, c * tile:(c + 1) * tile] = t
+    from assets.fileio import atomic_path
+
+    with atomic_path(png) as tmp:
+        ok, data = cv2.imencode(".png", sheet[:, :, ::-1])
+        tmp.write_bytes(data.tobytes())
+    return Path(png)
+
+
+def preview(folder: str | Path, png: str | Path, count: int = 6) -> Path:
+    """A contact sheet of a dataset (`manifest.jsonl`) or a capture (`cameras.json`) folder."""
+    folder = Path(folder)
+    if (folder / "manifest.jsonl").exists():
+        entries = [json.loads(line) for line in (folder / "manifest.jsonl").read_text().splitlines() if line]
+        step = max(1, len(entries) // count)
+        pairs = [(folder / e["image"], folder / e["gt"]) for e in entries[::step][:count]]
+    elif (folder / "cameras.json").exists():
+        pngs = sorted(p for p in folder.glob("cam*/f*.png"))
+        step = max(1, len(pngs) // count)
+        pairs = [(p, p.with_name(f"{p.stem}_gt.npz")) for p in pngs[::step][:count]]
+    else:
+        raise ValueError(f"{folder}: neither a dataset (manifest.jsonl) nor a capture (cameras.json)")
+    return contact_sheet(pairs, png)
+
+
+# ---- CLI ---------------------------------------------------------------------------------------
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        parts = [int(v) for v in text.lower().split("x")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution must be N or WxH, got {text!r}") from None
+    if len(parts) == 1:
+        parts *= 2
+    if len(parts) != 2 or min(parts) < 8:
+        raise argparse.ArgumentTypeError(f"resolution must be N or WxH with sides >= 8, got {text!r}")
+    return parts[0], parts[1]
+
+
+def _shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"shard must be i/n, got {text!r}") from None
+    return i, n
+
+
+def _add_render_args(p: argparse.ArgumentParser, resolution: str) -> None:
+    p.add_argument("--resolution", type=_resolution, default=_resolution(resolution), help="N or WxH pixels")
+    p.add_argument("--engine", choices=("CYCLES", "EEVEE", "WORKBENCH"), default="CYCLES")
+    p.add_argument("--samples", type=int, default=RenderSettings.samples)
+    p.add_argument("--no-denoise", action="store_true")
+    p.add_argument("--device", choices=("auto", "CPU", "GPU"), default="auto")
+    p.add_argument("--texture-dpi", type=float, default=RenderSettings.texture_dpi)
+
+
+def _render_settings(args: argparse.Namespace) -> RenderSettings:
+    return RenderSettings(resolution=tuple(args.resolution), engine=args.engine, samples=args.samples,
+                          denoise=not args.no_denoise, device=args.device, texture_dpi=args.texture_dpi)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m factory.dataset", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("build", help="simulate, render and annotate a training dataset")
+    b.add_argument("--garment", required=True)
+    b.add_argument("--motions", required=True, help="comma-separated motion names or files")
+    b.add_argument("--body", default="default")
+    b.add_argument("--frames", type=int, default=DatasetConfig.frames, help="frames per motion")
+    b.add_argument("--frame-step", type=int, default=DatasetConfig.frame_step, help="simulation frames between them")
+    b.add_argument("--frame-list", help="explicit comma-separated simulation frames instead")
+    b.add_argument("--variations", type=int, default=DatasetConfig.variations)
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--shard", type=_shard, default=(0, 1), help="i/n: this process's share of the images")
+    b.add_argument("--reuse-simulation", action="append", default=[], metavar="MOTION=DIR",
+                   help="a finished `factory.simulate` folder for a motion (repeatable)")
+    b.add_argument("--out", type=Path, required=True)
+    _add_render_args(b, "512")
+    c = sub.add_parser("capture", help="render a sequence from a calibrated ring of cameras")
+    c.add_argument("--garment", required=True)
+    c.add_argument("--motion", required=True)
+    c.add_argument("--body", default="default")
+    c.add_argument("--frames", type=int, default=12)
+    c.add_argument("--first-frame", type=int, help="default: the first frame after the dressing transition")
+    c.add_argument("--cameras", type=int, default=8)
+    c.add_argument("--radius", type=float, default=3.0, help="ring radius (m)")
+    c.add_argument("--height", type=float, default=1.3, help="ring height (m), about chest height")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--reuse-simulation", type=Path, metavar="DIR", help="a finished `factory.simulate` folder")
+    c.add_argument("--out", type=Path, required=True)
+    _add_render_args(c, "1920x1080")
+    v = sub.add_parser("preview", help="contact sheet of a dataset or capture folder")
+    v.add_argument("folder", type=Path)
+    v.add_argument("--out", type=Path, required=True)
+    v.add_argument("--count", type=int, default=6)
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        if args.command == "build":
+            frame_list = tuple(int(f) for f in args.frame_list.split(",")) if args.frame_list else None
+            config = DatasetConfig(garment=args.garment, motions=tuple(m for m in args.motions.split(",") if m),
+                                   body=args.body, frames=args.frames, frame_step=args.frame_step,
+                                   frame_list=frame_list, variations=args.variations, seed=args.seed,
+                                   render=_render_settings(args))
+            started = time.perf_counter()
+            reuse = dict(item.split("=", 1) for item in args.reuse_simulation if "=" in item)
+            if len(reuse) != len(args.reuse_simulation):
+                raise ValueError(f"--reuse-simulation takes MOTION=DIR, got {args.reuse_simulation}")
+            manifest = build(config, args.out, args.shard, simulations=reuse)
+            entries = manifest.read_text().splitlines()
+            preview(args.out, args.out / "contact_sheet.png")
+            print(f"{len(entries)} images in {manifest} ({time.perf_counter() - started:.0f} s); "
+                  f"contact sheet {args.out / 'contact_sheet.png'}")
+        elif args.command == "capture":
+            folder = capture(args.garment, args.motion, args.out, frames=args.frames, first_frame=args.first_frame,
+                             cameras=args.cameras, resolution=tuple(args.resolution),
+                             render=_render_settings(args), body=args.body, radius=args.radius,
+                             camera_height=args.height, seed=args.seed, simulation=args.reuse_simulation)
+            preview(folder, folder / "contact_sheet.png")
+            print(f"capture in {folder}: cameras.json, garment.npz, {args.cameras} camera folders; "
+                  f"contact sheet {folder / 'contact_sheet.png'}")
+        else:
+            print(preview(args.folder, args.out, args.count))
+
+    return run_cli(action, failures=(ValueError, RuntimeError))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
