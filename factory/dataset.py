@@ -151,7 +151,7 @@ def variation(config: DatasetConfig, motion: str, frame: int, v: int, centre: np
         env.update(rotation_deg=float(rng.uniform(0.0, 360.0)), strength=float(rng.uniform(0.7, 1.3)))
     else:
         env.update(sun_elevation_deg=float(rng.uniform(15.0, 60.0)), sun_rotation_deg=float(rng.uniform(0.0, 360.0)),
-                   strength=float(rng.uniform(0.3, 0.6)))
+                   strength=float(rng.uniform(0.03, 0.1)))  # brighter overexposes
     skin = np.array([[0.85, 0.64, 0.52], [0.62, 0.43, 0.32], [0.40, 0.26, 0.18], [0.93, 0.76, 0.66]])
     return {
         "transform": transform.tolist(), "environment": env,
@@ -360,8 +360,8 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
                             list(entries.values())))
         report = run_render_job(job, out / "images", progress)
         if report is not None:
-            timing["setup_s"] += getattr(report, "setup_seconds", 0.0)
-            timing["render_s"] += report.seconds - getattr(report, "setup_seconds", 0.0)
+            timing["setup_s"] += report.setup_seconds
+            timing["render_s"] += report.seconds - report.setup_seconds
         started = time.perf_counter()
         for m, f, v in tqdm(images, desc=f"ground truth {motion}", unit="image", disable=not progress):
             name = _name(m, f, v)

@@ -206,10 +206,14 @@ def _load_scene(path: Path, where: str) -> dict[str, np.ndarray]:
                                  f"(with {', '.join(f'{k}={v}' for k, v in sizes.items())})")
         integer = key in ("garment_faces", "body_faces", "frames")
         if integer != np.issubdtype(array.dtype, np.integer) or not integer and not np.isfinite(array).all():
-            raise RenderJobError(f"{path}: {key} must be {'integers' if integer else 'finite floats'}, got {array.dtype}")
+            raise RenderJobError(f"{path}: {key} must be {'integers' if integer else 'finite floats'} "
+                                 f"(dtype {array.dtype})")
     for faces, vertices in (("garment_faces", "V"), ("body_faces", "Vb")):
-        if faces in arrays and len(arrays[faces]) and not 0 <= arrays[faces].min() <= arrays[faces].max() < sizes[vertices]:
+        index = arrays.get(faces, np.zeros(0, dtype=int))
+        if len(index) and not 0 <= index.min() <= index.max() < sizes[vertices]:
             raise RenderJobError(f"{path}: {faces} index outside [0, {sizes[vertices]})")
+    if not len(arrays["frames"]):
+        raise RenderJobError(f"{path}: no frames")
     if len(np.unique(arrays["frames"])) != len(arrays["frames"]):
         raise RenderJobError(f"{path}: frames has repeated values")
     return arrays
@@ -245,9 +249,10 @@ def _load_image(spec: Any, where: str, frame_index: dict[int, int], resolution: 
     if (camera.width, camera.height) != resolution:
         raise RenderJobError(f"{where}.camera: size {camera.width} x {camera.height} differs from the job's "
                              f"resolution {list(resolution)}")
+    transform = _get(spec, "transform", where, list)
     try:
-        transform = np.asarray(_get(spec, "transform", where, list), dtype=np.float64)
-    except (TypeError, ValueError):
+        transform = np.asarray(transform, dtype=np.float64)
+    except (TypeError, ValueError):  # ragged or not numbers
         transform = np.zeros(0)
     if transform.shape != (4, 4) or not np.isfinite(transform).all() or not np.allclose(transform[3], [0, 0, 0, 1]):
         raise RenderJobError(f"{where}.transform: expected a finite 4 x 4 row-major matrix with last row [0, 0, 0, 1]")
@@ -419,9 +424,11 @@ def _set_engine(scene, job: RenderJob) -> None:
         if job.denoise and not _cycles.with_openimagedenoise:
             log.warning("this Blender %s is built without OpenImageDenoise: rendering without denoising",
                         bpy.app.version_string)
-        scene.cycles.device = "GPU" if job.device != "CPU" and _enable_gpu(bpy) else "CPU"
-        if job.device == "GPU" and scene.cycles.device == "CPU":
-            log.warning("no GPU compute device found (tried %s): rendering on the CPU", ", ".join(GPU_BACKENDS))
+        gpu = job.device != "CPU" and _enable_gpu(bpy)
+        scene.cycles.device = "GPU" if gpu else "CPU"
+        if job.device != "CPU" and not gpu:  # a warning when the job asked for a GPU, news for "auto"
+            log.log(logging.WARNING if job.device == "GPU" else logging.INFO,
+                    "no GPU compute device (tried %s): Cycles renders on the CPU", ", ".join(GPU_BACKENDS))
         log.info("Cycles on %s, %d samples, denoising %s", scene.cycles.device, job.samples,
                  "on" if scene.cycles.use_denoising else "off")
         scene.render.use_persistent_data = True  # keep the BVH and textures between images
@@ -447,7 +454,6 @@ def _enable_gpu(bpy) -> str | None:
             log.info("Cycles GPU backend %s: %s", backend, ", ".join(d.name for d in prefs.devices if d.use))
             return backend
     prefs.compute_device_type = "NONE"
-    log.info("no GPU compute device (tried %s): Cycles renders on the CPU", ", ".join(GPU_BACKENDS))
     return None
 
 
@@ -480,6 +486,10 @@ class BlenderScene:
         scene = self.scene = bpy.context.scene
         _set_engine(scene, job)
         scene.render.film_transparent = False
+        # no date, time or render time in the files' metadata: the same job gives the same bytes
+        for name in dir(scene.render):
+            if name.startswith("use_stamp") and isinstance(getattr(scene.render, name), bool):
+                setattr(scene.render, name, False)
         scene.render.resolution_percentage, scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = 100, 1, 1
         scene.display_settings.display_device = "sRGB"
         scene.view_settings.view_transform, scene.view_settings.look = "Standard", "None"
@@ -490,7 +500,8 @@ class BlenderScene:
 
         arrays = job.scene
         self.garment = _mesh_object(bpy, scene, "garment", arrays["garment_positions"][0], arrays["garment_faces"])
-        self.garment.data.uv_layers.new(name="UVMap").data.foreach_set("uv", arrays["garment_uv"].astype(np.float32).ravel())
+        uv = self.garment.data.uv_layers.new(name="UVMap")  # loops are the faces' corners in order
+        uv.data.foreach_set("uv", arrays["garment_uv"].astype(np.float32).ravel())
         cloth, self.cloth_bsdf = _principled(bpy, "cloth")
         texture = cloth.node_tree.nodes.new("ShaderNodeTexImage")
         texture.image = bpy.data.images.load(str(job.texture), check_existing=True)
@@ -546,7 +557,8 @@ class BlenderScene:
                 obj.matrix_world = matrix
         params = image.camera.blender_params()
         camera = self.camera.data
-        camera.lens, camera.sensor_width, camera.sensor_fit = params["lens_mm"], params["sensor_width_mm"], params["sensor_fit"]
+        camera.lens, camera.sensor_width = params["lens_mm"], params["sensor_width_mm"]
+        camera.sensor_fit = params["sensor_fit"]
         camera.shift_x, camera.shift_y = params["shift_x"], params["shift_y"]
         self.camera.matrix_world = self.Matrix(params["matrix_world"])
         self.scene.render.resolution_x, self.scene.render.resolution_y = params["resolution_x"], params["resolution_y"]
@@ -640,9 +652,9 @@ def render_job(job_path: str | os.PathLike, out_dir: str | os.PathLike, progress
     if not pending:
         elapsed = time.perf_counter() - start
         return RenderReport([], skipped, elapsed, elapsed)
+    scene = BlenderScene(job)
     environments = {image.name: _resolve_environment(job, image) for image in pending
                     if image.environment.kind == "hdri"}
-    scene = BlenderScene(job)
     setup = time.perf_counter() - start
     log.info("%s: rendering %d images at %d x %d with %s (Blender %s)", job.path, len(pending),
              *job.resolution, scene.scene.render.engine, scene.bpy.app.version_string)
