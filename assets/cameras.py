@@ -42,14 +42,8 @@ _ROTATION_TOLERANCE = 1e-6
 
 
 def _frozen(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
-    try:
-        array = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"Camera: {name} must be numbers, got {value!r}") from None
-    if array.shape != shape:
-        raise ValueError(f"Camera: {name} must have shape {shape}, got {array.shape}")
-    if not np.isfinite(array).all():
-        raise ValueError(f"Camera: {name} must be finite")
+    """A read-only copy of `value` as a finite float64 array of `shape` (`_field`'s checks)."""
+    array = np.array(_field(value, shape, f"Camera: {name}"))
     array.setflags(write=False)
     return array
 

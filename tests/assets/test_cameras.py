@@ -61,8 +61,8 @@ def test_project_matches_opencv_with_distortion_and_unproject_inverts_it():
         (dict(R=np.diag([1.0, 1.0, -1.0])), "rotation"),
         (dict(width=0), "width"),
         (dict(height=480.0), "height"),
-        (dict(t=[0.0, 1.0]), r"t must have shape \(3,\)"),
-        (dict(dist=[0.0, 0.0, 0.0, np.nan, 0.0]), "dist must be finite"),
+        (dict(t=[0.0, 1.0]), r"t: expected a list of shape \[3\]"),
+        (dict(dist=[0.0, 0.0, 0.0, np.nan, 0.0]), "dist: not finite"),
     ],
 )
 def test_invalid_cameras_are_refused_naming_the_problem(overrides, message):
