@@ -338,10 +338,10 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
     # 3. per motion: the scene, this shard's unfinished images as one job, render, ground truth
     names = [(motion, f, v) for motion, frames, _ in plans for f in frames for v in range(config.variations)]
     mine = [n for k, n in enumerate(names) if k % count == index]
-    todo = [n for n in mine if not (out / "meta" / f"{_name(*n)}.json").exists()]
-    log.info("shard %d/%d: %d images, %d to do", index, count, len(mine), len(todo))
+    pending = [n for n in mine if not (out / "meta" / f"{_name(*n)}.json").exists()]
+    log.info("shard %d/%d: %d images, %d to do", index, count, len(mine), len(pending))
     for motion, frames, sequence in plans:
-        images = [n for n in todo if n[0] == motion]
+        images = [n for n in pending if n[0] == motion]
         if not images:
             continue
         body_vertices = body.pose(sequence["body_poses"][frames], sequence["body_trans"][frames],
@@ -460,17 +460,17 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
     surface = MarkerSurface.build(template, level_mm)
     for cam in rig:
         folder = out / cam.name
-        todo = [f for f in picked if not (folder / f"f{f:06d}_gt.npz").exists()]
-        if not todo:
+        pending = [f for f in picked if not (folder / f"f{f:06d}_gt.npz").exists()]
+        if not pending:
             continue
         images = [{"name": f"f{f:06d}", "frame": f, "camera": cam.to_dict(), "transform": np.eye(4).tolist(),
                    "environment": {"type": "hdri", "file": hdri, "rotation_deg": 0.0, "strength": 1.0},
                    "cloth": {"roughness": 0.8, "sheen": 0.5}, "skin": {"rgb": [0.85, 0.64, 0.52]},
-                   "seed": seed} for f in todo]
+                   "seed": seed} for f in pending]
         job = out / "jobs" / f"{cam.name}.json"
         save_json(job, _job(render, Path("..") / "scene.npz", Path("..") / "texture.png", images))
         run_render_job(job, folder, progress)
-        for f in tqdm(todo, desc=f"ground truth {cam.name}", unit="image", disable=not progress):
+        for f in tqdm(pending, desc=f"ground truth {cam.name}", unit="image", disable=not progress):
             gt = image_ground_truth(surface, positions[picked.index(f)].astype(np.float64), cam,
                                     read_depth(folder / f"f{f:06d}_depth.exr"))
             gt.save(folder / f"f{f:06d}_gt.npz")
