@@ -217,17 +217,23 @@ def corner_uv(template: Template, level_mm: int) -> np.ndarray:
     return level.uv[level.faces]
 
 
-def read_depth(path: Path) -> np.ndarray:
-    """A depth EXR written by `factory.render` -> (H, W) float32."""
+def read_exr(path: Path) -> dict[str, np.ndarray]:
+    """A float EXR written by `factory.render` -> {channel name: (H, W) float32}."""
     import OpenEXR
 
     try:
         with OpenEXR.File(str(path)) as exr:
-            channels = exr.channels()
-            key = "Z" if "Z" in channels else next(iter(channels))
-            return np.asarray(channels[key].pixels, dtype=np.float32)
+            return {name: np.asarray(c.pixels, dtype=np.float32) for name, c in exr.channels().items()}
     except Exception as exc:  # OpenEXR raises plain RuntimeError for unreadable files
-        raise ValueError(f"{path}: not a readable depth EXR ({exc})") from exc
+        raise ValueError(f"{path}: not a readable EXR ({exc})") from exc
+
+
+def read_depth(path: Path) -> np.ndarray:
+    """A depth EXR written by `factory.render` -> (H, W) float32 (+inf on the background)."""
+    channels = read_exr(path)
+    if "Z" not in channels:
+        raise ValueError(f"{path}: no 'Z' channel (has {sorted(channels)})")
+    return channels["Z"]
 
 
 def ground_truth_for(surface: MarkerSurface, template: Template, positions: np.ndarray, image_path: Path,

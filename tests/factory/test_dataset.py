@@ -74,8 +74,9 @@ def test_a_killed_build_resumes_to_byte_identical_output(tmp_path, shirt_run):
     process.wait()
     assert not (broken / "manifest.jsonl").exists()  # it was stopped before the end
     build(_config(), broken, progress=False)
-    def outputs(root: Path) -> list[Path]:  # the dataset, not the work files (sim, jobs, timing)
-        return sorted(p.relative_to(root) for p in root.rglob("*") if p.is_file()
+    def outputs(root: Path) -> list[Path]:
+        """The dataset, not the work files (sim, jobs, timing) nor a killed writer's hidden temporary."""
+        return sorted(p.relative_to(root) for p in root.rglob("*") if p.is_file() and not p.name.startswith(".")
                       and not {"sim", "jobs"} & set(p.relative_to(root).parts) and p.name != "timing.json")
 
     files = outputs(whole)
@@ -94,8 +95,8 @@ def test_a_build_with_other_settings_is_refused(tmp_path, shirt_run):
 def test_projected_crosspoints_agree_with_blenders_position_pass(tmp_path, shirt_run):
     """Ground truth against the renderer: where Cycles' position pass says each visible crosspoint
     is seen, within 0.1 px on average of where the ground truth projects it."""
-    from factory.dataset import read_depth, render_template
-    from factory.render import read_exr, render_job
+    from factory.dataset import read_depth, read_exr, render_template
+    from factory.render import render_job
 
     _, sim, sequence_path = shirt_run
     data = np.load(sequence_path)
@@ -114,7 +115,8 @@ def test_projected_crosspoints_agree_with_blenders_position_pass(tmp_path, shirt
     render_job(tmp_path / "job.json", tmp_path / "out", progress=False)
     surface = MarkerSurface.build(template, 12)
     gt = image_ground_truth(surface, positions, camera, read_depth(tmp_path / "out" / "pos_depth.exr"))
-    field = read_exr(tmp_path / "out" / "pos_position.exr")  # (H, W, 3) world position per pixel
+    channels = read_exr(tmp_path / "out" / "pos_position.exr")
+    field = np.stack([channels[a] for a in "XYZ"], axis=-1)  # (H, W, 3) world position per pixel
     errors = []
     pixel_centres = np.stack(np.meshgrid(np.arange(3) - 1.0, np.arange(3) - 1.0), -1).reshape(-1, 2)
     for m in np.flatnonzero(gt.status > 0):
