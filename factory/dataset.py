@@ -236,7 +236,7 @@ def read_depth(path: Path) -> np.ndarray:
     return channels["Z"]
 
 
-def ground_truth_for(surface: MarkerSurface, template: Template, positions: np.ndarray, image_path: Path,
+def ground_truth_for(surface: MarkerSurface, positions: np.ndarray, image_path: Path,
                      depth_path: Path, camera: Camera) -> tuple[ImageGroundTruth, dict[str, np.ndarray]]:
     import cv2
 
@@ -374,7 +374,7 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
             entry = entries[name]
             transform = np.asarray(entry["transform"])
             positions = sequence["positions"][f].astype(np.float64) @ transform[:3, :3].T + transform[:3, 3]
-            gt, samples = ground_truth_for(surface, template, positions, out / "images" / f"{name}.png",
+            gt, samples = ground_truth_for(surface, positions, out / "images" / f"{name}.png",
                                            out / "images" / f"{name}_depth.exr", camera)
             gt.save(out / "gt" / f"{name}.npz")
             save_npz(out / "samples" / f"{name}.npz", samples)
