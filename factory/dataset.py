@@ -20,7 +20,7 @@ Layout of a dataset folder:
   scenes/<motion>.npz          the frames to render: garment and body vertices
   jobs/<motion>-<shard>.json   render jobs (`factory.render`)
   images/<name>.png            RGB; <name>_depth.exr (Z, float32), <name>_camera.json (K, R, t)
-  gt/<name>.npz                ground truth of every marker (`factory.groundtruth.ImageGroundTruth`)
+  gt/<name>.npz                ground truth of every marker (`assets.pattern.observation.ImageGroundTruth`)
   samples/<name>.npz           training arrays: the Marker Localizer's cell targets (`cells`), the
                                96 x 96 recognizer crops with their IDs, the 112 x 112 crosspoint crops
                                with the crosspoints' crop coordinates and visibility
@@ -60,14 +60,8 @@ from assets.body import load_body
 from assets.cameras import Camera, save_cameras
 from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments import Template
-from factory.groundtruth import (
-    ImageGroundTruth,
-    MarkerSurface,
-    crosspoint_crops,
-    image_ground_truth,
-    localizer_targets,
-    recognizer_crops,
-)
+from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from factory.groundtruth import MarkerSurface, image_ground_truth
 from factory.simulate import SimulationConfig, load_template, simulate
 
 log = logging.getLogger(__name__)
@@ -204,8 +198,7 @@ def render_template(garment: str, dpi: float, out: Path) -> Template:
     """The garment's template with its sheet laid out at `dpi`, and the texture PNG beside it."""
     from assets.pattern.raster import write_png
 
-    base = load_template(garment)
-    template = Template.build(base.pattern, base.layout.spec, dpi)
+    template = load_template(garment, dpi)
     if not (out / "texture.png").exists():
         write_png(out / "texture.png", template.layout.render(template.pattern, progress=True), dpi)
     return template

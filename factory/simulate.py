@@ -98,13 +98,16 @@ class FrameHealth:
     strain: float
 
 
-def load_template(garment: str) -> Template:
-    """A default garment name, a pattern JSON (ours or GarmentCode) or a saved template `.npz`."""
+def load_template(garment: str, dpi: float | None = None) -> Template:
+    """A default garment name, a pattern JSON (ours or GarmentCode) or a saved template `.npz`; its
+    sheet laid out at `dpi` (default: a saved template's own, else `Template.build`'s)."""
     if garment.endswith(".npz"):
-        return Template.load(garment)
+        template = Template.load(garment)
+        return template if dpi is None else Template.build(template.pattern, template.layout.spec, dpi)
     from assets.garments.__main__ import load_pattern
 
-    return Template.build(load_pattern(garment))
+    pattern = load_pattern(garment)
+    return Template.build(pattern) if dpi is None else Template.build(pattern, dpi=dpi)
 
 
 def load_simulation_motion(config: SimulationConfig, body: BodyModel) -> Motion:

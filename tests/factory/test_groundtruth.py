@@ -20,14 +20,8 @@ from assets.pattern import (
     render_region,
 )
 from assets.pattern.raster import pixels_per_metre
-from factory.groundtruth import (
-    ImageGroundTruth,
-    MarkerSurface,
-    crosspoint_crops,
-    image_ground_truth,
-    localizer_targets,
-    recognizer_crops,
-)
+from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from factory.groundtruth import MarkerSurface, image_ground_truth
 from tests.assets.garment_fixtures import tube
 
 #: 64 IDs keep the codebook fast to generate; rows and cols are set per panel by the layout

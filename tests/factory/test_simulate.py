@@ -14,7 +14,7 @@ from assets.garments import Template
 from assets.garments.defaults import default_pattern
 from factory.cloth import ClothModel, MeshCollider
 from factory.dressing import DressedGarment, DressingError, dress, dressing_body
-from factory.simulate import HealthLimits, SimulationConfig, SimulationError, simulate
+from factory.simulate import HealthLimits, SimulationError, simulate
 
 from tests.factory.conftest import SHIRT_FRAMES as FRAMES
 
