@@ -72,6 +72,8 @@ SPLIT_RATIO = (22, 2, 1)
 SPLITS = ("train", "val", "test")
 #: the two sky worlds added to Blender's eight HDRIs (10 environments)
 SKY_WORLDS = 2
+#: a capture's cameras fit the garment to this fraction of the image's narrow side
+CAPTURE_FILL = 0.9
 
 
 @dataclass(frozen=True)
@@ -288,7 +290,8 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
           simulations: dict[str, str | Path] | None = None) -> Path:
     """Build (or resume) shard `shard` = (i, n) of the dataset in `out`; returns the manifest path.
     `simulations`: motion -> a finished simulation folder to reuse.  Timing of the images made goes
-    to ``timing.json`` (scene set-up, render, ground truth)."""
+    to ``timing.json`` (scene set-up, render, ground truth).  Ends with ``contact_sheet.png`` of a few
+    finished images with their ground truth."""
     out = Path(out)
     index, count = shard
     if not 0 <= index < count:
@@ -381,7 +384,10 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
         timing["groundtruth_s"] += time.perf_counter() - started
         timing["images"] += len(images)
     save_json(out / "timing.json", timing)
-    return write_manifest(out)
+    manifest = write_manifest(out)
+    if manifest.read_text().strip():
+        preview(out, out / "contact_sheet.png")
+    return manifest
 
 
 def _name(motion: str, frame: int, v: int) -> str:
@@ -412,7 +418,8 @@ def write_manifest(out: Path) -> Path:
 
 def camera_ring(count: int, radius: float, height: float, target: np.ndarray, width: int, height_px: int,
                 focal_mm: float = 35.0) -> list[Camera]:
-    """`count` cameras evenly on a horizontal circle of `radius` at `height`, looking at `target`."""
+    """`count` cameras evenly on a horizontal circle of `radius` around `target` at `height`, looking at
+    `target`; `focal_mm` on a 36 mm wide sensor."""
     cameras = []
     for c in range(count):
         angle = 2 * np.pi * c / count - np.pi / 2  # camera 0 in front of the subject (-Y)
@@ -422,11 +429,30 @@ def camera_ring(count: int, radius: float, height: float, target: np.ndarray, wi
     return cameras
 
 
+def fitted_ring(count: int, radius: float, height: float, points: np.ndarray, width: int, height_px: int,
+                fill: float = CAPTURE_FILL) -> list[Camera]:
+    """A `camera_ring` looking at the centroid of `points` (N, 3), each camera's focal length chosen so
+    the points span `fill` of the image (up to its edge, about the centre) in the limiting direction:
+    markers as large as the resolution allows, nothing of the garment cut off."""
+    centre = points.mean(axis=0)
+    rig = camera_ring(count, radius, height, centre, width, height_px)
+    fitted = []
+    for camera in rig:
+        pixels, z = camera.project(points)
+        if not (z > 0).all():
+            raise ValueError(f"camera ring of radius {radius} m is inside the garment: choose a larger radius")
+        reach = np.abs(pixels - camera.K[:2, 2]).max(axis=0) / (np.array([width, height_px]) / 2)
+        fitted.append(Camera.look_at(camera.center, centre, focal_mm=35.0 * fill / reach.max(), width=width,
+                                     height=height_px, name=camera.name))
+    return fitted
+
+
 def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_frame: int | None = None,
             cameras: int = 8, resolution: tuple[int, int] = (1920, 1080), render: RenderSettings = RenderSettings(),
             body: str = "default", radius: float = 3.0, camera_height: float = 1.3, seed: int = 0,
             progress: bool = True, simulation: str | Path | None = None) -> Path:
-    """Render `frames` consecutive simulation frames from a ring of `cameras`; returns the folder."""
+    """Render `frames` consecutive simulation frames from a ring of `cameras` (each fitting the garment
+    in its view), with ground truth and ``contact_sheet.png``; returns the folder."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     render = replace(render, resolution=tuple(resolution))
@@ -444,8 +470,7 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
     positions = sequence["positions"][picked]
     body_vertices = body_model.pose(sequence["body_poses"][picked], sequence["body_trans"][picked],
                                     sequence["body_betas"]).vertices
-    target = np.array([*np.asarray(sequence["body_trans"][picked]).mean(0)[:2], 1.0])
-    rig = camera_ring(cameras, radius, camera_height, target, render.resolution[0], render.resolution[1])
+    rig = fitted_ring(cameras, radius, camera_height, positions.reshape(-1, 3), *render.resolution)
     save_cameras(out / "cameras.json", rig)
     save_npz(out / "garment.npz", {"positions": positions, "faces": sequence["faces"],
                                    "frames": np.asarray(picked), "level_mm": np.array(level_mm),
@@ -473,6 +498,7 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
             gt = image_ground_truth(surface, positions[picked.index(f)].astype(np.float64), cam,
                                     read_depth(folder / f"f{f:06d}_depth.exr"))
             gt.save(folder / f"f{f:06d}_gt.npz")
+    preview(out, out / "contact_sheet.png")
     return out
 
 
@@ -500,29 +526,32 @@ def draw_ground_truth(image: np.ndarray, gt: ImageGroundTruth, zoom: float = 1.0
     return canvas[:, :, ::-1]
 
 
-def contact_sheet(pairs: list[tuple[Path, Path]], png: str | Path, columns: int = 3, tile: int = 384) -> Path:
-    """Images with their ground truth drawn on top, tiled into one PNG: (image path, gt path) pairs."""
+def contact_sheet(pairs: list[tuple[Path, Path]], png: str | Path, columns: int = 3, tile: int = 384,
+                  labels: list[str] | None = None) -> Path:
+    """Images with their ground truth drawn on top, tiled into one PNG: (image path, gt path) pairs,
+    each tile `tile` pixels wide at the images' aspect, labelled with `labels` (default: file stems)."""
     import cv2
+
+    from assets.fileio import atomic_path
 
     if not pairs:
         raise ValueError(f"{png}: no finished images to show")
     tiles = []
-    for image_path, gt_path in pairs:
+    for k, (image_path, gt_path) in enumerate(pairs):
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
         if image is None:
             raise ValueError(f"{image_path}: not a readable image")
-        drawn = draw_ground_truth(image[:, :, ::-1], ImageGroundTruth.load(gt_path), tile / max(image.shape[:2]))
-        padded = np.full((tile, tile, 3), 255, np.uint8)
-        padded[: drawn.shape[0], : drawn.shape[1]] = drawn
-        cv2.putText(padded, image_path.stem, (4, tile - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-        tiles.append(padded)
+        drawn = np.ascontiguousarray(draw_ground_truth(image[:, :, ::-1], ImageGroundTruth.load(gt_path),
+                                                       tile / image.shape[1]))
+        label = labels[k] if labels else image_path.stem
+        cv2.putText(drawn, label, (4, drawn.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        tiles.append(drawn)
+    tile_h = max(t.shape[0] for t in tiles)
     rows = -(-len(tiles) // columns)
-    sheet = np.full((rows * tile, columns * tile, 3), 255, np.uint8)
+    sheet = np.full((rows * tile_h, columns * tile, 3), 255, np.uint8)
     for k, t in enumerate(tiles):
         r, c = divmod(k, columns)
-        sheet[r * tile:(r + 1) * tile, c * tile:(c + 1) * tile] = t
-    from assets.fileio import atomic_path
-
+        sheet[r * tile_h:r * tile_h + t.shape[0], c * tile:c * tile + t.shape[1]] = t
     with atomic_path(png) as tmp:
         ok, data = cv2.imencode(".png", sheet[:, :, ::-1])
         tmp.write_bytes(data.tobytes())
@@ -539,7 +568,9 @@ def preview(folder: str | Path, png: str | Path, count: int = 6) -> Path:
     elif (folder / "cameras.json").exists():
         pngs = sorted(p for p in folder.glob("cam*/f*.png"))
         step = max(1, len(pngs) // count)
-        pairs = [(p, p.with_name(f"{p.stem}_gt.npz")) for p in pngs[::step][:count]]
+        shown = pngs[::step][:count]
+        pairs = [(p, p.with_name(f"{p.stem}_gt.npz")) for p in shown]
+        return contact_sheet(pairs, png, labels=[f"{p.parent.name}/{p.stem}" for p in shown])
     else:
         raise ValueError(f"{folder}: neither a dataset (manifest.jsonl) nor a capture (cameras.json)")
     return contact_sheet(pairs, png)
@@ -633,7 +664,6 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"--reuse-simulation takes MOTION=DIR, got {args.reuse_simulation}")
             manifest = build(config, args.out, args.shard, simulations=reuse)
             entries = manifest.read_text().splitlines()
-            preview(args.out, args.out / "contact_sheet.png")
             print(f"{len(entries)} images in {manifest} ({time.perf_counter() - started:.0f} s); "
                   f"contact sheet {args.out / 'contact_sheet.png'}")
         elif args.command == "capture":
@@ -641,7 +671,6 @@ def main(argv: list[str] | None = None) -> int:
                              cameras=args.cameras, resolution=tuple(args.resolution),
                              render=_render_settings(args), body=args.body, radius=args.radius,
                              camera_height=args.height, seed=args.seed, simulation=args.reuse_simulation)
-            preview(folder, folder / "contact_sheet.png")
             print(f"capture in {folder}: cameras.json, garment.npz, {args.cameras} camera folders; "
                   f"contact sheet {folder / 'contact_sheet.png'}")
         else:

@@ -136,3 +136,35 @@ def test_projected_crosspoints_agree_with_blenders_position_pass(tmp_path, shirt
             errors.append(np.linalg.norm(c + 0.5 + offset - p))
     assert len(errors) > 50
     assert np.mean(errors) < 0.1, np.mean(errors)
+
+
+def test_a_capture_frames_the_garment_in_every_camera_and_its_files_agree(tmp_path, shirt_run):
+    """The synthetic capture reconstruction is measured on: every camera of the ring sees the whole
+    garment, large; the saved ground truth is what cameras.json and garment.npz give."""
+    from assets.cameras import load_cameras
+    from assets.garments import Template
+    from assets.pattern.observation import ImageGroundTruth
+    from factory.dataset import capture, read_depth
+
+    _, sim, _ = shirt_run
+    out = capture("shirt", "walk", tmp_path / "cap", frames=2, first_frame=3, cameras=3, resolution=(96, 64),
+                  render=TINY, progress=False, simulation=sim)
+    cameras = load_cameras(out / "cameras.json")
+    garment = np.load(out / "garment.npz")
+    assert [c.name for c in cameras] == ["cam00", "cam01", "cam02"]
+    assert garment["frames"].tolist() == [3, 4]
+    surface = MarkerSurface.build(Template.load(out / "template.npz"), int(garment["level_mm"]))
+    for camera in cameras:
+        assert (camera.width, camera.height) == (96, 64)
+        pixels, z = camera.project(garment["positions"].reshape(-1, 3))
+        assert (z > 0).all() and (pixels >= 0).all() and (pixels < [96, 64]).all()  # all of it in view
+        assert (np.ptp(pixels, axis=0) / [96, 64]).max() > 0.6  # and large
+        for t, frame in enumerate(garment["frames"]):
+            saved = ImageGroundTruth.load(out / camera.name / f"f{frame:06d}_gt.npz")
+            depth = read_depth(out / camera.name / f"f{frame:06d}_depth.exr")
+            again = image_ground_truth(surface, garment["positions"][t], camera, depth)
+            kept = again.status > 0
+            assert saved.num_markers == kept.sum() > 0
+            np.testing.assert_array_equal(saved.marker_id, again.marker_id[kept])
+            np.testing.assert_allclose(saved.points_px, again.points_px[kept], atol=1e-4)
+    assert (out / "contact_sheet.png").is_file()
