@@ -1,0 +1,345 @@
+"""`Detector`: images -> markers (ID, five points, confidence) with their crosspoints in image pixels.
+
+The three networks are chained through the pattern's one crop mapping (`assets.pattern.crop_homography`
+/ `unwarp`, the same that made their training crops)::
+
+    1. Marker Localizer on the whole image (padded to a multiple of 8) -> `decode_localizer` ->
+       five points and a presence probability per marker.
+    2. Each marker's 96 x 96 crop (`RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
+       argmax (over the garment's IDs when `tables` are given) and
+       ``confidence = presence probability x softmax probability of that ID``.
+    3. Markers whose five points are not a homography of the canonical layout (residual above
+       `max_layout_residual_cells`, a non-convex or mirrored quad) or leave the image are cut; with the
+       garment's `tables`, their points are re-estimated from the fully visible neighbours on the
+       pattern (`networks.homography.estimate_from_neighbours`, `partial=True`).  The ID comes from
+       the raw points (the recognizer sees the visible part).
+    4. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the reference texture of its ID ->
+       Crosspoint Localizer -> crop (x, y) mapped to image pixels through the inverse crop homography;
+       visible = sigmoid > `visibility_threshold` and inside the image.
+
+All crops of one call go through the recognizer and crosspoint networks in batches of `batch_size`,
+under `torch.inference_mode()`, on `device` (uint8 crops are moved there and normalised there).
+Pixels are continuous image coordinates (x right, y down, pixel centres at integer + 0.5).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from assets.pattern import (
+    CROSSPOINT_CROP,
+    RECOGNIZER_CROP,
+    CropSpec,
+    MarkerTable,
+    PatternSpec,
+    crop_homography,
+    generate_codebook,
+    reference_textures,
+    unwarp,
+)
+from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
+from networks.decode import decode_localizer
+from networks.detections import Detections
+from networks.homography import (
+    MarkerLayout,
+    crop_to_image,
+    estimate_from_neighbours,
+    inside_image,
+    is_convex_layout,
+    layout_residual,
+)
+from networks.models import CELL, normalize
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Post-processing numbers of the Detector (ours: the reference gives none for these).
+
+    presence_threshold: a localizer cell is a marker centre where sigmoid(presence) exceeds it.
+    nms_radius_px: markers whose centres are closer are merged (None: `decode_localizer`'s default).
+    max_layout_residual_cells: five points further than this (in cells of the marker, 24 per side)
+      from the best homography of the canonical layout mark the marker as cut.
+    consistency_cells: a cut marker's own point joins its neighbours' homography fit when within
+      this many cells of their prediction.
+    visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
+    image_batch_size: images per localizer forward pass (padded to the largest of the batch).
+    restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
+    """
+
+    presence_threshold: float = 0.5
+    nms_radius_px: float | None = None
+    max_layout_residual_cells: float = 1.0
+    consistency_cells: float = 1.0
+    visibility_threshold: float = 0.5
+    image_batch_size: int = 4
+    restrict_to_tables: bool = True
+
+    def __post_init__(self) -> None:
+        problems = []
+        for name in ("presence_threshold", "visibility_threshold"):
+            if not 0 < getattr(self, name) < 1:
+                problems.append(f"{name} must be in (0, 1), got {getattr(self, name)}")
+        for name in ("max_layout_residual_cells", "consistency_cells"):
+            if not getattr(self, name) > 0:
+                problems.append(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.nms_radius_px is not None and not self.nms_radius_px > 0:
+            problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
+        if self.image_batch_size < 1:
+            problems.append(f"image_batch_size must be >= 1, got {self.image_batch_size}")
+        if problems:
+            raise ValueError("invalid DetectorConfig: " + "; ".join(problems))
+
+
+# ---- geometric steps on plain arrays (called directly by the tests) ------------------------------
+
+def check_images(images: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """The images as a list of uint8 (H, W, 3) arrays; ValueError naming the first bad one."""
+    if isinstance(images, np.ndarray):
+        raise ValueError("Detector expects a list of (H, W, 3) uint8 images, got one array; wrap it in a list")
+    out = []
+    for i, image in enumerate(images):
+        image = np.asarray(image)
+        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3 or min(image.shape[:2]) < 1:
+            raise ValueError(f"images[{i}]: expected uint8 RGB (H, W, 3), got {image.dtype} {image.shape}")
+        out.append(image)
+    return out
+
+
+def pad_images(images: Sequence[np.ndarray], cell: int = CELL) -> np.ndarray:
+    """Images (H_i, W_i, 3) uint8 -> one (B, H, W, 3) uint8 batch, zero-padded right and bottom to
+    the largest height and width rounded up to a multiple of `cell` (pixel coordinates unchanged)."""
+    height = -(-max(im.shape[0] for im in images) // cell) * cell
+    width = -(-max(im.shape[1] for im in images) // cell) * cell
+    batch = np.zeros((len(images), height, width, 3), dtype=np.uint8)
+    for b, image in enumerate(images):
+        batch[b, : image.shape[0], : image.shape[1]] = image
+    return batch
+
+
+def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+                   spec: PatternSpec, crop: CropSpec) -> np.ndarray:
+    """Crops of markers from several images: image_index (N,) into `images`, points_px (N, 5, 2).
+    Returns (N, S, S, 3) uint8, exactly `assets.pattern.unwarp` (as the training crops)."""
+    out = np.zeros((len(image_index), crop.size_px, crop.size_px, 3), dtype=np.uint8)
+    for i in np.unique(image_index):
+        pick = np.flatnonzero(image_index == i)
+        out[pick] = unwarp(images[i], spec, crop, np.asarray(points_px[pick], dtype=np.float64))
+    return out
+
+
+def usable_points(spec: PatternSpec, points_px: np.ndarray) -> np.ndarray:
+    """(N,) bool: five points (N, 5, 2) that define a finite, invertible crop homography."""
+    points_px = np.asarray(points_px, dtype=np.float64)
+    ok = np.isfinite(points_px).all(axis=(1, 2))
+    if ok.any():
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            h = crop_homography(spec, RECOGNIZER_CROP, points_px[ok])
+            det = np.linalg.det(h)
+        ok[ok] = np.isfinite(h).all(axis=(1, 2)) & np.isfinite(det) & (np.abs(det) > 1e-12)
+    return ok
+
+
+def fully_observed(spec: PatternSpec, points_px: np.ndarray, image_size: tuple[int, int],
+                   max_residual_cells: float) -> np.ndarray:
+    """(N,) bool: all five points are in the image (W, H) and consistent with a homography of the
+    canonical layout (residual <= max_residual_cells, corners a convex, unmirrored quad)."""
+    inside = inside_image(points_px, *image_size).all(axis=1)
+    return inside & (layout_residual(spec, points_px) <= max_residual_cells) & is_convex_layout(points_px)
+
+
+def _batches(count: int, size: int) -> Iterator[slice]:
+    for start in range(0, count, size):
+        yield slice(start, min(start + size, count))
+
+
+# ---- the Detector -------------------------------------------------------------------------------
+
+class Detector:
+    """Marker Localizer + Marker Recognizer + Crosspoint Localizer, chained (module docstring).
+
+    localizer, recognizer, crosspoints: the networks of `networks.models` (moved to `device`, put in
+    eval mode).  spec: the pattern they were trained on; codebook (num_ids, n, n): its codebook
+    (generated from `spec` when None).  tables: the garment's marker tables (one per panel) for
+    partial markers and for restricting IDs to the garment; None to detect any ID.
+    """
+
+    def __init__(self, localizer: nn.Module, recognizer: nn.Module, crosspoints: nn.Module, spec: PatternSpec,
+                 device: str | torch.device = "cpu", batch_size: int = 64,
+                 tables: Sequence[MarkerTable] | None = None, config: DetectorConfig = DetectorConfig(),
+                 codebook: np.ndarray | None = None) -> None:
+        if batch_size < 1:
+            raise ValueError(f"Detector: batch_size must be >= 1, got {batch_size}")
+        self.spec = spec
+        self.config = config
+        self.batch_size = batch_size
+        self.device = torch.device(device)
+        self.codebook = generate_codebook(spec) if codebook is None else np.asarray(codebook)
+        n = spec.modules_per_side
+        if self.codebook.shape[1:] != (n, n):
+            raise ValueError(f"Detector: codebook has shape {self.codebook.shape}, expected (num_ids, {n}, {n})")
+        num_ids = getattr(recognizer, "num_ids", None)
+        if num_ids is not None and num_ids > len(self.codebook):
+            raise ValueError(f"Detector: the recognizer has {num_ids} IDs, the codebook only {len(self.codebook)}")
+        k = getattr(crosspoints, "crosspoints_per_side", spec.crosspoints_per_side)
+        if k != spec.crosspoints_per_side:
+            raise ValueError(f"Detector: the crosspoint localizer has {k} crosspoints per side, the pattern "
+                             f"{spec.crosspoints_per_side}")
+        self.layout = None
+        if tables:
+            for t, table in enumerate(tables):
+                if table.marker_ids.max() >= len(self.codebook) or not np.array_equal(
+                        table.codes, self.codebook[table.marker_ids]):
+                    raise ValueError(f"Detector: tables[{t}] (IDs {table.first_id}..{table.marker_ids.max()}) "
+                                     "does not use this pattern's codebook")
+                if num_ids is not None and table.marker_ids.max() >= num_ids:
+                    raise ValueError(f"Detector: tables[{t}] uses IDs up to {table.marker_ids.max()}, the recognizer "
+                                     f"knows {num_ids}")
+            self.layout = MarkerLayout.from_tables(tables, len(self.codebook))
+        self.localizer = localizer.to(self.device).eval()
+        self.recognizer = recognizer.to(self.device).eval()
+        self.crosspoints = crosspoints.to(self.device).eval()
+        self._references: dict[int, np.ndarray] = {}
+
+    @classmethod
+    def from_checkpoints(cls, localizer_path: str | Path, recognizer_path: str | Path, crosspoints_path: str | Path,
+                         device: str | torch.device | None = None, **kwargs: object) -> "Detector":
+        """The Detector of three checkpoints (`networks.checkpoint`), which must share one pattern.
+
+        device: None picks "cuda" when available, else "cpu".  kwargs go to `Detector` (batch_size,
+        tables, config)."""
+        if device is None:
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+        recognizer, _, record = load_checkpoint(recognizer_path, expected_task="recognizer", device=device)
+        spec = checkpoint_spec(record)
+        models = {}
+        for task, path in (("localizer", localizer_path), ("crosspoints", crosspoints_path)):
+            models[task], _, record = load_checkpoint(path, expected_task=task, device=device)
+            try:
+                check_pattern(record, spec, source=str(path))
+            except ValueError as exc:
+                raise ValueError(f"the {task} checkpoint and the recognizer checkpoint {recognizer_path} do not "
+                                 f"share one pattern: {exc}") from exc
+        return cls(models["localizer"], recognizer, models["crosspoints"], spec, device=device, **kwargs)
+
+    # ---- the stages -----------------------------------------------------------------------------
+    def _to_device(self, images: np.ndarray) -> torch.Tensor:
+        """uint8 (B, H, W, 3) numpy -> normalised float (B, 3, H, W) on the device."""
+        return normalize(torch.from_numpy(np.ascontiguousarray(images)).to(self.device).permute(0, 3, 1, 2))
+
+    def localize(self, images: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Stage 1: per image, (points_px (N, 5, 2) float32, presence probability (N,) float32) of the
+        markers whose centre lies in the image."""
+        kwargs = {} if self.config.nms_radius_px is None else {"nms_radius_px": self.config.nms_radius_px}
+        out = []
+        with torch.inference_mode():
+            for chunk in _batches(len(images), self.config.image_batch_size):
+                batch = self._to_device(pad_images(images[chunk]))
+                decoded = decode_localizer(self.localizer(batch), threshold=self.config.presence_threshold,
+                                           cell=CELL, **kwargs)
+                for image, (points, score) in zip(images[chunk], decoded):
+                    points = np.asarray(points, dtype=np.float32).reshape(-1, 5, 2)
+                    score = np.asarray(score, dtype=np.float32).reshape(-1)
+                    keep = inside_image(points[:, 0], image.shape[1], image.shape[0])
+                    out.append((points[keep], score[keep]))
+        return out
+
+    def recognize(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 2: (marker_id (N,) int64, softmax probability of that ID (N,) float32)."""
+        ids = np.zeros(len(image_index), dtype=np.int64)
+        probability = np.zeros(len(image_index), dtype=np.float32)
+        allowed = None
+        if self.layout is not None and self.config.restrict_to_tables:
+            allowed = torch.as_tensor(self.layout.table_of_id >= 0, device=self.device)
+        with torch.inference_mode():
+            for part in _batches(len(image_index), self.batch_size):
+                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP)
+                prob = torch.softmax(self.recognizer(self._to_device(crops)).float(), dim=1)
+                if allowed is not None:
+                    best, index = torch.where(allowed[: prob.shape[1]], prob, -1.0).max(dim=1)
+                else:
+                    best, index = prob.max(dim=1)
+                ids[part] = index.cpu().numpy()
+                probability[part] = best.cpu().numpy()
+        return ids, probability
+
+    def references(self, marker_id: np.ndarray) -> np.ndarray:
+        """(N, 112, 112, 3) uint8 reference textures (`CROSSPOINT_CROP`) of the IDs, cached per ID."""
+        marker_id = np.asarray(marker_id, dtype=np.int64)
+        missing = np.array(sorted(set(marker_id.tolist()) - set(self._references)), dtype=np.int64)
+        if len(missing):
+            textures = reference_textures(self.spec, self.codebook[missing], CROSSPOINT_CROP)
+            self._references.update(zip(missing.tolist(), textures))
+        size = CROSSPOINT_CROP.size_px
+        if len(marker_id) == 0:
+            return np.zeros((0, size, size, 3), dtype=np.uint8)
+        return np.stack([self._references[i] for i in marker_id.tolist()])
+
+    def locate_crosspoints(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+                           marker_id: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 4: (crosspoints_px (N, K, K, 2) float32 image pixels, visible (N, K, K) bool)."""
+        k = self.spec.crosspoints_per_side
+        xy = np.zeros((len(image_index), k, k, 2), dtype=np.float32)
+        visible = np.zeros((len(image_index), k, k), dtype=bool)
+        with torch.inference_mode():
+            for part in _batches(len(image_index), self.batch_size):
+                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, CROSSPOINT_CROP)
+                output = self.crosspoints(self._to_device(crops), self._to_device(self.references(marker_id[part])))
+                output = output.float().cpu().numpy()
+                crop_xy = output[:, 1:].transpose(0, 2, 3, 1)
+                xy[part] = crop_to_image(self.spec, CROSSPOINT_CROP, points_px[part], crop_xy)
+                with np.errstate(over="ignore"):
+                    visible[part] = 1.0 / (1.0 + np.exp(-output[:, 0])) > self.config.visibility_threshold
+        for i in np.unique(image_index):
+            pick = image_index == i
+            height, width = images[i].shape[:2]
+            visible[pick] &= inside_image(xy[pick], width, height)
+        return xy, visible
+
+    def complete_partial(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+                         marker_id: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 3: (points (N, 5, 2) float64, partial (N,) bool): cut markers' points estimated from
+        their neighbours (unchanged without tables or without a detected full neighbour)."""
+        points = np.asarray(points_px, dtype=np.float64).copy()
+        partial = np.zeros(len(image_index), dtype=bool)
+        if self.layout is None:
+            return points, partial
+        for i in np.unique(image_index):
+            pick = np.flatnonzero(image_index == i)
+            size = (images[i].shape[1], images[i].shape[0])
+            full = fully_observed(self.spec, points[pick], size, self.config.max_layout_residual_cells)
+            points[pick], partial[pick] = estimate_from_neighbours(
+                self.layout, self.spec, marker_id[pick], points[pick], full, confidence[pick], size,
+                self.config.consistency_cells)
+        return points, partial
+
+    def __call__(self, images: Sequence[np.ndarray]) -> list[Detections]:
+        """Detect the markers of every image: images uint8 (H, W, 3) -> one `Detections` per image."""
+        images = check_images(images)
+        if not images:
+            return []
+        located = self.localize(images)
+        image_index = np.concatenate([np.full(len(s), i, dtype=np.int64) for i, (_, s) in enumerate(located)])
+        points = np.concatenate([p for p, _ in located]).astype(np.float64)
+        presence = np.concatenate([s for _, s in located])
+        keep = usable_points(self.spec, points)
+        image_index, points, presence = image_index[keep], points[keep], presence[keep]
+
+        marker_id, probability = self.recognize(images, image_index, points)
+        confidence = (presence * probability).astype(np.float32)
+        points, partial = self.complete_partial(images, image_index, points, marker_id, confidence)
+        crosspoints_px, visible = self.locate_crosspoints(images, image_index, points, marker_id)
+
+        result = []
+        for i in range(len(images)):
+            pick = image_index == i
+            result.append(Detections(
+                marker_id=marker_id[pick], confidence=confidence[pick], points_px=points[pick].astype(np.float32),
+                crosspoints_px=crosspoints_px[pick], crosspoint_visible=visible[pick], partial=partial[pick]))
+        return result

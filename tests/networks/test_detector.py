@@ -1,0 +1,333 @@
+"""The Detector: its geometry on a fabric seen through a known homography (exact answers), partial
+markers from neighbours, and the whole chain with real (untrained, seeded) networks on CPU."""
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from assets.geometry import apply_homography, fit_homography
+from assets.pattern import (
+    CROSSPOINT_CROP,
+    RECOGNIZER_CROP,
+    MarkerTable,
+    PatternSpec,
+    crop_crosspoints_px,
+    generate_codebook,
+    reference_textures,
+    render_region,
+    xy_to_pixel,
+)
+from networks.checkpoint import save_checkpoint
+from networks.config import TrainConfig
+from networks.detections import Detections
+from networks.detector import Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers, usable_points
+from networks.homography import (
+    MarkerLayout,
+    crop_to_image,
+    estimate_from_neighbours,
+    fit_homography_masked,
+    layout_residual,
+)
+from networks.models import CrosspointLocalizer, MarkerLocalizer, MarkerRecognizer
+
+#: 64 IDs keep the codebook fast; 2 x 3 markers with IDs from 7 and an off-zero origin
+SPEC = PatternSpec(rows=2, cols=3, num_ids=64, origin_xy=(0.031, -0.017))
+FIRST_ID = 7
+PX_PER_CELL = 8
+#: flat render (continuous pixels) -> camera image (continuous pixels): rotation, shear, perspective
+CAMERA = np.array([[0.78, 0.22, 60.0], [-0.12, 0.74, 70.0], [2.0e-4, 3.0e-4, 1.0]])
+IMAGE_SIZE = (560, 470)  # (W, H)
+
+
+@pytest.fixture(scope="module")
+def codebook():
+    return generate_codebook(SPEC)
+
+
+@pytest.fixture(scope="module")
+def table(codebook):
+    return MarkerTable.build(SPEC, codebook, first_id=FIRST_ID)
+
+
+@pytest.fixture(scope="module")
+def scene(table):
+    """The fabric rendered flat and warped by CAMERA: (image, true five points (M, 5, 2), true
+    crosspoints (M, K, K, 2)), all in camera image pixels."""
+    dpi = PX_PER_CELL / SPEC.pitch_mm * 25.4
+    flat = render_region(table, dpi=dpi)
+    to_cv = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])  # OpenCV's pixel centres are at integers
+    image = cv2.warpPerspective(flat, to_cv @ CAMERA @ np.linalg.inv(to_cv), IMAGE_SIZE, flags=cv2.INTER_AREA)
+    bounds = SPEC.fabric_bounds
+    points = apply_homography(CAMERA, xy_to_pixel(table.localization_xy, bounds, dpi))
+    crosspoints = apply_homography(CAMERA, xy_to_pixel(table.marker_crosspoint_xy, bounds, dpi))
+    return image, points, crosspoints
+
+
+def test_unwarp_with_the_true_points_gives_the_reference_textures(table, scene):
+    image, points, _ = scene
+    m = table.num_markers
+    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
+        crops = unwarp_markers([image], np.zeros(m, np.int64), points, SPEC, crop).astype(np.float64)
+        refs = reference_textures(SPEC, table.codes, crop).astype(np.float64)
+        lo = round(crop.margin_cells * crop.px_per_cell(SPEC)) + 4
+        hi = crop.size_px - lo
+        # (marker, reference) mean absolute difference over the marker's inside
+        error = np.abs(crops[:, None, lo:hi, lo:hi] - refs[None, :, lo:hi, lo:hi]).mean(axis=(2, 3, 4))
+        assert (error.argmin(axis=1) == np.arange(m)).all()
+        assert error.diagonal().max() < 12, error.diagonal()
+        off = error + np.diag(np.full(m, np.inf))
+        assert (error.diagonal() < 0.5 * off.min(axis=1)).all()
+
+
+def test_crop_crosspoints_map_back_to_the_true_image_crosspoints(scene):
+    _, points, crosspoints = scene
+    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
+        canonical = np.broadcast_to(crop_crosspoints_px(SPEC, crop), crosspoints.shape)
+        mapped = crop_to_image(SPEC, crop, points, canonical)
+        assert mapped.shape == crosspoints.shape
+        assert np.abs(mapped - crosspoints).max() < 1e-6
+
+
+def test_layout_checks_tell_full_markers_from_cut_ones(scene):
+    _, points, _ = scene
+    assert layout_residual(SPEC, points).max() < 1e-6
+    assert fully_observed(SPEC, points, IMAGE_SIZE, 1.0).all()
+    bent = points.copy()
+    bent[2, 2] += [18.0, 8.0]  # TR of marker 2 off its place by about 6 cells
+    mirrored = points.copy()
+    mirrored[4] = points[4][[0, 2, 1, 4, 3]]  # left and right swapped: a homography fits, but mirrored
+    assert layout_residual(SPEC, bent)[2] > 1.0
+    assert layout_residual(SPEC, mirrored)[4] < 1e-6
+    for changed, index in ((bent, 2), (mirrored, 4)):
+        full = fully_observed(SPEC, changed, IMAGE_SIZE, 1.0)
+        assert not full[index] and full[np.arange(len(full)) != index].all()
+    # the same markers in a smaller image: those reaching beyond its right edge are cut
+    narrow = (int(np.ceil(points[:, :, 0].max())) - 20, IMAGE_SIZE[1])
+    expected = (points[:, :, 0] <= narrow[0]).all(axis=1)
+    assert 0 < expected.sum() < len(points)
+    assert (fully_observed(SPEC, points, narrow, 1.0) == expected).all()
+    degenerate = points.copy()
+    degenerate[1] = points[1, :1]  # all five points at the centre
+    degenerate[3, 2] = np.nan
+    assert usable_points(SPEC, degenerate).tolist() == [True, False, True, False, True, True]
+
+
+def test_masked_homography_fit_ignores_masked_points():
+    rng = np.random.default_rng(3)
+    truth = np.array([[0.9, -0.2, 15.0], [0.3, 1.1, -4.0], [3e-4, -1e-4, 1.0]])
+    src = rng.uniform(-50, 50, (4, 9, 2))
+    dst = apply_homography(truth, src)
+    mask = rng.random((4, 9)) < 0.7
+    mask[:, :4] = True
+    mask[3] = [True] * 3 + [False] * 6  # too few points: NaN
+    dst[~mask] = np.nan  # masked-out points may be anything, NaN included
+    src[~mask] += 1e3
+    fitted = fit_homography_masked(src, dst, mask)
+    assert np.allclose(fitted[:3], truth, atol=1e-9)
+    assert np.isnan(fitted[3]).all()
+    full = np.ones((1, 9), bool)
+    clean = rng.uniform(-50, 50, (1, 9, 2))
+    noisy = apply_homography(truth, clean) + rng.normal(0, 0.5, (1, 9, 2))
+    assert np.allclose(fit_homography_masked(clean, noisy, full), fit_homography(clean, noisy), atol=1e-9)
+
+
+def test_marker_layout_neighbours(table):
+    other = MarkerTable.build(dataclasses.replace(SPEC, rows=1, cols=2), generate_codebook(SPEC), first_id=30)
+    layout = MarkerLayout.from_tables([table, other], SPEC.num_ids)
+    # panel 0 is 2 x 3 from ID 7: (0, 0) = 7 touches 8, 10, 11; (1, 1) = 11 touches all five others
+    neighbours = layout.neighbours(np.array([7, 11, 30, 5, 99]))
+    assert sorted(neighbours[0][neighbours[0] >= 0]) == [8, 10, 11]
+    assert sorted(neighbours[1][neighbours[1] >= 0]) == [7, 8, 9, 10, 12]
+    assert sorted(neighbours[2][neighbours[2] >= 0]) == [31]  # other panels are not neighbours
+    assert (neighbours[3:] == -1).all()  # not on the garment, not an ID
+    assert layout.contains(np.array([7, 12, 13, 30, 31, 32])).tolist() == [True, True, False, True, True, False]
+    assert np.allclose(layout.localization_xy[11], table.localization_xy[4])
+    with pytest.raises(ValueError, match=r"tables\[1\].*also in"):
+        MarkerLayout.from_tables([table, table], SPEC.num_ids)
+
+
+def test_cut_marker_is_recovered_from_its_neighbours(table, scene):
+    _, points, _ = scene
+    layout = MarkerLayout.from_tables([table], SPEC.num_ids)
+    ids = table.marker_ids.astype(np.int64)
+    detected = points.copy()
+    detected[1, [2, 4]] += [[35.0, -12.0], [28.0, 20.0]]  # TR and BR of marker 8 are lost beyond a boundary
+    detected[5, 1:] = detected[5, 0] + 3.0  # marker 12 collapsed: all five points are wrong
+    full = fully_observed(SPEC, detected, IMAGE_SIZE, 1.0)
+    assert full.tolist() == [True, False, True, True, True, False]
+    confidence = np.linspace(0.9, 0.4, len(ids))
+    estimate, estimated = estimate_from_neighbours(layout, SPEC, ids, detected, full, confidence, IMAGE_SIZE, 1.0)
+    assert estimated.tolist() == [False, True, False, False, False, True]
+    assert np.abs(estimate[[1, 5]] - points[[1, 5]]).max() < 1e-6
+    assert np.array_equal(estimate[full], detected[full])
+    # a wrong duplicate of a neighbour's ID with less confidence is ignored
+    dup_ids = np.append(ids, ids[0])
+    dup_points = np.concatenate([detected, detected[:1] + 40.0])
+    dup_conf = np.append(confidence, 0.1)
+    estimate, _ = estimate_from_neighbours(layout, SPEC, dup_ids, dup_points, np.append(full, True), dup_conf,
+                                           IMAGE_SIZE, 1.0)
+    assert np.abs(estimate[[1, 5]] - points[[1, 5]]).max() < 1e-6
+    # without a detected full neighbour nothing is estimated
+    alone = ~np.isin(np.arange(len(ids)), [0, 2, 3, 4])
+    _, estimated = estimate_from_neighbours(layout, SPEC, ids[alone], detected[alone], full[alone],
+                                            confidence[alone], IMAGE_SIZE, 1.0)
+    assert not estimated.any()
+
+
+def test_pad_images():
+    a = np.full((5, 9, 3), 7, np.uint8)
+    b = np.full((17, 3, 3), 9, np.uint8)
+    batch = pad_images([a, b])
+    assert batch.shape == (2, 24, 16, 3) and batch.dtype == np.uint8
+    assert (batch[0, :5, :9] == 7).all() and batch[0, 5:].sum() == 0 and batch[0, :, 9:].sum() == 0
+    assert (batch[1, :17, :3] == 9).all() and batch[1, 17:].sum() == 0
+
+
+# ---- the whole chain with real networks ------------------------------------------------------
+
+def _networks(seed):
+    """Untrained networks; the localizer's last layer is scaled down and biased towards markers
+    of 40 px with a centre inside each cell, so that every stage downstream has work to do."""
+    torch.manual_seed(seed)
+    localizer = MarkerLocalizer()
+    with torch.no_grad():
+        out = localizer.head.out
+        out.weight.mul_(0.01)
+        layout = torch.tensor([[4, 4], [-16, -16], [24, -16], [-16, 24], [24, 24]], dtype=torch.float32)
+        out.bias.copy_(torch.cat([torch.tensor([3.0]), layout.reshape(-1)]))
+    return localizer, MarkerRecognizer(SPEC.num_ids), CrosspointLocalizer()
+
+
+@pytest.fixture(scope="module")
+def detector(codebook, table):
+    localizer, recognizer, crosspoints = _networks(0)
+    config = DetectorConfig(nms_radius_px=40.0)
+    return Detector(localizer, recognizer, crosspoints, SPEC, batch_size=4, tables=[table], config=config,
+                    codebook=codebook)
+
+
+def _check(detections, image):
+    k = SPEC.crosspoints_per_side
+    n = len(detections)
+    assert detections.marker_id.shape == (n,) and detections.marker_id.dtype == np.int64
+    assert detections.confidence.shape == (n,) and detections.confidence.dtype == np.float32
+    assert detections.points_px.shape == (n, 5, 2) and detections.points_px.dtype == np.float32
+    assert detections.crosspoints_px.shape == (n, k, k, 2) and detections.crosspoints_px.dtype == np.float32
+    assert detections.crosspoint_visible.shape == (n, k, k) and detections.crosspoint_visible.dtype == np.bool_
+    assert detections.partial.shape == (n,) and detections.partial.dtype == np.bool_
+    assert ((detections.confidence >= 0) & (detections.confidence <= 1)).all()
+    assert ((detections.marker_id >= FIRST_ID) & (detections.marker_id < FIRST_ID + 6)).all()  # on the garment
+    assert np.isfinite(detections.points_px).all() and np.isfinite(detections.crosspoints_px).all()
+    height, width = image.shape[:2]
+    centre = detections.points_px[:, 0]
+    assert ((centre >= 0) & (centre <= [width, height])).all()
+    seen = detections.crosspoints_px[detections.crosspoint_visible]
+    assert ((seen >= 0) & (seen <= [width, height])).all()
+
+
+def test_detector_end_to_end_on_cpu(detector, scene):
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    wide = np.ascontiguousarray(scene[0][200:296, 200:328])  # 96 x 128 of the fabric
+    result = detector([small, wide])
+    assert len(result) == 2
+    for detections, image in zip(result, (small, wide)):
+        _check(detections, image)
+    for detections in result:  # every cell fires; the 40 px NMS leaves a few markers further apart
+        assert 1 <= len(detections) <= 9
+        centre = detections.points_px[:, 0].astype(np.float64)
+        gaps = np.linalg.norm(centre[:, None] - centre[None], axis=-1) + np.eye(len(centre)) * 1e9
+        assert gaps.min() > 40.0
+    assert set(detector._references) == set(np.concatenate([d.marker_id for d in result]).tolist())
+    alone = detector([wide])[0]  # batching does not change the answer
+    assert np.array_equal(alone.marker_id, result[1].marker_id)
+    assert np.allclose(alone.crosspoints_px, result[1].crosspoints_px, atol=1e-3)
+    assert detector([]) == []
+    with pytest.raises(ValueError, match=r"images\[1\]: expected uint8"):
+        detector([small, small.astype(np.float32)])
+
+
+def test_detections_save_load_round_trip(tmp_path, detector, scene):
+    image = np.ascontiguousarray(scene[0][200:264, 260:324])
+    detections = detector([image])[0]
+    assert len(detections) > 0
+    path = tmp_path / "cache" / "view0.npz"
+    detections.save(path)
+    loaded = Detections.load(path)
+    for name, array in detections.to_dict().items():
+        assert np.array_equal(getattr(loaded, name), array) and getattr(loaded, name).dtype == array.dtype
+    empty = Detections.empty(SPEC.crosspoints_per_side)
+    empty.save(tmp_path / "empty.npz")
+    assert len(Detections.load(tmp_path / "empty.npz")) == 0
+    bad = dict(detections.to_dict(), partial=np.zeros(len(detections) + 1, bool))
+    np.savez(tmp_path / "bad.npz", **bad)
+    with pytest.raises(ValueError, match=r"bad\.npz: Detections\.partial: expected shape"):
+        Detections.load(tmp_path / "bad.npz")
+    with pytest.raises(ValueError, match="missing array"):
+        np.savez(tmp_path / "short.npz", marker_id=detections.marker_id)
+        Detections.load(tmp_path / "short.npz")
+
+
+def test_from_checkpoints_rebuilds_the_detector_and_refuses_mixed_patterns(tmp_path, detector, table):
+    paths = {}
+    for task, model in (("localizer", detector.localizer), ("recognizer", detector.recognizer),
+                        ("crosspoints", detector.crosspoints)):
+        paths[task] = save_checkpoint(tmp_path / f"{task}.pt", task, model, TrainConfig(task=task), SPEC)
+    loaded = Detector.from_checkpoints(paths["localizer"], paths["recognizer"], paths["crosspoints"], device="cpu",
+                                       batch_size=4, tables=[table], config=detector.config)
+    assert loaded.spec == SPEC and loaded.layout is not None and loaded.device == torch.device("cpu")
+    for name in ("localizer", "recognizer", "crosspoints"):
+        mine, theirs = getattr(detector, name).state_dict(), getattr(loaded, name).state_dict()
+        assert mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
+        assert not getattr(loaded, name).training
+    other = dataclasses.replace(SPEC, seed=1)  # another codebook
+    save_checkpoint(tmp_path / "other.pt", "localizer", detector.localizer, TrainConfig(task="localizer"), other)
+    with pytest.raises(ValueError, match="do not share one pattern"):
+        Detector.from_checkpoints(tmp_path / "other.pt", paths["recognizer"], paths["crosspoints"], device="cpu")
+    with pytest.raises(ValueError, match="expected a crosspoints checkpoint"):
+        Detector.from_checkpoints(paths["localizer"], paths["recognizer"], paths["localizer"], device="cpu")
+
+
+def test_detector_completes_cut_markers_of_each_image(detector, table, scene):
+    _, points, _ = scene
+    ids = table.marker_ids.astype(np.int64)
+    detected = points.copy()
+    detected[4, [3, 4]] += [[-30.0, 25.0], [20.0, 30.0]]  # BL and BR of marker 11 lost
+    image = np.zeros((IMAGE_SIZE[1], IMAGE_SIZE[0], 3), np.uint8)
+    # two images: in the second, marker 11 is alone, so it keeps its own points
+    image_index = np.array([0] * 6 + [1])
+    both = np.concatenate([detected, detected[[4]]])
+    both_ids = np.concatenate([ids, ids[[4]]])
+    completed, partial = detector.complete_partial([image, image], image_index, both, both_ids, np.ones(7))
+    assert partial.tolist() == [False] * 4 + [True] + [False] * 2
+    assert np.abs(completed[4] - points[4]).max() < 1e-6
+    assert np.array_equal(completed[np.arange(7) != 4], both[np.arange(7) != 4])
+
+
+def test_detector_checks_its_inputs(codebook, table):
+    with pytest.raises(ValueError, match="presence_threshold must be in"):
+        DetectorConfig(presence_threshold=1.5)
+    other = MarkerTable.build(SPEC, generate_codebook(dataclasses.replace(SPEC, seed=3)), first_id=FIRST_ID)
+    localizer, recognizer, crosspoints = _networks(1)
+    with pytest.raises(ValueError, match=r"tables\[0\].*codebook"):
+        Detector(localizer, recognizer, crosspoints, SPEC, tables=[other], codebook=codebook)
+    with pytest.raises(ValueError, match="recognizer has 64 IDs, the codebook only 32"):
+        Detector(localizer, recognizer, crosspoints, SPEC, codebook=codebook[:32])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_detector_on_cuda_matches_cpu(detector, table, scene):
+    import copy
+
+    networks = [copy.deepcopy(getattr(detector, name)) for name in ("localizer", "recognizer", "crosspoints")]
+    on_gpu = Detector(*networks, SPEC, device="cuda", batch_size=3, tables=[table], config=detector.config,
+                      codebook=detector.codebook)
+    images = [np.ascontiguousarray(scene[0][200:296, 200:328]), np.ascontiguousarray(scene[0][100:164, 300:364])]
+    for cpu, gpu, image in zip(detector(images), on_gpu(images), images):
+        _check(gpu, image)
+        assert np.array_equal(cpu.marker_id, gpu.marker_id) and np.array_equal(cpu.partial, gpu.partial)
+        assert np.abs(cpu.points_px - gpu.points_px).max() < 1e-2
+        assert np.abs(cpu.crosspoints_px - gpu.crosspoints_px).max() < 0.1
