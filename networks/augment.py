@@ -1,0 +1,109 @@
+"""Photometric augmentation of training images and crops: what a different camera would have seen.
+
+`Augment` holds probabilities and ranges; ``Augment()(image, rng)`` (or `augment(image, rng, config)`)
+applies, in the order a camera would: optical or motion blur, exposure, contrast, saturation and white
+balance, sensor noise (read noise plus signal-dependent shot noise), a gamma curve, and JPEG
+re-encoding.  Nothing here moves a pixel: geometric augmentation would break the targets, whose
+coordinates are exact.  Every random choice comes from the generator passed in, so an item is
+reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+_LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class Augment:
+    """Probabilities (in [0, 1]) and ranges (min, max) of each augmentation.  Intensities are in
+    8-bit levels; blur in pixels; brightness, contrast and saturation are factors (1: unchanged);
+    channel_gain is the largest relative white-balance change per channel; shot_noise scales the
+    noise variance with the signal (variance = sigma^2 + shot_noise * level)."""
+
+    blur_probability: float = 0.3
+    blur_sigma: tuple[float, float] = (0.3, 1.5)
+    motion_blur_probability: float = 0.15
+    motion_blur_px: tuple[int, int] = (3, 9)
+    colour_probability: float = 0.8
+    brightness: tuple[float, float] = (0.6, 1.4)
+    contrast: tuple[float, float] = (0.7, 1.3)
+    saturation: tuple[float, float] = (0.5, 1.5)
+    channel_gain: float = 0.1
+    noise_probability: float = 0.5
+    noise_sigma: tuple[float, float] = (1.0, 8.0)
+    shot_noise: tuple[float, float] = (0.0, 0.5)
+    gamma_probability: float = 0.4
+    gamma: tuple[float, float] = (0.7, 1.5)
+    jpeg_probability: float = 0.4
+    jpeg_quality: tuple[int, int] = (30, 95)
+
+    def __post_init__(self) -> None:
+        problems = []
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name.endswith("_probability") and not 0 <= value <= 1:
+                problems.append(f"{f.name} must be in [0, 1], got {value}")
+            if isinstance(value, tuple) and not (len(value) == 2 and 0 <= value[0] <= value[1]):
+                problems.append(f"{f.name} must be a range (min, max) with 0 <= min <= max, got {value}")
+        if not 0 <= self.channel_gain < 1:
+            problems.append(f"channel_gain must be in [0, 1), got {self.channel_gain}")
+        if self.motion_blur_px[0] < 1 or not 1 <= self.jpeg_quality[0] <= self.jpeg_quality[1] <= 100:
+            problems.append(f"motion_blur_px >= 1 and jpeg_quality in 1..100 required, got "
+                            f"{self.motion_blur_px}, {self.jpeg_quality}")
+        if problems:
+            raise ValueError("invalid Augment: " + "; ".join(problems))
+
+    def __call__(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return augment(image, rng, self)
+
+
+def augment(image: np.ndarray, rng: np.random.Generator, config: Augment = Augment()) -> np.ndarray:
+    """A photometrically augmented copy of `image` (H, W, 3) uint8 RGB; same shape and dtype."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"augment: expected an (H, W, 3) uint8 RGB image, got {image.shape} {image.dtype}")
+    c = config
+    x = image.astype(np.float32)
+    if rng.uniform() < c.motion_blur_probability:
+        x = cv2.filter2D(x, -1, _motion_kernel(int(rng.integers(c.motion_blur_px[0], c.motion_blur_px[1] + 1)),
+                                               rng.uniform(0, np.pi)), borderType=cv2.BORDER_REFLECT)
+    elif rng.uniform() < c.blur_probability:
+        x = cv2.GaussianBlur(x, (0, 0), rng.uniform(*c.blur_sigma), borderType=cv2.BORDER_REFLECT)
+    if rng.uniform() < c.colour_probability:
+        gain = rng.uniform(*c.brightness) * (1 + rng.uniform(-c.channel_gain, c.channel_gain, 3))
+        x *= gain.astype(np.float32)
+        mean = x.mean(axis=(0, 1))
+        x = (x - mean) * np.float32(rng.uniform(*c.contrast)) + mean
+        gray = (x @ _LUMA)[..., None]
+        x = gray + np.float32(rng.uniform(*c.saturation)) * (x - gray)
+    if rng.uniform() < c.noise_probability:
+        variance = rng.uniform(*c.noise_sigma) ** 2 + rng.uniform(*c.shot_noise) * np.clip(x, 0, 255)
+        x += np.sqrt(variance) * rng.standard_normal(x.shape, dtype=np.float32)
+    out = np.clip(x + 0.5, 0, 255).astype(np.uint8)
+    if rng.uniform() < c.gamma_probability:
+        table = 255 * (np.arange(256) / 255) ** rng.uniform(*c.gamma)
+        out = cv2.LUT(out, np.clip(table + 0.5, 0, 255).astype(np.uint8))
+    if rng.uniform() < c.jpeg_probability:
+        quality = int(rng.integers(c.jpeg_quality[0], c.jpeg_quality[1] + 1))
+        ok, data = cv2.imencode(".jpg", out[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+        if not ok:
+            raise RuntimeError(f"augment: JPEG encoding failed for an image of shape {out.shape}")
+        out = cv2.imdecode(data, cv2.IMREAD_COLOR)[:, :, ::-1]
+    return np.ascontiguousarray(out)
+
+
+def _motion_kernel(length: int, angle: float) -> np.ndarray:
+    """(length, length) float32 kernel: a line of `length` pixels at `angle` radians, sum 1."""
+    kernel = np.zeros((length, length), dtype=np.float32)
+    c = (length - 1) / 2
+    t = np.linspace(-c, c, 4 * length)
+    cols = np.clip(np.round(c + t * np.cos(angle)).astype(int), 0, length - 1)
+    rows = np.clip(np.round(c + t * np.sin(angle)).astype(int), 0, length - 1)
+    kernel[rows, cols] = 1.0
+    return kernel / kernel.sum()

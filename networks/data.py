@@ -1,0 +1,357 @@
+"""Training data of the three networks as torch Datasets: rendered (factory folders), synthesized, mixed.
+
+Items are dicts of torch tensors without a batch dimension, so the default collate stacks them:
+
+  localizer:   {"image": uint8 (3, H, W), "cells": float32 (H/8, W/8, 11)}
+  recognizer:  {"crop": uint8 (3, 96, 96), "marker_id": int64 ()}
+  crosspoints: {"crop": uint8 (3, 112, 112), "reference": uint8 (3, 112, 112),
+                "xy": float32 (25, 25, 2) crop pixels, NaN off the fabric, "visible": bool (25, 25)}
+
+`cells`, crops, `xy` and `visible` are exactly `assets.pattern.observation`'s targets; `reference` is the
+marker's canonical crop (`reference_textures` of its codebook row).  Every random choice (which
+synthetic sample, which crop, augmentation) comes from a generator seeded by (seed, epoch, index), so
+an item is reproducible and DataLoader workers need no seeding (no `worker_init_fn`); `set_epoch(e)`
+before each epoch gives new augmentations (and new synthetic samples) while staying reproducible.
+Do not call `cv2.setNumThreads` inside a forked worker: when the parent has used OpenCV's thread pool,
+that call deadlocks the worker (measured here: every time).
+
+A factory dataset folder (`factory.dataset`) holds manifest.jsonl (one JSON object per finished image:
+name, split, image, samples, ...), splits.json, images/<name>.png, samples/<name>.npz (cells,
+recognizer_crops/_ids, crosspoint_crops/_ids/_xy/_visible) and template.npz, whose layout_json
+carries the garment's pattern spec (the codebook of the crosspoint references).
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from collections import OrderedDict
+from pathlib import Path
+from typing import Sequence
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+from tqdm import tqdm
+
+from assets.pattern.codebook import generate_codebook
+from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
+from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.spec import PatternSpec
+from networks.augment import Augment
+from networks.config import TASKS
+from networks.synth import PatternSynthesizer, SynthConfig
+
+SPLITS = ("train", "val", "test")
+#: the arrays of samples/<name>.npz each crop task reads
+_CROP_KEYS = {
+    "recognizer": ("recognizer_crops", "recognizer_ids"),
+    "crosspoints": ("crosspoint_crops", "crosspoint_ids", "crosspoint_xy", "crosspoint_visible"),
+}
+#: synthetic samples tried for one crop item before giving up (a sample may show no usable marker)
+_ATTEMPTS = 32
+
+
+def dataset_spec(root: str | Path) -> PatternSpec:
+    """The pattern spec of a factory dataset folder, from template.npz's layout_json (read without
+    assets.garments, so without its mesh dependencies)."""
+    path = Path(root) / "template.npz"
+    if not path.is_file():
+        raise ValueError(f"{root}: no template.npz (the garment template holding the pattern spec); "
+                         "pass spec= explicitly")
+    text = _read_npz(path, ("layout_json",))["layout_json"]
+    try:
+        layout = json.loads(text.tobytes())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: layout_json is not valid JSON ({exc})") from exc
+    if not isinstance(layout, dict) or "spec" not in layout:
+        raise ValueError(f"{path}: layout_json has no 'spec'")
+    return PatternSpec.from_dict(layout["spec"], source=f"{path}:layout_json.spec")
+
+
+class _Items:
+    """Shared item building: augmentation, reference textures, tensors."""
+
+    task: str
+    seed: int
+    epoch: int = 0
+    augment: Augment | None
+    spec: PatternSpec | None
+    codebook: np.ndarray | None
+    _references: dict[int, np.ndarray]
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def _rng(self, index: int, part: int) -> np.random.Generator:
+        return np.random.default_rng([self.seed, self.epoch, int(index), part])
+
+    def _augmented(self, image: np.ndarray, index: int) -> np.ndarray:
+        return image if self.augment is None else self.augment(image, self._rng(index, 1))
+
+    def _reference(self, marker_id: int) -> np.ndarray:
+        cache = self._references
+        if marker_id not in cache:
+            if not 0 <= marker_id < len(self.codebook):
+                raise ValueError(f"marker ID {marker_id} is outside the codebook of {len(self.codebook)} IDs")
+            cache[marker_id] = reference_textures(self.spec, self.codebook[marker_id][None], CROSSPOINT_CROP)[0]
+        return cache[marker_id]
+
+    def _item(self, index: int, image=None, cells=None, crop=None, marker_id=None, xy=None, visible=None) -> dict:
+        """The task's item from numpy arrays: images and crops (H, W, 3) uint8 (augmented here)."""
+        if self.task == "localizer":
+            return {"image": _chw(self._augmented(image, index)),
+                    "cells": torch.from_numpy(np.asarray(cells, np.float32))}
+        item = {"crop": _chw(self._augmented(crop, index))}
+        if self.task == "recognizer":
+            return {**item, "marker_id": torch.tensor(int(marker_id), dtype=torch.int64)}
+        return {**item, "reference": _chw(self._reference(int(marker_id))),
+                "xy": torch.from_numpy(np.asarray(xy, np.float32)),
+                "visible": torch.from_numpy(np.asarray(visible, bool))}
+
+
+class RenderedDataset(_Items, Dataset):
+    """The items of one split of a factory dataset folder.
+
+    root: the folder; split: "train", "val" or "test"; task: one of `networks.config.TASKS`.  A crop
+    task indexes every crop of every image of the split (the index is built once, reading only the
+    ID arrays).  spec: the pattern spec for the crosspoint references (default: the folder's
+    template.npz).  cache_images: decoded samples/<name>.npz kept per worker (crops of one image are
+    read together; a sampler that keeps an image's crops close together profits most)."""
+
+    def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
+                 spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32):
+        if task not in TASKS:
+            raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+        self.root, self.split, self.task, self.augment, self.seed = Path(root), split, task, augment, seed
+        self.cache_images = max(1, int(cache_images))
+        self._references = {}
+        self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
+        self.entries = [e for e in _manifest(self.root) if e["split"] == split]
+        if not self.entries:
+            raise ValueError(f"{self.root}: no images in split {split!r}")
+        needed = ("samples",) if task != "localizer" else ("samples", "image")
+        missing = [e[k] for e in self.entries for k in needed if not (self.root / e[k]).is_file()]
+        if missing:
+            raise ValueError(f"{self.root}: {len(missing)} file(s) of the manifest are missing, e.g. {missing[:3]}")
+        if task == "localizer":
+            self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
+        else:
+            key = _CROP_KEYS[task][1]
+            counts = [len(_read_npz(self.root / e["samples"], (key,))[key])
+                      for e in tqdm(self.entries, desc=f"index {split} {task}", disable=len(self.entries) < 1000)]
+            image = np.repeat(np.arange(len(self.entries)), counts)
+            crop = np.arange(len(image)) - np.repeat(np.cumsum(counts) - counts, counts)
+            self._index = np.stack([image, crop], axis=1).astype(np.int64)
+        self.spec = self.codebook = None
+        if task == "crosspoints":
+            self.spec = spec if spec is not None else dataset_spec(self.root)
+            self.codebook = generate_codebook(self.spec)  # before DataLoader workers fork, so they share it
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} items")
+        image_index, crop = (int(v) for v in self._index[index])
+        entry = self.entries[image_index]
+        if self.task == "localizer":
+            image = _read_png(self.root / entry["image"])
+            cells = _read_npz(self.root / entry["samples"], ("cells",))["cells"]
+            h, w = image.shape[:2]
+            if cells.shape != (h // 8, w // 8, 11):
+                raise ValueError(f"{self.root / entry['samples']}: cells has shape {cells.shape}, expected "
+                                 f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
+            return self._item(index, image=image, cells=cells)
+        arrays = self._arrays(image_index)
+        if self.task == "recognizer":
+            return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
+        return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
+                          xy=arrays["crosspoint_xy"][crop], visible=arrays["crosspoint_visible"][crop])
+
+    def _arrays(self, image_index: int) -> dict[str, np.ndarray]:
+        if image_index in self._cache:
+            self._cache.move_to_end(image_index)
+            return self._cache[image_index]
+        path = self.root / self.entries[image_index]["samples"]
+        arrays = _read_npz(path, _CROP_KEYS[self.task])
+        count = len(arrays[_CROP_KEYS[self.task][1]])
+        size = (RECOGNIZER_CROP if self.task == "recognizer" else CROSSPOINT_CROP).size_px
+        expected = {_CROP_KEYS[self.task][0]: ((count, size, size, 3), np.uint8)}
+        if self.task == "crosspoints":
+            k = self.spec.crosspoints_per_side
+            expected.update(crosspoint_xy=((count, k, k, 2), np.float32), crosspoint_visible=((count, k, k), np.bool_))
+        problems = [f"{name} is {arrays[name].shape} {arrays[name].dtype}, expected {shape} {np.dtype(dtype).name}"
+                    for name, (shape, dtype) in expected.items()
+                    if arrays[name].shape != shape or arrays[name].dtype != dtype]
+        if problems:
+            raise ValueError(f"{path}: " + "; ".join(problems))
+        self._cache[image_index] = arrays
+        while len(self._cache) > self.cache_images:
+            self._cache.popitem(last=False)
+        return arrays
+
+
+class SynthDataset(_Items, Dataset):
+    """`length` items of `task` drawn from `PatternSynthesizer` (deterministic per seed, epoch, index).
+
+    config: the synthesizer's settings (default `SynthConfig()`; for the crop tasks, which need one
+    marker rather than a scene, 256 x 256 images centred on a marker); its seed is replaced by `seed`.  image_size
+    overrides config.image_size.  For a crop task, item i takes crop i % crops_per_sample of
+    synthetic sample i // crops_per_sample (a small cache makes consecutive items share a sample:
+    sequential sampling, which loses nothing on i.i.d. synthetic data, profits from it).  Crosspoint
+    items come from markers whose centre is visible, as the Detector's crops do (the factory's
+    rendered crops also include markers seen only at their edge).
+    codebook: (num_ids, n, n) codes of `spec` (generated if not given)."""
+
+    def __init__(self, task: str, spec: PatternSpec, length: int, seed: int, config: SynthConfig | None = None,
+                 augment: Augment | None = None, image_size: tuple[int, int] | None = None,
+                 codebook: np.ndarray | None = None, crops_per_sample: int = 2):
+        if task not in TASKS:
+            raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
+        if length < 1 or crops_per_sample < 1:
+            raise ValueError(f"length and crops_per_sample must be >= 1, got {length}, {crops_per_sample}")
+        if config is None:
+            config = SynthConfig() if task == "localizer" else SynthConfig(image_size=(256, 256), centred=True)
+        config = config.replace(seed=int(seed), **({"image_size": tuple(image_size)} if image_size else {}))
+        self.task, self.spec, self.length, self.seed, self.augment = task, spec, int(length), int(seed), augment
+        self.crops_per_sample = 1 if task == "localizer" else int(crops_per_sample)
+        self.synthesizer = PatternSynthesizer(spec, config, codebook)
+        self.codebook = self.synthesizer.codebook
+        self._references = {}
+        self._last: tuple[tuple[int, int], list[tuple]] | None = None
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        if not 0 <= index < self.length:
+            raise IndexError(f"index {index} out of range for {self.length} items")
+        sample = index // self.crops_per_sample
+        base = (self.epoch * self.length + sample) * _ATTEMPTS
+        if self.task == "localizer":
+            image, gt = self.synthesizer.sample(base)
+            return self._item(index, image=image, cells=localizer_targets(gt))
+        crops = self._crops(sample, base)
+        pick = self._rng(sample, 2).permutation(len(crops))[(index % self.crops_per_sample) % len(crops)]
+        if self.task == "recognizer":
+            crop, marker_id = crops[pick]
+            return self._item(index, crop=crop, marker_id=marker_id)
+        crop, marker_id, xy, visible = crops[pick]
+        return self._item(index, crop=crop, marker_id=marker_id, xy=xy, visible=visible)
+
+    def _crops(self, sample: int, base: int) -> list[tuple]:
+        """The crops of the first of `_ATTEMPTS` synthetic samples that has any, as tuples."""
+        key = (self.epoch, sample)
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        for attempt in range(_ATTEMPTS):
+            image, gt = self.synthesizer.sample(base + attempt)
+            if self.task == "recognizer":
+                made = recognizer_crops(image, gt, self.spec)
+            else:
+                made = crosspoint_crops(image, gt, self.spec)
+                # as the Detector will see them: markers whose centre is seen (the localizer finds those)
+                centre = self.spec.crosspoints_per_side // 2
+                made = tuple(a[made[3][:, centre, centre]] for a in made)
+            if len(made[0]):
+                crops = list(zip(*made))
+                self._last = (key, crops)
+                return crops
+        raise RuntimeError(f"SynthDataset: {_ATTEMPTS} synthetic samples in a row showed no usable marker; "
+                           f"check SynthConfig.marker_px against image_size ({self.synthesizer.config})")
+
+
+class MixedDataset(Dataset):
+    """`length` items, each drawn from `datasets[k]` with probability weights[k] (normalised) at a
+    uniformly random index of it; deterministic per (seed, epoch, index)."""
+
+    def __init__(self, datasets: Sequence[Dataset], weights: Sequence[float], length: int, seed: int):
+        weights = np.asarray(weights, dtype=np.float64)
+        if len(datasets) == 0 or weights.shape != (len(datasets),):
+            raise ValueError(f"MixedDataset: need one weight per dataset, got {len(datasets)} datasets and "
+                             f"weights {weights.tolist()}")
+        if not (np.all(weights >= 0) and weights.sum() > 0):
+            raise ValueError(f"MixedDataset: weights must be >= 0 with a positive sum, got {weights.tolist()}")
+        tasks = {getattr(d, "task", None) for d in datasets}
+        if len(tasks) > 1:
+            raise ValueError(f"MixedDataset: datasets of different tasks {sorted(map(str, tasks))}")
+        empty = [k for k, d in enumerate(datasets) if len(d) == 0 and weights[k] > 0]
+        if empty or length < 1:
+            raise ValueError(f"MixedDataset: length must be >= 1 ({length}) and weighted datasets non-empty ({empty})")
+        self.datasets, self.weights = list(datasets), weights / weights.sum()
+        self.task, self.length, self.seed, self.epoch = tasks.pop(), int(length), int(seed), 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+        for d in self.datasets:
+            if hasattr(d, "set_epoch"):
+                d.set_epoch(epoch)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def source(self, index: int) -> tuple[int, int]:
+        """(dataset number, index in it) of item `index`."""
+        if not 0 <= index < self.length:
+            raise IndexError(f"index {index} out of range for {self.length} items")
+        rng = np.random.default_rng([self.seed, self.epoch, int(index)])
+        k = int(rng.choice(len(self.datasets), p=self.weights))
+        return k, int(rng.integers(len(self.datasets[k])))
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        k, j = self.source(index)
+        return self.datasets[k][j]
+
+
+# ---- files -----------------------------------------------------------------------------------------
+def _manifest(root: Path) -> list[dict]:
+    path = root / "manifest.jsonl"
+    if not path.is_file():
+        raise ValueError(f"{root}: no manifest.jsonl (not a factory dataset folder, or no shard has finished)")
+    if not (root / "splits.json").is_file():
+        raise ValueError(f"{root}: no splits.json (not a factory dataset folder)")
+    entries = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}:{number}: invalid JSON ({exc.msg})") from exc
+        missing = [k for k in ("name", "split", "image", "samples") if not isinstance(entry, dict) or k not in entry]
+        if missing:
+            raise ValueError(f"{path}:{number}: missing field(s) {', '.join(missing)}")
+        entries.append(entry)
+    return entries
+
+
+def _read_npz(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
+    """Only `keys` of an npz (np.load decompresses members on access)."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: a single array, not an .npz archive")
+    with data:
+        missing = [k for k in keys if k not in data.files]
+        if missing:
+            raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
+        return {k: data[k] for k in keys}
+
+
+def _read_png(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{path}: not a readable image")
+    return np.ascontiguousarray(image[:, :, ::-1])
+
+
+def _chw(image: np.ndarray) -> torch.Tensor:
+    """(H, W, 3) uint8 -> (3, H, W) uint8 tensor."""
+    return torch.from_numpy(np.ascontiguousarray(np.asarray(image, np.uint8).transpose(2, 0, 1)))

@@ -1,0 +1,74 @@
+"""Photometric augmentation: changes appearance only, reproducibly."""
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from networks.augment import Augment, augment
+
+OFF = Augment(blur_probability=0, motion_blur_probability=0, colour_probability=0, noise_probability=0,
+              gamma_probability=0, jpeg_probability=0)
+
+
+def _image(seed: int = 0) -> np.ndarray:
+    """A 64 x 80 test image with edges, gradients and colour."""
+    rng = np.random.default_rng(seed)
+    image = np.zeros((64, 80, 3), np.uint8)
+    image[:] = np.linspace(40, 220, 80, dtype=np.uint8)[None, :, None]
+    image[16:48, 20:60] = rng.integers(0, 256, 3)
+    cv2.line(image, (0, 5), (79, 60), (0, 0, 0), 1)
+    return image
+
+
+def _sharpness(image: np.ndarray) -> float:
+    return float(cv2.Laplacian(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), cv2.CV_64F).var())
+
+
+def test_everything_on_changes_the_image_but_not_its_shape_and_is_reproducible():
+    config = Augment(blur_probability=1, colour_probability=1, noise_probability=1, gamma_probability=1,
+                     jpeg_probability=1)
+    image = _image()
+    out = augment(image, np.random.default_rng(3), config)
+    assert out.shape == image.shape and out.dtype == np.uint8 and out.flags.c_contiguous
+    assert np.abs(out.astype(int) - image).mean() > 2
+    assert np.array_equal(out, config(image, np.random.default_rng(3)))
+    assert not np.array_equal(out, config(image, np.random.default_rng(4)))
+    assert np.array_equal(image, _image())  # the input is left alone
+
+
+def test_all_off_is_the_identity():
+    image = _image(1)
+    assert np.array_equal(augment(image, np.random.default_rng(0), OFF), image)
+
+
+def test_each_effect_does_what_it_says():
+    gray = np.full((64, 64, 3), 100, np.uint8)
+    doubled = replace(OFF, colour_probability=1, brightness=(2.0, 2.0), contrast=(1.0, 1.0), saturation=(1.0, 1.0),
+                      channel_gain=0.0)
+    brighter = augment(gray, np.random.default_rng(0), doubled)
+    assert np.all(brighter == 200)
+    gamma = augment(np.full((8, 8, 3), 128, np.uint8), np.random.default_rng(0),
+                    replace(OFF, gamma_probability=1, gamma=(2.0, 2.0)))
+    assert np.all(gamma == round(255 * (128 / 255) ** 2))
+    noisy = augment(np.full((128, 128, 3), 128, np.uint8), np.random.default_rng(0),
+                    replace(OFF, noise_probability=1, noise_sigma=(5.0, 5.0), shot_noise=(0.0, 0.0)))
+    assert abs(noisy.astype(float).std() - 5.0) < 0.3
+    sharp = _image(2)
+    for blur in ({"blur_probability": 1, "blur_sigma": (1.5, 1.5)}, {"motion_blur_probability": 1}):
+        blurred = augment(sharp, np.random.default_rng(0), replace(OFF, **blur))
+        assert _sharpness(blurred) < 0.8 * _sharpness(sharp), blur
+    jpeg = augment(_image(3), np.random.default_rng(0), replace(OFF, jpeg_probability=1, jpeg_quality=(10, 10)))
+    assert 0.5 < np.abs(jpeg.astype(int) - _image(3)).mean() < 20
+
+
+def test_bad_input_and_config_are_refused():
+    with pytest.raises(ValueError, match="uint8"):
+        augment(np.zeros((8, 8, 3), np.float32), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        augment(np.zeros((8, 8), np.uint8), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="noise_probability"):
+        Augment(noise_probability=1.5)
+    with pytest.raises(ValueError, match="gamma"):
+        Augment(gamma=(1.5, 0.7))

@@ -1,0 +1,221 @@
+"""Training datasets: a factory dataset folder (written here in the factory's layout from synthetic
+images), the synthesizer, and their mixture."""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from assets.fileio import save_json, save_npz
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
+from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from networks.augment import Augment
+from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec
+from networks.synth import PatternSynthesizer, SynthConfig
+
+SPEC = PatternSpec(rows=8, cols=8, num_ids=512)
+#: (motion, frame) -> split, three variations each, as `factory.dataset.build` names and splits them
+FRAMES = {("walk", 2): "train", ("walk", 4): "train", ("walk", 5): "val", ("walk", 7): "test"}
+VARIATIONS = 2
+
+
+@pytest.fixture(scope="module")
+def codebook():
+    return generate_codebook(SPEC)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory, codebook) -> Path:
+    """A dataset folder in the layout `factory.dataset.build` writes, with synthetic images."""
+    garments = pytest.importorskip("assets.garments")  # the real template file (needs triangle)
+    from assets.garments.defaults import default_pattern
+
+    out = tmp_path_factory.mktemp("dataset")
+    garments.Template.build(default_pattern("skirt"), SPEC, dpi=20).save(out / "template.npz", levels=())
+    save_json(out / "config.json", {"garment": "skirt", "motions": ["walk"], "variations": VARIATIONS, "seed": 0})
+    save_json(out / "splits.json", {s: [f"{m}/{f}" for (m, f), name in FRAMES.items() if name == s]
+                                    for s in ("train", "val", "test")})
+    synth = PatternSynthesizer(SPEC, SynthConfig(image_size=(192, 128), marker_px=(36, 56)), codebook)
+    (out / "images").mkdir()
+    for k, ((motion, frame), split) in enumerate(sorted(FRAMES.items())):
+        for v in range(VARIATIONS):
+            name = f"{motion}_f{frame:06d}_v{v}"
+            image, gt = synth.sample(k * VARIATIONS + v)
+            cv2.imwrite(str(out / "images" / f"{name}.png"), image[:, :, ::-1])
+            rec, rec_ids = recognizer_crops(image, gt, SPEC)
+            xp, xp_ids, xp_xy, xp_vis = crosspoint_crops(image, gt, SPEC)
+            gt.save(out / "gt" / f"{name}.npz")
+            save_npz(out / "samples" / f"{name}.npz", {
+                "cells": localizer_targets(gt), "recognizer_crops": rec, "recognizer_ids": rec_ids,
+                "crosspoint_crops": xp, "crosspoint_ids": xp_ids, "crosspoint_xy": xp_xy,
+                "crosspoint_visible": xp_vis})
+            save_json(out / "meta" / f"{name}.json", {
+                "name": name, "split": split, "motion": motion, "frame": frame, "variation": v,
+                "image": f"images/{name}.png", "depth": f"images/{name}_depth.exr",
+                "camera": f"images/{name}_camera.json", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
+                "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum())})
+    lines = [json.dumps(json.loads(p.read_text()), sort_keys=True) for p in sorted((out / "meta").glob("*.json"))]
+    (out / "manifest.jsonl").write_text("".join(line + "\n" for line in lines))
+    return out
+
+
+def _entries(folder: Path, split: str) -> list[dict]:
+    entries = [json.loads(line) for line in (folder / "manifest.jsonl").read_text().splitlines()]
+    return [e for e in entries if e["split"] == split]
+
+
+def test_the_folder_spec_comes_from_the_template(folder):
+    assert dataset_spec(folder) == SPEC
+
+
+def test_localizer_items_are_the_images_and_their_cells(folder):
+    for split, count in (("train", 4), ("val", 2), ("test", 2)):
+        data = RenderedDataset(folder, split, "localizer")
+        assert len(data) == count
+        entries = _entries(folder, split)
+        for i in range(len(data)):
+            item = data[i]
+            assert item["image"].dtype == torch.uint8 and item["image"].shape == (3, 128, 192)
+            assert item["cells"].dtype == torch.float32 and item["cells"].shape == (16, 24, 11)
+            png = cv2.imread(str(folder / entries[i]["image"]))[:, :, ::-1]
+            assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), png)
+            cells = np.load(folder / entries[i]["samples"])["cells"]
+            assert np.array_equal(item["cells"].numpy(), cells, equal_nan=True)
+
+
+def test_crop_tasks_index_every_crop_of_the_split(folder, codebook):
+    for split in ("train", "val"):
+        arrays = [np.load(folder / e["samples"]) for e in _entries(folder, split)]
+        recognizer = RenderedDataset(folder, split, "recognizer")
+        crops = np.concatenate([a["recognizer_crops"] for a in arrays])
+        ids = np.concatenate([a["recognizer_ids"] for a in arrays])
+        assert len(recognizer) == len(ids) > 0
+        for i in (0, len(ids) // 2, len(ids) - 1):
+            item = recognizer[i]
+            assert item["crop"].shape == (3, 96, 96) and item["crop"].dtype == torch.uint8
+            assert item["marker_id"].dtype == torch.int64 and item["marker_id"].shape == ()
+            assert np.array_equal(item["crop"].permute(1, 2, 0).numpy(), crops[i]) and item["marker_id"] == ids[i]
+        crosspoints = RenderedDataset(folder, split, "crosspoints")
+        xy = np.concatenate([a["crosspoint_xy"] for a in arrays])
+        xp_ids = np.concatenate([a["crosspoint_ids"] for a in arrays])
+        assert len(crosspoints) == len(xp_ids) > 0
+        for i in (0, len(xp_ids) - 1):
+            item = crosspoints[i]
+            assert item["crop"].shape == item["reference"].shape == (3, 112, 112)
+            assert item["xy"].dtype == torch.float32 and item["xy"].shape == (25, 25, 2)
+            assert item["visible"].dtype == torch.bool and item["visible"].shape == (25, 25)
+            assert np.array_equal(item["xy"].numpy(), xy[i], equal_nan=True)
+            reference = reference_textures(SPEC, codebook[xp_ids[i]][None], CROSSPOINT_CROP)[0]
+            assert np.array_equal(item["reference"].permute(1, 2, 0).numpy(), reference)
+
+
+def test_default_collate_batches_the_items(folder):
+    for task, keys in (("localizer", {"image", "cells"}), ("recognizer", {"crop", "marker_id"}),
+                       ("crosspoints", {"crop", "reference", "xy", "visible"})):
+        loader = DataLoader(RenderedDataset(folder, "train", task), batch_size=3)
+        batch = next(iter(loader))
+        assert set(batch) == keys and all(len(v) == 3 for v in batch.values())
+    assert batch["visible"].dtype == torch.bool and batch["reference"].shape == (3, 3, 112, 112)
+    data = RenderedDataset(folder, "train", "recognizer", augment=Augment(), seed=2)
+    parallel = DataLoader(data, batch_size=4, num_workers=2, timeout=60)
+    serial = DataLoader(data, batch_size=4)
+    for a, b in zip(parallel, serial):  # workers need no seeding: items depend on (seed, epoch, index) only
+        assert torch.equal(a["crop"], b["crop"]) and torch.equal(a["marker_id"], b["marker_id"])
+
+
+def test_augmentation_is_reproducible_per_index_and_epoch(folder):
+    plain = RenderedDataset(folder, "train", "recognizer")
+    data = RenderedDataset(folder, "train", "recognizer", augment=Augment(colour_probability=1), seed=3)
+    first = data[1]["crop"]
+    assert not torch.equal(first, plain[1]["crop"]) and first.shape == plain[1]["crop"].shape
+    assert torch.equal(first, data[1]["crop"]) and data[1]["marker_id"] == plain[1]["marker_id"]
+    data.set_epoch(1)
+    assert not torch.equal(first, data[1]["crop"])
+    crosspoints = RenderedDataset(folder, "train", "crosspoints", augment=Augment(colour_probability=1))
+    clean = RenderedDataset(folder, "train", "crosspoints")
+    assert torch.equal(crosspoints[0]["reference"], clean[0]["reference"])  # the reference is never augmented
+
+
+def test_bad_folders_are_named(folder, tmp_path):
+    with pytest.raises(ValueError, match="manifest.jsonl"):
+        RenderedDataset(tmp_path, "train", "localizer")
+    with pytest.raises(ValueError, match="split"):
+        RenderedDataset(folder, "training", "localizer")
+    with pytest.raises(ValueError, match="task"):
+        RenderedDataset(folder, "train", "segmenter")
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for name in ("manifest.jsonl", "splits.json"):
+        (broken / name).write_text((folder / name).read_text())
+    with pytest.raises(ValueError, match="missing"):
+        RenderedDataset(broken, "train", "recognizer")
+    (broken / "samples").symlink_to(folder / "samples")
+    (broken / "images").symlink_to(folder / "images")
+    with pytest.raises(ValueError, match="template.npz"):
+        RenderedDataset(broken, "train", "crosspoints")
+    assert len(RenderedDataset(broken, "train", "crosspoints", spec=SPEC)) > 0
+    (broken / "manifest.jsonl").write_text('{"name": "x", "split": "train"}\n')
+    with pytest.raises(ValueError, match="manifest.jsonl:1: missing field"):
+        RenderedDataset(broken, "train", "localizer")
+
+
+def test_synth_items_follow_the_contract_and_are_reproducible(codebook):
+    config = SynthConfig(image_size=(160, 160), marker_px=(40, 64), centred=True)
+    localizer = SynthDataset("localizer", SPEC, length=3, seed=1, config=config, codebook=codebook)
+    item = localizer[0]
+    assert item["image"].shape == (3, 160, 160) and item["cells"].shape == (20, 20, 11)
+    assert torch.equal(item["image"], localizer[0]["image"])
+    assert not torch.equal(item["image"], SynthDataset("localizer", SPEC, 3, seed=2, config=config,
+                                                       codebook=codebook)[0]["image"])
+    recognizer = SynthDataset("recognizer", SPEC, length=8, seed=1, config=config, codebook=codebook)
+    crops = [recognizer[i] for i in range(4)]  # one synthetic sample serves four items
+    assert all(c["crop"].shape == (3, 96, 96) and c["marker_id"].dtype == torch.int64 for c in crops)
+    assert len({int(c["marker_id"]) for c in crops}) > 1
+    assert torch.equal(recognizer[2]["crop"], crops[2]["crop"])
+    plain = config.replace(deformation=0.0, shading=False, occluders=(0, 0), boundary_probability=0.0)
+    crosspoints = SynthDataset("crosspoints", SPEC, length=8, seed=1, config=plain, codebook=codebook)
+    items = [crosspoints[i] for i in range(8)]
+    assert all(i["crop"].shape == i["reference"].shape == (3, 112, 112) for i in items)
+    assert all(i["xy"].shape == (25, 25, 2) and i["visible"].dtype == torch.bool for i in items)
+    full = [i for i in items if i["visible"].all()]
+    assert full
+    # the reference is the canonical crop of the marker in the crop: of all IDs, it matches best
+    references = _modules(reference_textures(SPEC, codebook, CROSSPOINT_CROP))
+    for item in full:
+        seen = _modules(item["crop"].permute(1, 2, 0).numpy()[None])[0]
+        best = int(np.abs(references - seen).mean(axis=(1, 2, 3)).argmin())
+        assert np.array_equal(_modules(item["reference"].permute(1, 2, 0).numpy()[None])[0], references[best])
+    augmented = SynthDataset("crosspoints", SPEC, length=8, seed=1, config=plain, codebook=codebook, augment=Augment())
+    assert torch.equal(augmented[0]["reference"], items[0]["reference"])
+    assert np.array_equal(augmented[0]["xy"].numpy(), items[0]["xy"].numpy(), equal_nan=True)
+    crosspoints.set_epoch(1)
+    assert not torch.equal(items[3]["crop"], crosspoints[3]["crop"])
+
+
+def _modules(crops: np.ndarray) -> np.ndarray:
+    """The marker part of 112 px crops (N, 112, 112, 3) averaged per 8 x 8 px code module."""
+    return crops[:, 8:104, 8:104].astype(np.float64).reshape(len(crops), 12, 8, 12, 8, 3).mean(axis=(2, 4))
+
+
+def test_mixed_dataset_draws_in_proportion_to_the_weights(codebook):
+    config = SynthConfig(image_size=(64, 64), marker_px=(30, 50))
+    a = SynthDataset("localizer", SPEC, length=10, seed=0, config=config, codebook=codebook)
+    b = SynthDataset("localizer", SPEC, length=20, seed=1, config=config, codebook=codebook)
+    mixed = MixedDataset([a, b], weights=[3, 1], length=4000, seed=5)
+    sources = np.array([mixed.source(i) for i in range(len(mixed))])
+    assert abs((sources[:, 0] == 0).mean() - 0.75) < 0.03
+    assert sources[sources[:, 0] == 0, 1].max() < 10 and sources[sources[:, 0] == 1, 1].max() >= 10
+    assert len(np.unique(sources[sources[:, 0] == 1, 1])) == 20  # every item of b is reachable
+    k, j = mixed.source(7)
+    assert torch.equal(mixed[7]["image"], [a, b][k][j]["image"])
+    assert [mixed.source(i) for i in range(50)] == [tuple(s) for s in sources[:50]]
+    mixed.set_epoch(1)
+    assert [mixed.source(i) for i in range(50)] != [tuple(s) for s in sources[:50]] and a.epoch == 1
+    with pytest.raises(ValueError, match="weight"):
+        MixedDataset([a, b], weights=[1], length=10, seed=0)
+    with pytest.raises(ValueError, match="tasks"):
+        MixedDataset([a, SynthDataset("recognizer", SPEC, 2, 0, config=config, codebook=codebook)], [1, 1], 10, 0)
