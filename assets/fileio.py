@@ -52,18 +52,29 @@ def save_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray]) -> None:
             zf.writestr(info, buf.getvalue())
 
 
-def load_npz(path: str | os.PathLike, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
-    """Read a `.npz` without pickles; raise naming the file when it is unreadable or lacks a key."""
+def load_npz(path: str | os.PathLike, required: tuple[str, ...] = (),
+             only: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    """Read a `.npz` without pickles; raise naming the file when it is unreadable or lacks a key.
+
+    only: read just these arrays (all required; members are decompressed on access, so the others
+    cost nothing)."""
     path = Path(path)
+    wanted = tuple(required) + tuple(k for k in only or () if k not in required)
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise ValueError(f"{path}: a single array, not an .npz archive")
+        with data:
+            missing = [key for key in wanted if key not in data.files]
+            if missing:
+                raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
+            return {key: data[key] for key in (only if only is not None else data.files)}
+    except FileNotFoundError:
+        raise
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
-    missing = [key for key in required if key not in arrays]
-    if missing:
-        raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
-    return arrays
+    except ValueError as exc:
+        raise exc if str(exc).startswith(str(path)) else ValueError(f"{path}: not a readable .npz file ({exc})")
 
 
 def save_json(path: str | os.PathLike, obj: object) -> None:

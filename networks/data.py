@@ -24,7 +24,6 @@ carries the garment's pattern spec (the codebook of the crosspoint references).
 from __future__ import annotations
 
 import json
-import zipfile
 from collections import OrderedDict
 from pathlib import Path
 from typing import Sequence
@@ -35,6 +34,7 @@ import torch
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
+from assets.fileio import load_npz
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
 from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
@@ -60,7 +60,7 @@ def dataset_spec(root: str | Path) -> PatternSpec:
     if not path.is_file():
         raise ValueError(f"{root}: no template.npz (the garment template holding the pattern spec); "
                          "pass spec= explicitly")
-    text = _read_npz(path, ("layout_json",))["layout_json"]
+    text = load_npz(path, only=("layout_json",))["layout_json"]
     try:
         layout = json.loads(text.tobytes())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -141,7 +141,7 @@ class RenderedDataset(_Items, Dataset):
             self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
         else:
             key = _CROP_KEYS[task][1]
-            counts = [len(_read_npz(self.root / e["samples"], (key,))[key])
+            counts = [len(load_npz(self.root / e["samples"], only=(key,))[key])
                       for e in tqdm(self.entries, desc=f"index {split} {task}", disable=len(self.entries) < 1000)]
             image = np.repeat(np.arange(len(self.entries)), counts)
             crop = np.arange(len(image)) - np.repeat(np.cumsum(counts) - counts, counts)
@@ -161,7 +161,7 @@ class RenderedDataset(_Items, Dataset):
         entry = self.entries[image_index]
         if self.task == "localizer":
             image = _read_png(self.root / entry["image"])
-            cells = _read_npz(self.root / entry["samples"], ("cells",))["cells"]
+            cells = load_npz(self.root / entry["samples"], only=("cells",))["cells"]
             h, w = image.shape[:2]
             if cells.shape != (h // 8, w // 8, 11):
                 raise ValueError(f"{self.root / entry['samples']}: cells has shape {cells.shape}, expected "
@@ -178,7 +178,7 @@ class RenderedDataset(_Items, Dataset):
             self._cache.move_to_end(image_index)
             return self._cache[image_index]
         path = self.root / self.entries[image_index]["samples"]
-        arrays = _read_npz(path, _CROP_KEYS[self.task])
+        arrays = load_npz(path, only=_CROP_KEYS[self.task])
         count = len(arrays[_CROP_KEYS[self.task][1]])
         size = (RECOGNIZER_CROP if self.task == "recognizer" else CROSSPOINT_CROP).size_px
         expected = {_CROP_KEYS[self.task][0]: ((count, size, size, 3), np.uint8)}
@@ -328,21 +328,6 @@ def _manifest(root: Path) -> list[dict]:
             raise ValueError(f"{path}:{number}: missing field(s) {', '.join(missing)}")
         entries.append(entry)
     return entries
-
-
-def _read_npz(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
-    """Only `keys` of an npz (np.load decompresses members on access)."""
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ValueError(f"{path}: a single array, not an .npz archive")
-    with data:
-        missing = [k for k in keys if k not in data.files]
-        if missing:
-            raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
-        return {k: data[k] for k in keys}
 
 
 def _read_png(path: Path) -> np.ndarray:

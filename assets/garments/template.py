@@ -20,7 +20,6 @@ shirt) costs nothing until used.
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -30,7 +29,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from assets.fileio import save_npz
+from assets.fileio import load_npz, save_npz
 from assets.garments.layout import SheetLayout, layout_garment
 from assets.garments.mesh import mesh_panel, seam_segment_counts
 from assets.garments.sewing import SewingPattern
@@ -213,7 +212,7 @@ class Template:
     @classmethod
     def load(cls, path: str | Path) -> "Template":
         path = Path(path)
-        data = load_npz_keys(path, ("pattern_json", "layout_json", "levels_mm"))
+        data = load_npz(path, only=("pattern_json", "layout_json", "levels_mm"))
         pattern = SewingPattern.from_dict(json.loads(data["pattern_json"].tobytes()), f"{path}:pattern_json")
         layout = SheetLayout.from_dict(json.loads(data["layout_json"].tobytes()), f"{path}:layout_json")
         return cls(pattern, layout, source=path, stored=tuple(int(v) for v in data["levels_mm"]))
@@ -222,25 +221,8 @@ class Template:
         if spacing_mm not in self._stored:
             return None
         keys = tuple(f"L{spacing_mm}/{k}" for k in _LEVEL_KEYS)
-        data = load_npz_keys(self._source, keys)
+        data = load_npz(self._source, only=keys)
         return Level(spacing_mm, *(data[k] for k in keys))
-
-
-def load_npz_keys(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Read only `keys` from a template npz (np.load decompresses members on access)."""
-    try:
-        data = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: not a template npz ({exc})") from exc
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ValueError(f"{path}: not a template npz (a single array)")
-    with data:
-        missing = [k for k in keys if k not in data.files]
-        if missing:
-            raise ValueError(f"{path}: not a complete template (missing {', '.join(missing)})")
-        return {k: data[k] for k in keys}
 
 
 def _text(s: str) -> np.ndarray:
