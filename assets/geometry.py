@@ -1,4 +1,5 @@
-"""Planar projective geometry on plain arrays: homography fitting and application, batched."""
+"""Planar geometry on plain arrays: homography fitting and application (batched), and exact point
+location in a planar triangle mesh."""
 
 from __future__ import annotations
 
@@ -50,3 +51,74 @@ def fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     h = np.linalg.inv(td) @ hn @ ts
     h /= h[:, 2:3, 2:3]
     return h[0] if single else h
+
+
+#: a point is inside a triangle when its smallest barycentric weight is at least -this
+_INSIDE_TOLERANCE = 1e-9
+#: points located per batch (bounds the memory of the candidate pairs)
+_LOCATE_BATCH = 1 << 16
+
+
+def locate_in_mesh(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact point location in a planar triangle mesh.
+
+    vertices (V, 2), faces (F, 3) (one panel: faces must not overlap), points (N, 2).  Returns the
+    face (N,) int64 containing each point (the one it is deepest inside where it lies on shared
+    edges) or -1 when no face contains it, and barycentric weights (N, 3) (0 where -1).  Faces are
+    bucketed in a uniform grid of about one face size, so every face containing a point is tested."""
+    points = np.asarray(points, dtype=np.float64)
+    tri = vertices[faces]  # (F, 3, 2)
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    size = float(np.median((hi - lo).max(axis=1))) if len(faces) else 1.0
+    pad = 1e-6 * size  # so a point on a face's edge, up to rounding, is in a cell of that face
+    lo, hi = lo - pad, hi + pad
+    origin = lo.min(axis=0) if len(faces) else np.zeros(2)
+    first = np.floor((lo - origin) / size).astype(np.int64)
+    last = np.floor((hi - origin) / size).astype(np.int64)
+    grid_cols = int(last[:, 0].max()) + 1 if len(faces) else 1
+    # (face, cell) pairs for every cell each face's bounding box touches, sorted by cell
+    span = last - first + 1
+    count = span[:, 0] * span[:, 1]
+    owner = np.repeat(np.arange(len(faces)), count)
+    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    cell_x = first[owner, 0] + local % span[owner, 0]
+    cell_y = first[owner, 1] + local // span[owner, 0]
+    cell_key = cell_y * grid_cols + cell_x
+    order = np.argsort(cell_key, kind="stable")
+    cell_key, owner = cell_key[order], owner[order]
+
+    face_out = np.full(len(points), -1, dtype=np.int64)
+    bary_out = np.zeros((len(points), 3))
+    for start in range(0, len(points), _LOCATE_BATCH):
+        batch = points[start : start + _LOCATE_BATCH]
+        cell = np.floor((batch - origin) / size).astype(np.int64)
+        inside_grid = (cell >= 0).all(axis=1) & (cell[:, 0] < grid_cols)
+        key = np.where(inside_grid, cell[:, 1] * grid_cols + cell[:, 0], -1)
+        begin = np.searchsorted(cell_key, key, side="left")
+        n = np.searchsorted(cell_key, key, side="right") - begin
+        point = np.repeat(np.arange(len(batch)), n)
+        candidate = owner[np.repeat(begin, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+        bary = barycentric(tri[candidate], batch[point])
+        score = bary.min(axis=1)
+        inside = score >= -_INSIDE_TOLERANCE
+        point, candidate, bary, score = point[inside], candidate[inside], bary[inside], score[inside]
+        best = np.lexsort((-score, point))
+        _, keep = np.unique(point[best], return_index=True)
+        best = best[keep]
+        face_out[start + point[best]] = candidate[best]
+        bary_out[start + point[best]] = bary[best]
+    return face_out, bary_out
+
+
+
+
+def barycentric(tri: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Barycentric weights (N, 3) of points (N, 2) in triangles (N, 3, 2)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    v0, v1, v2 = b - a, c - a, points - a
+    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    l1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
+    l2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
+    return np.stack([1 - l1 - l2, l1, l2], axis=1)
+
+

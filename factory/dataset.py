@@ -61,7 +61,8 @@ from assets.cameras import Camera, save_cameras
 from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments import Template
 from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
-from factory.groundtruth import MarkerSurface, image_ground_truth
+from assets.garments.markers import MarkerSurface
+from factory.groundtruth import image_ground_truth
 from factory.simulate import SimulationConfig, load_template, simulate
 
 log = logging.getLogger(__name__)

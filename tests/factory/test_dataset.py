@@ -14,7 +14,8 @@ import pytest
 
 from assets.cameras import Camera
 from factory.dataset import DatasetConfig, RenderSettings, build, split_of_frames, write_scene, _job, corner_uv
-from factory.groundtruth import MarkerSurface, image_ground_truth
+from assets.garments.markers import MarkerSurface
+from factory.groundtruth import image_ground_truth
 
 PROJECT = Path(__file__).resolve().parents[2]
 TINY = RenderSettings(resolution=(64, 64), engine="WORKBENCH", samples=1, denoise=False)

@@ -21,7 +21,8 @@ from assets.pattern import (
 )
 from assets.pattern.raster import pixels_per_metre
 from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
-from factory.groundtruth import MarkerSurface, image_ground_truth
+from assets.garments.markers import MarkerSurface
+from factory.groundtruth import image_ground_truth
 from tests.assets.garment_fixtures import tube
 
 #: 64 IDs keep the codebook fast to generate; rows and cols are set per panel by the layout
