@@ -60,7 +60,7 @@ from assets.body import load_body
 from assets.cameras import Camera, save_cameras
 from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments import Template
-from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.observation import ImageGroundTruth, training_samples
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 from factory.simulate import SimulationConfig, load_template, simulate
@@ -241,12 +241,7 @@ def ground_truth_for(surface: MarkerSurface, positions: np.ndarray, image_path: 
         raise ValueError(f"{image_path}: not a readable image")
     image = image[:, :, ::-1].copy()
     gt = image_ground_truth(surface, positions, camera, read_depth(depth_path))
-    rec, rec_ids = recognizer_crops(image, gt, surface.spec)
-    xp, xp_ids, xp_xy, xp_vis = crosspoint_crops(image, gt, surface.spec)
-    samples = {"cells": localizer_targets(gt), "recognizer_crops": rec, "recognizer_ids": rec_ids,
-               "crosspoint_crops": xp, "crosspoint_ids": xp_ids, "crosspoint_xy": xp_xy,
-               "crosspoint_visible": xp_vis}
-    return gt, samples
+    return gt, training_samples(image, gt, surface.spec)
 
 
 # ---- build -------------------------------------------------------------------------------------

@@ -174,3 +174,15 @@ def _unwarp(image: np.ndarray, spec: PatternSpec, crop: CropSpec, points_px: np.
     if len(points_px) == 0:
         return np.zeros((0, crop.size_px, crop.size_px) + image.shape[2:], dtype=image.dtype)
     return unwarp(image, spec, crop, points_px.astype(np.float64))
+
+
+def training_samples(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec) -> dict[str, np.ndarray]:
+    """All three networks' training arrays of one image (what a dataset's ``samples/<name>.npz`` holds):
+    cells (H/8, W/8, 11) of `localizer_targets`; recognizer_crops, recognizer_ids of
+    `recognizer_crops`; crosspoint_crops, crosspoint_ids, crosspoint_xy, crosspoint_visible of
+    `crosspoint_crops`.  The same from a saved ground truth (markers with status > 0 only) as from
+    the full one."""
+    rec, rec_ids = recognizer_crops(image, gt, spec)
+    xp, xp_ids, xp_xy, xp_vis = crosspoint_crops(image, gt, spec)
+    return {"cells": localizer_targets(gt), "recognizer_crops": rec, "recognizer_ids": rec_ids,
+            "crosspoint_crops": xp, "crosspoint_ids": xp_ids, "crosspoint_xy": xp_xy, "crosspoint_visible": xp_vis}
