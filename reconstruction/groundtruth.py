@@ -1,0 +1,173 @@
+"""The ``--detections groundtruth`` mode: the factory's exact 2D observations in place of the networks.
+
+A synthetic capture folder (`factory.dataset.capture`) holds, per camera and frame, the ground truth
+of every marker in the image (``<camera>/f<frame:06d>_gt.npz``, an
+`assets.pattern.observation.ImageGroundTruth`).  `GroundTruthCapture.detections` turns it into the
+`networks.detections.Detections` the Detector would output: the visible crosspoints only, confidence
+1, with optional Gaussian pixel noise and dropout, seeded per (seed, camera, frame) so any view can be
+remade alone.  This measures triangulation and post-processing on their own; everything made from
+these detections says so through `GroundTruthConfig.source` (for example
+``groundtruth(noise=0.3px, dropout=0.1, unit=crosspoint, seed=0)``), which later stages write into
+their outputs (`CapturedPoints.source`).
+
+The folder's ground-truth garment (``garment.npz``: sewn-mesh positions (T, V, 3) at ``level_mm``,
+``faces``, ``frames``; ``template.npz``) is read too, for measuring: `GroundTruthCapture.crosspoints`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+import numpy as np
+
+from assets.cameras import Camera, load_cameras
+from assets.fileio import load_npz
+from assets.garments.template import Template
+from assets.pattern.observation import ImageGroundTruth
+from assets.pattern.table import localization_rc
+from assets.pattern.spec import PatternSpec
+from networks.detections import Detections
+from reconstruction.correspondence import CrosspointMap
+from reconstruction.views import check_synchronised
+
+_GT_FILE = re.compile(r"^f(\d+)_gt\.npz$")
+DROPOUT_UNITS = ("crosspoint", "marker")
+
+
+@dataclass(frozen=True)
+class GroundTruthConfig:
+    """How ground-truth observations are degraded.
+
+    noise_px: standard deviation of the Gaussian noise added to each crosspoint's x and y, pixels.
+    dropout: fraction of `unit`s removed at random ('crosspoint': each detected marker crosspoint
+    independently; 'marker': whole markers).  seed: with the camera index and frame number, seeds
+    the noise and dropout of one view."""
+
+    noise_px: float = 0.0
+    dropout: float = 0.0
+    unit: str = "crosspoint"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.noise_px) and self.noise_px >= 0):
+            raise ValueError(f"GroundTruthConfig.noise_px must be >= 0 pixels, got {self.noise_px}")
+        if not 0 <= self.dropout < 1:
+            raise ValueError(f"GroundTruthConfig.dropout must be a fraction in [0, 1), got {self.dropout}")
+        if self.unit not in DROPOUT_UNITS:
+            raise ValueError(f"GroundTruthConfig.unit must be one of {DROPOUT_UNITS}, got {self.unit!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"GroundTruthConfig.seed must be an integer >= 0, got {self.seed!r}")
+
+    @property
+    def source(self) -> str:
+        """The name every output made from these detections carries."""
+        return f"groundtruth(noise={self.noise_px:g}px, dropout={self.dropout:g}, unit={self.unit}, seed={self.seed})"
+
+    def rng(self, camera: int, frame: int) -> np.random.Generator:
+        """The generator of one view (camera index, frame number)."""
+        return np.random.default_rng([self.seed, camera, frame])
+
+
+def ground_truth_detections(gt: ImageGroundTruth, config: GroundTruthConfig,
+                            rng: np.random.Generator) -> Detections:
+    """One image's ground truth -> the `Detections` a perfect detector would give, degraded by
+    `config` (noise, dropout) with `rng`.
+
+    Markers keep their visible crosspoints (minus dropout); markers left with none are removed.
+    points_px are the (noisy) localization crosspoints; `partial` marks markers whose five
+    localization points are not all visible; confidence is 1."""
+    m, k = gt.num_markers, gt.crosspoints_px.shape[1]
+    visible = gt.crosspoint_visible.copy()
+    keep_marker = np.ones(m, dtype=bool)
+    if config.dropout > 0:
+        if config.unit == "marker":
+            keep_marker = rng.random(m) >= config.dropout
+        else:
+            visible &= rng.random((m, k, k)) >= config.dropout
+    crosspoints = gt.crosspoints_px.astype(np.float64)
+    if config.noise_px > 0:
+        noise = rng.normal(0.0, config.noise_px, crosspoints.shape)
+        crosspoints = np.where(gt.crosspoint_visible[..., None], crosspoints + noise, crosspoints)
+    keep = keep_marker & visible.any(axis=(1, 2))
+    rc = localization_rc(PatternSpec(crosspoints_per_side=k))
+    crosspoints = crosspoints[keep].astype(np.float32)
+    return Detections(
+        marker_id=gt.marker_id[keep].astype(np.int64),
+        confidence=np.ones(int(keep.sum()), np.float32),
+        points_px=crosspoints[:, rc[:, 0], rc[:, 1]],
+        crosspoints_px=crosspoints,
+        crosspoint_visible=visible[keep],
+        partial=~gt.point_visible[keep].all(axis=1),
+    )
+
+
+class GroundTruthCapture:
+    """A factory capture folder read for ground-truth detections and ground-truth garment points.
+
+    cameras: from ``cameras.json``; frames: the frame numbers every camera has ground truth for."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        if not (self.folder / "cameras.json").is_file():
+            raise ValueError(f"{self.folder}: not a capture folder (no cameras.json)")
+        self.cameras: list[Camera] = load_cameras(self.folder / "cameras.json")
+        found = {}
+        for camera in self.cameras:
+            folder = self.folder / camera.name
+            if not folder.is_dir():
+                raise ValueError(f"{folder}: missing the folder of camera {camera.name!r} named in cameras.json")
+            found[camera.name] = [int(m.group(1)) for p in folder.iterdir() if (m := _GT_FILE.match(p.name))]
+            if not found[camera.name]:
+                raise ValueError(f"{folder}: no ground truth files (f<frame>_gt.npz)")
+        self.frames: list[int] = check_synchronised(found)
+
+    def ground_truth(self, frame: int, camera: int) -> ImageGroundTruth:
+        """The saved ground truth of camera index `camera` at frame number `frame`."""
+        path = self.folder / self.cameras[camera].name / f"f{frame:06d}_gt.npz"
+        gt = ImageGroundTruth.load(path)
+        if (gt.width, gt.height) != (self.cameras[camera].width, self.cameras[camera].height):
+            raise ValueError(f"{path}: ground truth of a {gt.width} x {gt.height} image, camera "
+                             f"{self.cameras[camera].name!r} has {self.cameras[camera].width} x "
+                             f"{self.cameras[camera].height}")
+        return gt
+
+    def detections(self, frame: int, config: GroundTruthConfig = GroundTruthConfig()) -> list[Detections]:
+        """Every camera's ground-truth detections at frame number `frame`, in camera order."""
+        if frame not in self.frames:
+            raise ValueError(f"{self.folder}: no ground truth for frame {frame} (frames: {self.frames})")
+        return [ground_truth_detections(self.ground_truth(frame, c), config, config.rng(c, frame))
+                for c in range(len(self.cameras))]
+
+    # ---- the ground-truth garment ----------------------------------------------------------------
+    @cached_property
+    def garment(self) -> dict[str, np.ndarray]:
+        """``garment.npz``: positions (T, V, 3) sewn-mesh vertices (metres), faces (F, 3), frames (T,),
+        level_mm ()."""
+        path = self.folder / "garment.npz"
+        data = load_npz(path, required=("positions", "faces", "frames", "level_mm"))
+        positions = data["positions"]
+        if positions.ndim != 3 or positions.shape[0] != len(data["frames"]) or positions.shape[2] != 3:
+            raise ValueError(f"{path}: positions must be (T, V, 3) with T = len(frames) = {len(data['frames'])}, "
+                             f"got {positions.shape}")
+        return data
+
+    @cached_property
+    def template(self) -> Template:
+        return Template.load(self.folder / "template.npz")
+
+    @cached_property
+    def crosspoint_map(self) -> CrosspointMap:
+        """The crosspoints on the ground-truth garment's level."""
+        return CrosspointMap.build(self.template, int(self.garment["level_mm"]))
+
+    def crosspoints(self, frame: int, key: np.ndarray) -> np.ndarray:
+        """The ground-truth positions (N, 3) metres of crosspoints `key` (N, 2) at frame number `frame`
+        (interpolated in the garment's sewn mesh; NaN off the fabric)."""
+        frames = self.garment["frames"].tolist()
+        if frame not in frames:
+            raise ValueError(f"{self.folder / 'garment.npz'}: no positions for frame {frame} (frames: {frames})")
+        positions = self.garment["positions"][frames.index(frame)].astype(np.float64)
+        return self.crosspoint_map.points(positions, key)
+

@@ -1,0 +1,278 @@
+"""Input views: frame-synchronised images of every calibrated camera, from folders or videos.
+
+`Views.open(root, cameras)` finds, for camera number i named N, in `root` (first match wins):
+``root/N/`` (a folder of frames), ``root/N.<video>``, ``root/camII/``, ``root/camII.<video>`` (II the
+camera's position in `cameras`, two digits: the factory's capture layout); or take an explicit
+mapping camera name -> folder or video file.
+
+* A folder of frames: every image file in it (``.png .jpg .jpeg .bmp .tif .tiff``) is one frame,
+  numbered by the digits that end its name (``f000012.png`` is frame 12, ``img_7.jpg`` frame 7),
+  sorted by that number.  Other files (the factory's ``_depth.exr`` and ``_gt.npz``) are ignored;
+  an image whose name does not end in digits, or two images of one frame, are errors.
+* A video (``.mp4 .avi .mov .mkv .webm .m4v``, read with OpenCV): frame k is the k-th decoded
+  frame, from 0.
+
+Every camera must have the same frame numbers (the error lists what each camera misses) and images
+of its calibrated size (checked on the first frame when opening, and on every image read).
+Images are returned as (H, W, 3) uint8 RGB.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from assets.cameras import Camera
+from reconstruction.cameras import validate_cameras
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
+_TRAILING_NUMBER = re.compile(r"(\d+)$")
+
+
+@dataclass(frozen=True)
+class ImageFolder:
+    """One camera's frames as image files: frame number -> path."""
+
+    folder: Path
+    files: Mapping[int, Path]
+
+    @classmethod
+    def scan(cls, folder: Path) -> "ImageFolder":
+        files: dict[int, Path] = {}
+        unnumbered = []
+        for path in sorted(folder.iterdir()):
+            if not path.is_file() or path.suffix.lower() not in IMAGE_SUFFIXES:
+                continue
+            match = _TRAILING_NUMBER.search(path.stem)
+            if match is None:
+                unnumbered.append(path.name)
+                continue
+            frame = int(match.group(1))
+            if frame in files:
+                raise ValueError(f"{folder}: {files[frame].name} and {path.name} are both frame {frame}")
+            files[frame] = path
+        if unnumbered:
+            raise ValueError(f"{folder}: image names must end in the frame number, got {unnumbered[:5]}")
+        if not files:
+            raise ValueError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        return cls(folder, dict(sorted(files.items())))
+
+    @property
+    def frames(self) -> list[int]:
+        return list(self.files)
+
+    def describe(self, frame: int) -> str:
+        return str(self.files[frame])
+
+
+@dataclass(frozen=True)
+class VideoFile:
+    """One camera's frames as a video file (frames 0 .. num_frames - 1)."""
+
+    path: Path
+    num_frames: int
+    size: tuple[int, int]
+
+    @classmethod
+    def probe(cls, path: Path) -> "VideoFile":
+        capture = cv2.VideoCapture(str(path))
+        try:
+            if not capture.isOpened():
+                raise ValueError(f"{path}: OpenCV cannot open this video")
+            count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+            size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        finally:
+            capture.release()
+        if count <= 0:
+            raise ValueError(f"{path}: the video reports no frames")
+        return cls(path, count, size)
+
+    @property
+    def frames(self) -> list[int]:
+        return list(range(self.num_frames))
+
+    def describe(self, frame: int) -> str:
+        return f"{self.path} frame {frame}"
+
+
+Source = ImageFolder | VideoFile
+
+
+class Views:
+    """Frame-synchronised images of every camera (module docstring).
+
+    cameras: the calibrated cameras, in order; frames: the frame numbers every camera has, sorted;
+    sources: per camera its `ImageFolder` or `VideoFile`."""
+
+    def __init__(self, cameras: Sequence[Camera], sources: Sequence[Source], frames: Sequence[int] | None = None):
+        if len(cameras) != len(sources):
+            raise ValueError(f"{len(cameras)} cameras but {len(sources)} view sources")
+        self.cameras = tuple(cameras)
+        self.sources = tuple(sources)
+        validate_cameras(self.cameras, "views")
+        common = check_synchronised({c.name: s.frames for c, s in zip(self.cameras, self.sources)})
+        if frames is not None:
+            missing = sorted(set(frames) - set(common))
+            if not len(frames):
+                raise ValueError("an empty list of frames was asked for")
+            if missing:
+                raise ValueError(f"frames {_ranges(missing)} were asked for but the views hold {_ranges(common)}")
+            common = sorted(set(frames))
+        self.frames = tuple(common)
+        self._videos: dict[int, tuple[cv2.VideoCapture, int]] = {}
+        for camera, source in zip(self.cameras, self.sources):
+            size = source.size if isinstance(source, VideoFile) else _size_of(source.files[self.frames[0]])
+            validate_cameras(self.cameras, source.describe(self.frames[0]), image_sizes={camera.name: size})
+
+    @classmethod
+    def open(cls, views: str | Path | Mapping[str, str | Path], cameras: Sequence[Camera],
+             frames: Sequence[int] | None = None) -> "Views":
+        """Find every camera's folder or video in the folder `views` (or take the mapping camera name
+        -> path), check them, and keep `frames` (default: all)."""
+        if isinstance(views, Mapping):
+            unknown = sorted(set(views) - {c.name for c in cameras})
+            if unknown:
+                raise ValueError(f"views given for unknown camera(s) {unknown}")
+            paths = []
+            for camera in cameras:
+                if camera.name not in views:
+                    raise ValueError(f"no views given for camera {camera.name!r}")
+                paths.append(Path(views[camera.name]))
+        else:
+            root = Path(views)
+            if not root.is_dir():
+                raise ValueError(f"{root}: not a folder of views")
+            paths = [_find(root, camera.name, i) for i, camera in enumerate(cameras)]
+        sources = []
+        for path in paths:
+            if path.is_dir():
+                sources.append(ImageFolder.scan(path))
+            elif path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES:
+                sources.append(VideoFile.probe(path))
+            else:
+                raise ValueError(f"{path}: neither a folder of frames nor a video ({', '.join(VIDEO_SUFFIXES)})")
+        return cls(cameras, sources, frames)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def camera_index(self, camera: int | str) -> int:
+        if isinstance(camera, str):
+            names = [c.name for c in self.cameras]
+            if camera not in names:
+                raise ValueError(f"no camera named {camera!r} (cameras: {names})")
+            return names.index(camera)
+        if not 0 <= camera < len(self.cameras):
+            raise ValueError(f"camera index {camera} outside [0, {len(self.cameras)})")
+        return int(camera)
+
+    def describe(self, frame: int, camera: int | str) -> str:
+        """Where the image of (`frame`, `camera`) comes from, for messages."""
+        return self.sources[self.camera_index(camera)].describe(frame)
+
+    def image(self, frame: int, camera: int | str) -> np.ndarray:
+        """The (H, W, 3) uint8 RGB image of `camera` (index or name) at frame number `frame`."""
+        c = self.camera_index(camera)
+        if frame not in self.frames:
+            raise ValueError(f"frame {frame} is not among the views' frames {_ranges(self.frames)}")
+        source, calibrated = self.sources[c], self.cameras[c]
+        if isinstance(source, ImageFolder):
+            bgr = cv2.imread(str(source.files[frame]), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise ValueError(f"{source.files[frame]}: not a readable image")
+        else:
+            bgr = self._video_frame(c, source, frame)
+        if bgr.shape[:2] != (calibrated.height, calibrated.width):
+            raise ValueError(f"{source.describe(frame)}: image is {bgr.shape[1]} x {bgr.shape[0]} pixels, camera "
+                             f"{calibrated.name!r} is calibrated for {calibrated.width} x {calibrated.height}")
+        return np.ascontiguousarray(bgr[:, :, ::-1])
+
+    def images(self, frame: int) -> list[np.ndarray]:
+        """Every camera's image at `frame`, in camera order."""
+        return [self.image(frame, c) for c in range(len(self.cameras))]
+
+    def __iter__(self) -> Iterator[tuple[int, list[np.ndarray]]]:
+        """(frame number, every camera's image) in frame order (videos are read sequentially)."""
+        for frame in self.frames:
+            yield frame, self.images(frame)
+
+    def close(self) -> None:
+        for capture, _ in self._videos.values():
+            capture.release()
+        self._videos.clear()
+
+    def __enter__(self) -> "Views":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _video_frame(self, c: int, source: VideoFile, frame: int) -> np.ndarray:
+        capture, position = self._videos.get(c, (None, -1))
+        if capture is None:
+            capture, position = cv2.VideoCapture(str(source.path)), 0
+        if position != frame:  # seeking is slow and, for some codecs, approximate: read on when ahead
+            if frame > position and frame - position < 64:
+                for _ in range(frame - position):
+                    capture.grab()
+            else:
+                capture.set(cv2.CAP_PROP_POS_FRAMES, frame)
+        ok, bgr = capture.read()
+        self._videos[c] = (capture, frame + 1)
+        if not ok:
+            raise ValueError(f"{source.describe(frame)}: cannot be decoded (the video reported "
+                             f"{source.num_frames} frames)")
+        return bgr
+
+
+def check_synchronised(frames: Mapping[str, Sequence[int]]) -> list[int]:
+    """Camera name -> its frame numbers; returns the shared sorted frame numbers, or raises listing
+    what each camera misses of the others' frames."""
+    sets = {name: set(f) for name, f in frames.items()}
+    if not sets:
+        raise ValueError("no cameras")
+    union = set().union(*sets.values())
+    missing = {name: sorted(union - s) for name, s in sets.items() if union - s}
+    if missing:
+        lines = "; ".join(f"{name} lacks frame(s) {_ranges(m)}" for name, m in missing.items())
+        raise ValueError(f"the cameras' frames are not synchronised: {lines}")
+    return sorted(union)
+
+
+def _find(root: Path, name: str, index: int) -> Path:
+    names = [name, f"cam{index:02d}"] if name != f"cam{index:02d}" else [name]
+    for stem in names:
+        if (root / stem).is_dir():
+            return root / stem
+        for suffix in VIDEO_SUFFIXES:
+            if (root / f"{stem}{suffix}").is_file():
+                return root / f"{stem}{suffix}"
+    present = sorted(p.name for p in root.iterdir())[:12]
+    raise ValueError(f"{root}: no folder or video for camera {index} {name!r} (looked for "
+                     f"{' or '.join(names)}, as a folder or {'/'.join(VIDEO_SUFFIXES)}); found {present}")
+
+
+def _size_of(path: Path) -> tuple[int, int]:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError(f"{path}: not a readable image")
+    return image.shape[1], image.shape[0]
+
+
+def _ranges(values: Sequence[int], limit: int = 8) -> str:
+    """[1, 2, 3, 7, 9, 10] -> '1-3, 7, 9-10' (the first `limit` runs, then a count)."""
+    values = sorted(values)
+    runs: list[list[int]] = []
+    for v in values:
+        if runs and v == runs[-1][1] + 1:
+            runs[-1][1] = v
+        else:
+            runs.append([v, v])
+    text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:limit])
+    return text + (f" and {len(runs) - limit} more runs" if len(runs) > limit else "")
