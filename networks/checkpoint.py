@@ -1,0 +1,183 @@
+"""Checkpoints: one network's weights with everything needed to rebuild and trust it.
+
+A checkpoint is a plain dict of Python types and tensors, written atomically with `torch.save` and
+read with ``torch.load(path, weights_only=True)`` (no code runs on load)::
+
+    {"format": "clothcapture-networks", "version": 1, "task": "localizer" | "recognizer" | "crosspoints",
+     "config": TrainConfig.to_dict(), "pattern": {"spec": PatternSpec.to_dict(), "codebook_hash": sha256},
+     "num_ids": int, "crosspoints_per_side": int, "model": state dict, "optimizer": state dict | None,
+     "scheduler": state dict | None, "step": int, "metrics": dict, "rng": {"torch", "cuda"}, ...extra}
+
+The pattern record ties a checkpoint to the codebook its recognizer learned: loading with another
+pattern (another codebook, or other marker appearance) is refused.  The fabric's extent (rows, cols,
+origin) is not part of a marker's appearance and is not compared.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import pickle
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from assets.fileio import atomic_path
+from assets.pattern import PatternSpec, generate_codebook
+from networks.config import TrainConfig
+from networks.tasks import build_model
+
+FORMAT = "clothcapture-networks"
+VERSION = 1
+#: PatternSpec fields that say how large a fabric is, not what its markers look like
+FABRIC_EXTENT_FIELDS = ("rows", "cols", "origin_xy")
+
+
+@functools.lru_cache(maxsize=8)
+def codebook_hash(spec: PatternSpec) -> str:
+    """SHA-256 of the spec's whole codebook (num_ids, n, n) uint8: the IDs a recognizer learns."""
+    return hashlib.sha256(np.ascontiguousarray(generate_codebook(spec), dtype=np.uint8).tobytes()).hexdigest()
+
+
+def pattern_record(spec: PatternSpec) -> dict[str, object]:
+    """{"spec": spec.to_dict(), "codebook_hash": ...}: what a checkpoint stores of its pattern."""
+    return {"spec": spec.to_dict(), "codebook_hash": codebook_hash(spec)}
+
+
+def checkpoint_spec(checkpoint: dict) -> PatternSpec:
+    """The PatternSpec a checkpoint (as returned by `load_checkpoint`) was trained on."""
+    return PatternSpec.from_dict(checkpoint["pattern"]["spec"], source="checkpoint pattern.spec")
+
+
+def _plain(value: object) -> object:
+    """Metrics as plain Python types (numpy scalars and arrays become floats and lists)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, torch.Tensor):
+        return value.item() if value.numel() == 1 else value.tolist()
+    return value
+
+
+def save_checkpoint(
+    path: str | Path,
+    task: str,
+    model: nn.Module,
+    config: TrainConfig,
+    spec: PatternSpec,
+    optimizer: torch.optim.Optimizer | None = None,
+    scheduler: torch.optim.lr_scheduler.LRScheduler | None = None,
+    step: int = 0,
+    metrics: dict | None = None,
+    extra: dict | None = None,
+) -> Path:
+    """Write the checkpoint dict (module docstring) to `path` atomically; returns the path.
+
+    extra: further plain entries (e.g. the best validation loss so far, the data source) stored at
+    the top level; they may not replace the standard keys."""
+    if task != config.task:
+        raise ValueError(f"save_checkpoint: task {task!r} differs from config.task {config.task!r}")
+    checkpoint = {
+        "format": FORMAT,
+        "version": VERSION,
+        "task": task,
+        "config": config.to_dict(),
+        "pattern": pattern_record(spec),
+        "num_ids": int(spec.num_ids),
+        "crosspoints_per_side": int(spec.crosspoints_per_side),
+        "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "optimizer": optimizer.state_dict() if optimizer is not None else None,
+        "scheduler": scheduler.state_dict() if scheduler is not None else None,
+        "step": int(step),
+        "metrics": _plain(metrics or {}),
+        "rng": {"torch": torch.get_rng_state(),
+                "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else []},
+    }
+    clash = sorted(set(extra or {}) & set(checkpoint))
+    if clash:
+        raise ValueError(f"save_checkpoint: extra entries {clash} would replace standard checkpoint keys")
+    checkpoint.update(_plain(extra or {}))
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(checkpoint, tmp)
+    return path
+
+
+def _describe(data: object) -> str:
+    """What a loaded object that is not our checkpoint looks like, for the error message."""
+    if isinstance(data, dict):
+        keys = list(data)
+        if keys and all(isinstance(v, torch.Tensor) for v in data.values()):
+            resnet = {"conv1.weight", "bn1.weight", "layer1.0.conv1.weight"} <= set(keys)
+            what = "a torchvision ResNet state dict (ImageNet weights? pass it as --pretrained)" if resnet \
+                else "a bare state dict"
+            return f"{what} with {len(keys)} tensors ({', '.join(map(str, keys[:3]))}, ...)"
+        return f"a dict with keys {', '.join(map(str, keys[:8]))}" if keys else "an empty dict"
+    return f"a {type(data).__name__}"
+
+
+def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict:
+    """The checkpoint dict at `path`, checked to be one of ours (format, version); no model built."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such checkpoint file")
+    try:
+        data = torch.load(path, map_location=device, weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"{path}: not a checkpoint (torch.load with weights_only=True failed: {first})") from exc
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a {FORMAT} checkpoint: it holds {_describe(data)}")
+    if data.get("version") != VERSION:
+        raise ValueError(f"{path}: checkpoint version {data.get('version')!r}, this code reads version {VERSION}")
+    missing = [k for k in ("task", "config", "pattern", "num_ids", "crosspoints_per_side", "model", "step")
+               if k not in data]
+    if missing:
+        raise ValueError(f"{path}: checkpoint lacks {', '.join(missing)}")
+    return data
+
+
+def check_pattern(checkpoint: dict, spec: PatternSpec, source: str = "checkpoint") -> None:
+    """Raise ValueError when `spec`'s markers (appearance or codebook) differ from the checkpoint's."""
+    saved = dict(checkpoint["pattern"]["spec"])
+    given = spec.to_dict()
+    differ = sorted(k for k in set(saved) | set(given)
+                    if k not in FABRIC_EXTENT_FIELDS and _plain(saved.get(k)) != _plain(given.get(k)))
+    if differ:
+        detail = ", ".join(f"{k}: {saved.get(k)!r} vs {given.get(k)!r}" for k in differ)
+        raise ValueError(f"{source}: trained on another pattern than the one given ({detail})")
+    if checkpoint["pattern"].get("codebook_hash") != codebook_hash(spec):
+        raise ValueError(f"{source}: trained on another codebook than the given pattern's (codebook_hash differs)")
+
+
+def load_checkpoint(
+    path: str | Path,
+    expected_task: str | None = None,
+    spec: PatternSpec | None = None,
+    device: str | torch.device = "cpu",
+) -> tuple[nn.Module, TrainConfig, dict]:
+    """Rebuild the network stored at `path`: (model in eval mode on `device`, its TrainConfig, the
+    checkpoint dict).  Raises FileNotFoundError for a missing file and ValueError, naming the file,
+    for a file that is not one of our checkpoints, holds another task than `expected_task`, or was
+    trained on another pattern than `spec` (when given)."""
+    data = read_checkpoint(path, device)
+    if expected_task is not None and data["task"] != expected_task:
+        raise ValueError(f"{path}: a {data['task']} checkpoint, expected a {expected_task} checkpoint")
+    config = TrainConfig.from_dict(data["config"], source=f"{path}:config")
+    if config.task != data["task"]:
+        raise ValueError(f"{path}: task {data['task']!r} but config.task {config.task!r}")
+    if spec is not None:
+        check_pattern(data, spec, source=str(path))
+    model = build_model(data["task"], int(data["num_ids"]), int(data["crosspoints_per_side"]))
+    try:
+        model.load_state_dict(data["model"])
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: the weights do not fit the {data['task']} network ({exc})") from exc
+    return model.to(device).eval(), config, data

@@ -1,0 +1,123 @@
+"""`TrainConfig`: every number of one network's training run, saved with every checkpoint.
+
+The reference gives the architectures and losses but no optimiser settings; the defaults here are
+ours: Adam at lr 1e-4 with cosine decay, batches of 16 images of 512 x 512 (Marker Localizer), 256
+crops of 96 x 96 (Marker Recognizer) and 64 crop pairs of 112 x 112 (Crosspoint Localizer), bf16
+autocast on CUDA, augmentation on.  A config is a frozen dataclass, saved to and loaded from JSON; the
+CLI (`python -m networks.train`) overrides single fields.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from assets.fileio import load_json, save_json
+
+#: The three networks, by the name used in checkpoints, datasets and the CLIs.
+TASKS = ("localizer", "recognizer", "crosspoints")
+
+#: Defaults that differ between the tasks (fields left None in `TrainConfig` take these).
+TASK_DEFAULTS: dict[str, dict[str, int]] = {
+    "localizer": {"steps": 50_000, "batch_size": 16},
+    "recognizer": {"steps": 50_000, "batch_size": 256},
+    "crosspoints": {"steps": 50_000, "batch_size": 64},
+}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run of the network `task` (one of `TASKS`).
+
+    steps and batch_size default per task (`TASK_DEFAULTS`); lr is the peak learning rate, reached
+    after `warmup_steps` of linear warm-up and decayed by a cosine to `lr * min_lr_ratio` at `steps`.
+    synth_weight is the share of training samples drawn from the synthesizer (`networks.synth`) when
+    a rendered dataset is given as well (0: rendered only; `--data synth` uses the synthesizer alone).
+    image_size (pixels, square) is the size of synthesized localizer images when training on the
+    synthesizer alone; mixed with a dataset they take the size of its images.  val_samples caps the validation set, evaluated every `val_every` steps;
+    `last.pt` is written every `checkpoint_every` steps.  pretrained: a torchvision ImageNet ResNet
+    state-dict file for the backbone (None: random initialisation).
+    """
+
+    task: str
+    steps: int | None = None
+    batch_size: int | None = None
+    lr: float = 1e-4
+    weight_decay: float = 0.0
+    warmup_steps: int = 500
+    min_lr_ratio: float = 0.01
+    mixed_precision: bool = True
+    image_size: int = 512
+    synth_weight: float = 0.0
+    augment: bool = True
+    seed: int = 0
+    num_workers: int = 4
+    log_every: int = 50
+    val_every: int = 1000
+    val_samples: int = 1024
+    checkpoint_every: int = 1000
+    pretrained: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"TrainConfig.task must be one of {', '.join(TASKS)}, got {self.task!r}")
+        for name, value in TASK_DEFAULTS[self.task].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)  # frozen: fill the task's default once
+        problems = []
+        for name in ("steps", "batch_size", "image_size", "log_every", "val_every", "val_samples",
+                     "checkpoint_every"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                problems.append(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("warmup_steps", "num_workers", "seed"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                problems.append(f"{name} must be an integer >= 0, got {value!r}")
+        if not (isinstance(self.lr, (int, float)) and self.lr > 0):
+            problems.append(f"lr must be > 0, got {self.lr!r}")
+        if not (isinstance(self.weight_decay, (int, float)) and self.weight_decay >= 0):
+            problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
+        if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
+            problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
+        if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
+            problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
+        if self.task == "localizer" and self.image_size % 8:
+            problems.append(f"image_size must be a multiple of 8 (the localizer's cell), got {self.image_size}")
+        if self.pretrained is not None and not isinstance(self.pretrained, str):
+            problems.append(f"pretrained must be a path string or null, got {self.pretrained!r}")
+        if problems:
+            raise ValueError("invalid TrainConfig: " + "; ".join(problems))
+
+    def replace(self, **overrides: object) -> "TrainConfig":
+        """A copy with `overrides` (field name -> value); None values are ignored."""
+        unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(self)})
+        if unknown:
+            raise ValueError(f"TrainConfig has no field(s) {', '.join(unknown)}")
+        return dataclasses.replace(self, **{k: v for k, v in overrides.items() if v is not None})
+
+    def to_dict(self) -> dict[str, object]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: object, source: str = "TrainConfig") -> "TrainConfig":
+        """Build from a dict (as `to_dict` writes); unknown fields and bad values name `source`."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
+        if "task" not in data:
+            raise ValueError(f"{source}: missing field 'task' (one of {', '.join(TASKS)})")
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ValueError(f"{source}: unknown field(s) {', '.join(unknown)}")
+        try:
+            return cls(**data)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: {exc}") from exc
+
+    def save(self, path: str | Path) -> None:
+        save_json(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainConfig":
+        return cls.from_dict(load_json(path), source=str(path))

@@ -1,0 +1,295 @@
+"""Evaluate a trained network on a split of a factory dataset; also the validation of `networks.train`.
+
+    python -m networks.evaluate localizer --checkpoint runs/loc/best.pt --data out/ds --split test
+    python -m networks.evaluate crosspoints --checkpoint runs/xp/best.pt --data out/ds --json xp.json
+
+Reports (see `networks.metrics` for the definitions):
+  localizer    marker precision / recall / F1 (a prediction matches a ground-truth marker whose centre
+               is within --radius pixels), over all markers of the cell targets and over the fully
+               visible ones, and the median and 95th-percentile error of each localization point;
+  recognizer   top-1 and top-5 accuracy;
+  crosspoints  visibility precision / recall and the median and 95th-percentile error of the
+               crosspoints visible in the ground truth, in crop pixels and in image pixels;
+and the mean loss of each.  Prints a table and writes the metrics as JSON.
+
+Ground truth comes from the dataset's own files, read directly (no augmentation): the cell targets,
+crops and crosspoint positions of `samples/<name>.npz`, and from `gt/<name>.npz`
+(`ImageGroundTruth`) which markers are fully visible and each crop's five localization points in the
+image.  The samples do not store the crop homography, so the image error maps the predicted crop
+positions back through the homography fitted to those five points (`crop_homography`, exactly as the
+factory made the crop) and compares them with the ground-truth image crosspoints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from assets.fileio import load_npz, save_json
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
+from assets.pattern.observation import ImageGroundTruth
+from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
+from networks.config import TASKS
+from networks.data import _manifest as read_manifest
+from networks.data import _read_png as read_png
+from networks.data import dataset_spec
+from networks.decode import decode_localizer
+from networks.homography import crop_to_image
+from networks.metrics import (
+    MATCH_RADIUS_PX,
+    cells_to_markers,
+    crosspoint_metrics,
+    localizer_metrics,
+    recognizer_metrics,
+)
+from networks.tasks import autocast, batch_length, forward
+
+#: sample arrays each task reads from `samples/<name>.npz`
+SAMPLE_KEYS = {
+    "localizer": ("cells",),
+    "recognizer": ("recognizer_crops", "recognizer_ids"),
+    "crosspoints": ("crosspoint_crops", "crosspoint_ids", "crosspoint_xy", "crosspoint_visible"),
+}
+
+
+def resolve_device(device: str | torch.device | None) -> torch.device:
+    """`device`, or the first CUDA GPU when there is one, else the CPU."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device cuda was asked for, but torch finds no CUDA GPU")
+    return device
+
+
+# ---- a factory dataset folder, read directly -------------------------------------------------------
+
+def split_entries(root: str | Path, split: str) -> list[dict]:
+    """The manifest entries (one dict per finished image) of `split` in a factory dataset folder."""
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such dataset folder")
+    entries = read_manifest(root)
+    chosen = [e for e in entries if e["split"] == split]
+    if not chosen:
+        splits = sorted({str(e["split"]) for e in entries})
+        raise ValueError(f"{root / 'manifest.jsonl'}: no images in split {split!r} "
+                         f"(splits present: {', '.join(splits) or 'none'})")
+    return chosen
+
+
+def _crop_points(gt: ImageGroundTruth, marker_id: np.ndarray, source: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Five image points and image crosspoints of each crosspoint crop, picked as
+    `assets.pattern.observation.crosspoint_crops` picks them."""
+    with np.errstate(invalid="ignore"):
+        usable = np.isfinite(gt.points_px).all(axis=(1, 2)) & (gt.points_depth > 0).all(axis=1)
+    pick = np.flatnonzero((gt.status > 0) & usable)
+    if not np.array_equal(gt.marker_id[pick], marker_id):
+        raise ValueError(f"{source}: its markers do not match the crosspoint crops of the sample "
+                         f"({len(pick)} usable markers, {len(marker_id)} crops)")
+    return gt.points_px[pick], gt.crosspoints_px[pick]
+
+
+def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32
+                   ) -> Iterator[dict]:
+    """Batches of the split's samples as the datasets' items collated (`networks.tasks`), with the
+    ground truth the metrics need beside them: localizer batches carry "gt_full" (per image (M,)
+    bool, matching `cells_to_markers`), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
+    (B, K, K, 2) image pixels when `gt/<name>.npz` exists.  Localizer batches hold one image each."""
+    root = Path(root)
+    codebook = generate_codebook(spec) if task == "crosspoints" else None
+    for entry in split_entries(root, split):
+        samples_path = root / entry.get("samples", f"samples/{entry.get('name')}.npz")
+        samples = load_npz(samples_path, required=SAMPLE_KEYS[task])
+        gt_path = root / entry["gt"] if "gt" in entry else None
+        gt = ImageGroundTruth.load(gt_path) if gt_path is not None and gt_path.is_file() else None
+        if task == "localizer":
+            image = read_png(root / entry["image"])
+            cells = samples["cells"].astype(np.float32)
+            batch = {"image": torch.from_numpy(image).permute(2, 0, 1)[None].contiguous(),
+                     "cells": torch.from_numpy(cells)[None]}
+            if gt is not None:
+                full_centres = gt.points_px[gt.status == 2, 0].astype(np.float64)
+                centres = cells_to_markers(cells)[:, 0].astype(np.float64)
+                distance = np.linalg.norm(centres[:, None] - full_centres[None], axis=-1)
+                batch["gt_full"] = [(distance < 1e-2).any(axis=1) if len(full_centres) else np.zeros(len(centres), bool)]
+            yield batch
+            continue
+        if task == "recognizer":
+            arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
+        else:
+            ids = samples["crosspoint_ids"].astype(np.int64)
+            arrays = {"crop": samples["crosspoint_crops"],
+                      "reference": reference_textures(spec, codebook[ids], CROSSPOINT_CROP),
+                      "xy": samples["crosspoint_xy"].astype(np.float32),
+                      "visible": samples["crosspoint_visible"].astype(bool)}
+            if gt is not None:
+                arrays["points_px"], arrays["gt_xy_image"] = _crop_points(gt, samples["crosspoint_ids"], gt_path)
+        for start in range(0, len(arrays["crop"]), batch_size):
+            part = {k: v[start:start + batch_size] for k, v in arrays.items()}
+            batch = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in part.items()}
+            for key in ("crop", "reference"):
+                if key in batch:
+                    batch[key] = batch[key].permute(0, 3, 1, 2).contiguous()
+            yield batch
+
+
+# ---- running a model -------------------------------------------------------------------------------
+
+class _Results:
+    """Accumulates one task's predictions, ground truth and loss over batches."""
+
+    def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float) -> None:
+        self.task, self.spec, self.radius_px, self.threshold = task, spec, radius_px, threshold
+        self.samples = 0
+        self.loss: dict[str, float] = {}
+        self.store: dict[str, list] = {}
+
+    def _add(self, **arrays: object) -> None:
+        for key, value in arrays.items():
+            self.store.setdefault(key, []).append(value)
+
+    def update(self, output: torch.Tensor, loss: torch.Tensor, parts: dict[str, torch.Tensor], batch: dict) -> None:
+        n = batch_length(batch)
+        self.samples += n
+        for key, value in {"total": loss, **parts}.items():
+            self.loss[key] = self.loss.get(key, 0.0) + float(value) * n
+        output = output.detach().float()
+        if self.task == "localizer":
+            decoded = decode_localizer(output, threshold=self.threshold)
+            self._add(pred=[points for points, _ in decoded],
+                      gt=[cells_to_markers(c) for c in batch["cells"].numpy()], full=batch.get("gt_full"))
+        elif self.task == "recognizer":
+            ranked = torch.topk(output, min(5, output.shape[1]), dim=1).indices
+            self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy())
+        else:
+            out = output.cpu().numpy()
+            logit = np.log(self.threshold / (1 - self.threshold))
+            pred_xy = out[:, 1:].transpose(0, 2, 3, 1)
+            self._add(pred_visible=out[:, 0] > logit, pred_xy=pred_xy, gt_visible=batch["visible"].numpy(),
+                      gt_xy=batch["xy"].numpy())
+            if "points_px" in batch and self.spec is not None:
+                points = np.asarray(batch["points_px"], dtype=np.float64)
+                self._add(pred_image=crop_to_image(self.spec, CROSSPOINT_CROP, points, pred_xy),
+                          gt_image=np.asarray(batch["gt_xy_image"]))
+
+    def result(self) -> dict:
+        if self.samples == 0:
+            raise ValueError(f"no {self.task} samples to evaluate")
+        loss = {key: value / self.samples for key, value in self.loss.items()}
+        s = self.store
+        if self.task == "localizer":
+            pred = [p for chunk in s["pred"] for p in chunk]
+            gt = [g for chunk in s["gt"] for g in chunk]
+            full = None if any(f is None for f in s["full"]) else [f for chunk in s["full"] for f in chunk]
+            metrics = localizer_metrics(pred, gt, full, self.radius_px)
+        elif self.task == "recognizer":
+            metrics = recognizer_metrics(np.concatenate(s["ranked"]), np.concatenate(s["marker_id"]))
+        else:
+            image = {}
+            if len(s.get("pred_image", [])) == len(s["pred_xy"]):  # every batch had image points
+                image = {"pred_xy_image": np.concatenate(s["pred_image"]),
+                         "gt_xy_image": np.concatenate(s["gt_image"])}
+            metrics = crosspoint_metrics(np.concatenate(s["pred_visible"]), np.concatenate(s["pred_xy"]),
+                                         np.concatenate(s["gt_visible"]), np.concatenate(s["gt_xy"]), **image)
+        return {"loss": loss, "samples": self.samples, **metrics}
+
+
+@torch.no_grad()
+def evaluate_model(task: str, model: nn.Module, batches: Iterable[dict], device: str | torch.device = "cpu",
+                   spec: PatternSpec | None = None, mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX,
+                   threshold: float = 0.5, progress: bool = False) -> dict:
+    """Metrics of `model` (any mode; evaluated in eval mode, then restored) over `batches` (collated
+    dataset items, optionally with the extra ground truth of `folder_batches`).  `spec` is needed for
+    the crosspoints' image error.  Returns {"loss": {"total", parts}, "samples", task metrics}."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
+    device = torch.device(device)
+    was_training = model.training
+    model.eval()
+    results = _Results(task, spec, radius_px, threshold)
+    try:
+        for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
+            with autocast(device, mixed_precision):
+                output, loss, parts = forward(task, model, batch, device)
+            results.update(output, loss, parts, batch)
+    finally:
+        model.train(was_training)
+    return results.result()
+
+
+def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task: str | None = None,
+             device: str | torch.device | None = None, batch_size: int = 32, radius_px: float = MATCH_RADIUS_PX,
+             threshold: float = 0.5, progress: bool = True) -> dict:
+    """Evaluate the checkpoint on `split` of the factory dataset folder `data`; a dict of metrics with
+    the checkpoint's task, step and the data it was measured on."""
+    device = resolve_device(device)
+    model, config, saved = load_checkpoint(checkpoint, expected_task=task, device=device)
+    spec = checkpoint_spec(saved)
+    if (Path(data) / "template.npz").is_file():
+        check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
+    batches = folder_batches(config.task, data, split, spec, batch_size)
+    metrics = evaluate_model(config.task, model, batches, device, spec, config.mixed_precision, radius_px,
+                             threshold, progress)
+    return {"task": config.task, "checkpoint": str(checkpoint), "step": int(saved["step"]), "data": str(data),
+            "split": split, **metrics}
+
+
+def format_table(metrics: dict) -> str:
+    """The metrics as a two-column text table (nested keys joined by dots)."""
+    rows: list[tuple[str, str]] = []
+
+    def walk(prefix: str, value: object) -> None:
+        if isinstance(value, dict):
+            for key, item in value.items():
+                walk(f"{prefix}.{key}" if prefix else str(key), item)
+        elif isinstance(value, float):
+            rows.append((prefix, f"{value:.4g}"))
+        else:
+            rows.append((prefix, "-" if value is None else str(value)))
+
+    walk("", metrics)
+    width = max(len(name) for name, _ in rows)
+    return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m networks.evaluate", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("task", choices=TASKS, help="which network the checkpoint holds")
+    parser.add_argument("--checkpoint", type=Path, required=True, help="a checkpoint of networks.train (best.pt)")
+    parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder (manifest.jsonl)")
+    parser.add_argument("--split", default="test", help="train, val or test (default test)")
+    parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
+    parser.add_argument("--batch-size", type=int, default=32, help="crops per batch (localizer: one image)")
+    parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX,
+                        help="localizer: match radius between predicted and true centres, pixels")
+    parser.add_argument("--threshold", type=float, default=0.5, help="presence / visibility probability threshold")
+    parser.add_argument("--json", type=Path, help="where to write the metrics (default: beside the checkpoint, "
+                                                  "eval_<task>_<split>.json)")
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        if args.batch_size < 1 or not 0 < args.threshold < 1 or not args.radius > 0:
+            raise ValueError("--batch-size must be >= 1, --threshold in (0, 1), --radius > 0")
+        metrics = evaluate(args.checkpoint, args.data, args.split, args.task, args.device, args.batch_size,
+                           args.radius, args.threshold)
+        out = args.json or args.checkpoint.with_name(f"eval_{args.task}_{args.split}.json")
+        save_json(out, metrics)
+        print(format_table(metrics))
+        print(f"metrics written to {out}")
+
+    return run_cli(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

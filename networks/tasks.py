@@ -1,0 +1,81 @@
+"""What each of the three training tasks is: its network, how a batch goes in, and its loss.
+
+The one place where "localizer", "recognizer" and "crosspoints" differ for training and evaluation;
+the loops in `networks.train` and `networks.evaluate` are the same for all three.  Batches are the
+collated dataset items of `networks.data` (uint8 images and crops, float32 targets):
+
+  localizer:   image (B, 3, H, W) uint8, cells (B, H/8, W/8, 11) float32
+  recognizer:  crop (B, 3, 96, 96) uint8, marker_id (B,) int64
+  crosspoints: crop, reference (B, 3, 112, 112) uint8, xy (B, 25, 25, 2) float32, visible (B, 25, 25) bool
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import torch
+from torch import nn
+
+from networks.config import TASKS
+from networks.models import (
+    CrosspointLocalizer,
+    MarkerLocalizer,
+    MarkerRecognizer,
+    crosspoint_loss,
+    localizer_loss,
+    normalize,
+    recognizer_loss,
+)
+
+#: the batch entries each task needs
+BATCH_KEYS = {
+    "localizer": ("image", "cells"),
+    "recognizer": ("crop", "marker_id"),
+    "crosspoints": ("crop", "reference", "xy", "visible"),
+}
+
+
+def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None) -> nn.Module:
+    """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file."""
+    if task == "localizer":
+        return MarkerLocalizer(pretrained=pretrained)
+    if task == "recognizer":
+        return MarkerRecognizer(num_ids, pretrained=pretrained)
+    if task == "crosspoints":
+        return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side)
+    raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
+
+
+def autocast(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
+    """bf16 autocast on CUDA when `enabled`; a no-op elsewhere (CPU runs in float32)."""
+    if enabled and device.type == "cuda":
+        return torch.autocast("cuda", dtype=torch.bfloat16)
+    return contextlib.nullcontext()
+
+
+def batch_length(batch: dict[str, torch.Tensor]) -> int:
+    """Number of samples in a collated batch."""
+    return len(next(iter(batch.values())))
+
+
+def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device
+            ) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
+    """Run `model` on a batch: (raw output, loss scalar, {loss part: detached scalar}).
+
+    Images travel to the device as uint8 and are normalised there; the loss is computed in float32
+    on the output (which may be bf16 under autocast)."""
+    missing = [k for k in BATCH_KEYS[task] if k not in batch]
+    if missing:
+        raise ValueError(f"{task} batch lacks {', '.join(missing)} (has {', '.join(batch)})")
+    get = {k: batch[k].to(device, non_blocking=True) for k in BATCH_KEYS[task]}
+    if task == "localizer":
+        output = model(normalize(get["image"]))
+        loss, parts = localizer_loss(output.float(), get["cells"])
+    elif task == "recognizer":
+        output = model(normalize(get["crop"]))
+        loss = recognizer_loss(output.float(), get["marker_id"])
+        parts = {"cross_entropy": loss.detach()}
+    else:
+        output = model(normalize(get["crop"]), normalize(get["reference"]))
+        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"])
+    return output, loss, parts

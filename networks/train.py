@@ -1,0 +1,391 @@
+"""Train one of the three networks: one short loop shared by all of them.
+
+    python -m networks.train localizer --data out/ds --out runs/loc --pretrained resnet18.pth
+    python -m networks.train recognizer --data synth --out runs/rec --steps 20000
+    python -m networks.train crosspoints --data out/ds --synth-weight 0.5 --out runs/xp
+    python -m networks.train crosspoints --data out/ds --out runs/xp --resume --time-limit 540
+
+Data: `--data DIR` is a factory dataset folder (train split for training, val split for
+validation), mixed with synthesized samples at `--synth-weight`; `--data synth` trains and validates on
+the synthesizer alone.  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
+with the loss and its parts, and one per validation with the metrics of `networks.evaluate`),
+`last.pt` (every `checkpoint_every` steps, at the end, on Ctrl-C and at --until-step/--time-limit) and
+`best.pt` (the lowest validation loss).  `--resume` continues from `last.pt` with the same model,
+optimizer, learning-rate schedule, step, data order and random state; the run's saved config is the
+base and flags given on the command line override it.
+
+Batches follow a fixed order (`StepOrder`): step s takes positions s*B .. (s+1)*B - 1 of a sequence of
+epochs, each an order of the training set seeded by (seed, epoch), and every item is itself seeded by
+(seed, epoch, index) (`networks.data`), so a resumed run sees exactly the batches the uninterrupted
+run would have seen.  Mixed precision (bf16 autocast) on CUDA.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import BatchSampler, DataLoader, Dataset, Subset
+from tqdm import tqdm
+
+from assets.pattern import PatternSpec
+from networks.augment import Augment
+from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
+from networks.config import TASKS, TrainConfig
+from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec
+from networks.evaluate import evaluate_model, resolve_device
+from networks.tasks import autocast, build_model, forward
+
+log = logging.getLogger(__name__)
+
+#: config fields a resumed run may change (they do not alter what the network learns from)
+RESUMABLE_CHANGES = ("steps", "num_workers", "log_every", "val_every", "val_samples", "checkpoint_every")
+#: environment of the data-loading workers: one BLAS / OpenMP thread each (the workers are the parallelism)
+WORKER_THREADS_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: the validation synthesizer's seed is the training seed plus this, so the two never share samples
+VAL_SEED_OFFSET = 1_000_003
+
+
+class StepOrder(Dataset):
+    """The training sequence of a run: item p (p = step * batch_size + k) is an item of `dataset`.
+
+    Position p lies in epoch e = p // n (n = len(dataset)); the dataset is told the epoch
+    (`set_epoch`: new augmentations, new synthetic samples) and, when `shuffle`, item p is the
+    (p mod n)-th of epoch e's order, drawn from a generator seeded by (seed, e): runs of `chunk`
+    consecutive items in random order, shuffled within windows of `window` runs.  Consecutive items
+    of a crop dataset are crops of one image, so a batch reads few images (`RenderedDataset` caches
+    them per worker) and is still drawn from all over the dataset.  Without `shuffle` (synthetic data,
+    i.i.d. already) item p is item p mod n."""
+
+    def __init__(self, dataset: Dataset, length: int, seed: int, shuffle: bool, chunk: int = 1, window: int = 32):
+        if len(dataset) < 1:
+            raise ValueError("StepOrder: the training set is empty")
+        self.dataset, self.length, self.seed, self.shuffle = dataset, length, seed, shuffle
+        self.chunk, self.window = chunk, window
+        self._orders: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return self.length
+
+    def order(self, epoch: int) -> np.ndarray:
+        """(n,) the dataset's item indices in epoch `epoch`'s order."""
+        n = len(self.dataset)
+        if not self.shuffle:
+            return np.arange(n)
+        if epoch not in self._orders:
+            rng = np.random.default_rng([self.seed, epoch])
+            index = np.arange(n)
+            chunk_rank = rng.permutation(-(-n // self.chunk))
+            by_chunk = np.argsort(chunk_rank[index // self.chunk], kind="stable")
+            window = np.arange(n) // (self.chunk * self.window)
+            self._orders = {epoch: by_chunk[np.lexsort((rng.random(n), window))]}  # keep one epoch
+        return self._orders[epoch]
+
+    def __getitem__(self, position: int) -> dict:
+        epoch, offset = divmod(int(position), len(self.dataset))
+        if hasattr(self.dataset, "set_epoch"):
+            self.dataset.set_epoch(epoch)
+        return self.dataset[int(self.order(epoch)[offset])]
+
+
+def _worker_init(worker_id: int) -> None:
+    cv2.setNumThreads(1)  # safe in a spawned worker (in a forked one it can deadlock, see networks.data)
+
+
+def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoader:
+    """A DataLoader whose `num_workers` workers are spawned interpreters, each with one BLAS, OpenMP and
+    OpenCV thread (start them inside `worker_environment`).  Forked workers would inherit the parent's
+    initialised OpenBLAS and run a pool of every core in each worker: synthesis measured 8-17x slower
+    with 14 workers on 16 cores; and OpenCV or CUDA state inherited by a fork can deadlock."""
+    if num_workers == 0:
+        return DataLoader(dataset, **kwargs)
+    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context="spawn", worker_init_fn=_worker_init,
+                      persistent_workers=True, **kwargs)
+
+
+@contextlib.contextmanager
+def worker_environment():
+    """`WORKER_THREADS_ENV` set while data-loading workers start (they read it at import), then restored."""
+    saved = {k: os.environ.get(k) for k in WORKER_THREADS_ENV}
+    os.environ.update(WORKER_THREADS_ENV)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def lr_factor(step: int, config: TrainConfig) -> float:
+    """Learning-rate multiplier at `step`: linear warm-up, then cosine decay to `min_lr_ratio`."""
+    if step < config.warmup_steps:
+        return (step + 1) / config.warmup_steps
+    span = max(1, config.steps - config.warmup_steps)
+    progress = min(1.0, (step - config.warmup_steps) / span)
+    return config.min_lr_ratio + (1 - config.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def training_spec(data: str | Path, pattern: str | Path | None = None) -> PatternSpec:
+    """The pattern to train on: the `pattern` JSON file, else the dataset's own (`template.npz`),
+    else the default `PatternSpec()` (synthetic data)."""
+    if pattern is not None:
+        return PatternSpec.load(pattern)
+    if str(data) != "synth" and (Path(data) / "template.npz").is_file():
+        return dataset_spec(data)
+    log.info("no pattern given and none in %s: training on the default PatternSpec()", data)
+    return PatternSpec()
+
+
+def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec) -> tuple[Dataset, Dataset]:
+    """(training set, validation set) of `config.task` from a factory dataset folder and/or the
+    synthesizer (`data` == "synth"); see the module docstring."""
+    task = config.task
+    augment = Augment() if config.augment else None
+    length = config.steps * config.batch_size
+    size = (config.image_size, config.image_size) if task == "localizer" else None  # crops: the synthesizer's own
+
+    def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None) -> Dataset:
+        return SynthDataset(task, spec, length=count, seed=seed, image_size=image_size, augment=with_augment)
+
+    if str(data) == "synth":
+        return (synth(length, config.seed, augment, size),
+                synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size))
+    root = Path(data)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such dataset folder (give a factory dataset folder or 'synth')")
+    rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed)
+    val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
+    for split, dataset in (("train", rendered), ("val", val)):
+        if len(dataset) == 0:
+            raise ValueError(f"{root}: the {split} split has no {task} samples")
+    if task == "localizer":  # synthesized images take the dataset's size, so batches can mix them
+        height, width = rendered[0]["image"].shape[1:]
+        size = (width, height)
+    if config.synth_weight >= 1.0:
+        return synth(length, config.seed, augment, size), val
+    if config.synth_weight > 0.0:
+        mixed = MixedDataset([rendered, synth(length, config.seed, augment, size)],
+                             [1.0 - config.synth_weight, config.synth_weight], length=length, seed=config.seed)
+        return mixed, val
+    return rendered, val
+
+
+def _append_log(path: Path, record: dict) -> None:
+    with path.open("a") as f:
+        f.write(json.dumps(record) + "\n")
+
+
+def _check_resume(saved: dict, config: TrainConfig, path: Path) -> None:
+    old = TrainConfig.from_dict(saved["config"], source=f"{path}:config").to_dict()
+    new = config.to_dict()
+    differ = sorted(k for k in new if k not in RESUMABLE_CHANGES and old[k] != new[k])
+    if differ:
+        detail = ", ".join(f"{k}: {old[k]!r} -> {new[k]!r}" for k in differ)
+        raise ValueError(f"{path}: cannot resume with another config ({detail}); only "
+                         f"{', '.join(RESUMABLE_CHANGES)} may change; use a new --out")
+
+
+def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | torch.device | None = None,
+          resume: bool = False, spec: PatternSpec | None = None, until_step: int | None = None,
+          time_limit_s: float | None = None, progress: bool = True) -> dict:
+    """Train `config.task` on `data` (a factory dataset folder or "synth") into the run folder `out`.
+
+    spec: the pattern (default `training_spec(data)`).  resume: continue from `out/last.pt` (a fresh
+    run refuses a folder that already holds one).  until_step / time_limit_s: stop early at that step
+    or after that many seconds, writing `last.pt` (resume later).  Ctrl-C writes `last.pt` and
+    re-raises.  Returns {"step", "finished", "best_val_loss", "last", "best", "val"} (the last
+    validation metrics, or None).  With config.num_workers > 0 the data-loading workers are spawned
+    interpreters (`data_loader`): a script that calls `train` needs the usual
+    ``if __name__ == "__main__":`` guard."""
+    out = Path(out)
+    device = resolve_device(device)
+    last_path, best_path, log_path = out / "last.pt", out / "best.pt", out / "log.jsonl"
+    saved = None
+    if last_path.exists():
+        if not resume:
+            raise ValueError(f"{out}: already holds a training run (last.pt); pass --resume or use another --out")
+        saved = read_checkpoint(last_path, device)
+        if saved["task"] != config.task:
+            raise ValueError(f"{last_path}: a {saved['task']} run, cannot resume it as {config.task}")
+        _check_resume(saved, config, last_path)
+        saved_spec = checkpoint_spec(saved)
+        if spec is not None:
+            check_pattern(saved, spec, source=str(last_path))
+        spec = saved_spec
+    elif resume:
+        log.info("%s: no last.pt yet, starting a new run", out)
+    if spec is None:
+        spec = training_spec(data)
+
+    train_set, val_set = make_datasets(config, data, spec)
+    torch.manual_seed(config.seed)
+    model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
+                        pretrained=None if saved is not None else config.pretrained).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+
+    def schedule(step: int) -> float:
+        return lr_factor(step, config)
+
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
+    step, best_val = 0, math.inf
+    if saved is not None:
+        model.load_state_dict(saved["model"])
+        optimizer.load_state_dict(saved["optimizer"])
+        scheduler.load_state_dict(saved["scheduler"])
+        step, best_val = int(saved["step"]), float(saved.get("best_val_loss", math.inf))
+        torch.set_rng_state(saved["rng"]["torch"].cpu())
+        if device.type == "cuda" and saved["rng"]["cuda"]:
+            torch.cuda.set_rng_state_all([s.cpu() for s in saved["rng"]["cuda"]])
+        log.info("resuming %s at step %d of %d", last_path, step, config.steps)
+    out.mkdir(parents=True, exist_ok=True)
+    config.save(out / "config.json")
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
+
+    stop = min(config.steps, until_step) if until_step is not None else config.steps
+    sequence = StepOrder(train_set, config.steps * config.batch_size, config.seed,
+                         shuffle=isinstance(train_set, RenderedDataset), chunk=1 if config.task == "localizer" else 32)
+    batches = BatchSampler(range(step * config.batch_size, stop * config.batch_size), config.batch_size, False)
+    # own generators: creating a loader draws a seed, which must not disturb the global random state
+    loader = data_loader(sequence, config.num_workers, batch_sampler=batches, pin_memory=device.type == "cuda",
+                         generator=torch.Generator().manual_seed(config.seed + step))
+    spread = np.unique(np.linspace(0, len(val_set) - 1, min(len(val_set), config.val_samples)).astype(int))
+    val_items = Subset(val_set, spread.tolist())  # evenly over the split: crops of many images
+    val_loader = data_loader(val_items, config.num_workers, batch_size=config.batch_size,
+                             generator=torch.Generator().manual_seed(config.seed))
+    val_metrics = None
+
+    def checkpoint(path: Path, with_optimizer: bool = True) -> None:
+        save_checkpoint(path, config.task, model, config, spec, optimizer if with_optimizer else None,
+                        scheduler if with_optimizer else None, step, val_metrics or {},
+                        extra={"best_val_loss": best_val, "data": str(data)})
+
+    def validate() -> None:
+        nonlocal val_metrics, best_val
+        val_metrics = evaluate_model(config.task, model, val_loader, device, spec, config.mixed_precision)
+        _append_log(log_path, {"step": step, "val": val_metrics})
+        if val_metrics["loss"]["total"] < best_val:
+            best_val = val_metrics["loss"]["total"]
+            checkpoint(best_path, with_optimizer=False)
+
+    started = time.monotonic()
+    model.train()
+    bar = tqdm(total=config.steps, initial=step, desc=f"train {config.task}", unit="step", disable=not progress)
+    running = None
+    try:
+        with worker_environment():
+            for batch in loader:
+                with autocast(device, config.mixed_precision):
+                    _, loss, parts = forward(config.task, model, batch, device)
+                if not torch.isfinite(loss):
+                    raise RuntimeError(f"{config.task} loss is {loss.item()} at step {step}; lower --lr")
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+                scheduler.step()
+                step += 1
+                value = loss.item()
+                running = value if running is None else 0.98 * running + 0.02 * value
+                bar.update(1)
+                bar.set_postfix(loss=f"{running:.4g}")
+                if step % config.log_every == 0 or step == stop:
+                    _append_log(log_path, {"step": step, "loss": value, **{k: float(v) for k, v in parts.items()},
+                                           "lr": scheduler.get_last_lr()[0], "elapsed_s": time.monotonic() - started})
+                if step % config.val_every == 0 or step == config.steps:
+                    validate()
+                if step % config.checkpoint_every == 0:
+                    checkpoint(last_path)
+                if time_limit_s is not None and time.monotonic() - started > time_limit_s:
+                    log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
+                    break
+    except KeyboardInterrupt:
+        checkpoint(last_path)
+        log.warning("interrupted at step %d: %s written; continue with --resume", step, last_path)
+        raise
+    finally:
+        bar.close()
+    checkpoint(last_path)
+    return {"step": step, "finished": step >= config.steps, "best_val_loss": best_val if best_val < math.inf else None,
+            "last": str(last_path), "best": str(best_path) if best_path.exists() else None, "val": val_metrics}
+
+
+def _config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """Saved run config (--resume), else --config, else the task's defaults; then the flags given."""
+    last = args.out / "last.pt"
+    if args.resume and last.exists():
+        saved = read_checkpoint(last)
+        base = TrainConfig.from_dict(saved["config"], source=f"{last}:config")
+    elif args.config is not None:
+        base = TrainConfig.load(args.config)
+    else:
+        base = TrainConfig(task=args.task)
+    if base.task != args.task:
+        raise ValueError(f"{args.config or last}: a {base.task} config, but the task given is {args.task}")
+    overrides = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "pretrained": args.pretrained,
+                 "synth_weight": args.synth_weight, "seed": args.seed, "num_workers": args.num_workers,
+                 "image_size": args.image_size, "augment": False if args.no_augment else None,
+                 "mixed_precision": False if args.no_mixed_precision else None}
+    if args.pretrained is not None:
+        overrides["pretrained"] = str(Path(args.pretrained).resolve())
+    return base.replace(**overrides)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m networks.train", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("task", choices=TASKS, help="the network to train")
+    parser.add_argument("--data", required=True, help="a factory dataset folder, or 'synth' for synthesized data only")
+    parser.add_argument("--out", type=Path, required=True, help="run folder: config.json, log.jsonl, last.pt, best.pt")
+    parser.add_argument("--config", type=Path, help="a TrainConfig JSON file (flags below override it)")
+    parser.add_argument("--synth-weight", type=float, help="share of synthesized samples mixed into a dataset (0-1)")
+    parser.add_argument("--steps", type=int, help="optimizer steps in total")
+    parser.add_argument("--batch-size", type=int)
+    parser.add_argument("--lr", type=float, help="peak learning rate (Adam, cosine decay)")
+    parser.add_argument("--pretrained", help="torchvision ImageNet ResNet state-dict file for the backbone")
+    parser.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the dataset's, or the default spec)")
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--num-workers", type=int, help="data loading processes")
+    parser.add_argument("--image-size", type=int, help="side of synthesized localizer images, pixels")
+    parser.add_argument("--no-augment", action="store_true", help="train without photometric augmentation")
+    parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")
+    parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
+    parser.add_argument("--until-step", type=int, help="stop at this step (writes last.pt; resume later)")
+    parser.add_argument("--time-limit", type=float, help="stop after this many seconds (writes last.pt)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        config = _config_from_args(args)
+        spec = PatternSpec.load(args.pattern) if args.pattern is not None else None
+        result = train(config, args.data, args.out, args.device, args.resume, spec, args.until_step,
+                       args.time_limit, progress=not args.quiet)
+        state = "finished" if result["finished"] else "stopped (continue with --resume)"
+        best = result["best_val_loss"]
+        print(f"{config.task}: {state} at step {result['step']} of {config.steps}; "
+              f"best validation loss {'-' if best is None else f'{best:.4g}'}; {result['last']}")
+
+    try:
+        return run_cli(action, failures=(RuntimeError,))
+    except KeyboardInterrupt:
+        print(f"interrupted: {args.out / 'last.pt'} written; continue with --resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

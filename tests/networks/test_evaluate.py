@@ -1,0 +1,225 @@
+"""Evaluation: the metric functions on hand-made arrays, and `networks.evaluate` on a tiny dataset folder
+laid out as `factory.dataset` writes it (images from the real synthesizer, targets from
+`assets.pattern.observation`)."""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from assets.fileio import save_json, save_npz
+from assets.pattern import CROSSPOINT_CROP, PatternSpec
+from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from networks.checkpoint import save_checkpoint
+from networks.config import TrainConfig
+from networks.decode import duplicate_border_targets
+from networks.evaluate import evaluate, folder_batches, format_table, main, split_entries
+from networks.homography import crop_to_image
+from networks.metrics import (
+    cells_to_markers,
+    crosspoint_metrics,
+    detection_scores,
+    localizer_metrics,
+    match_markers,
+    recognizer_metrics,
+)
+from networks.synth import PatternSynthesizer, SynthConfig
+from networks.tasks import build_model
+
+SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
+
+
+def write_factory_dataset(root: Path, spec: PatternSpec, splits: dict[str, int], size: int = 128, seed: int = 0,
+                          keep=lambda recognizer_crops, crosspoint_crops: recognizer_crops >= 1) -> Path:
+    """A dataset folder with the files `factory.dataset.build` writes that the networks read:
+    manifest.jsonl, splits.json, config.json, images/<name>.png, gt/<name>.npz, samples/<name>.npz.
+    Images come from the synthesizer; `splits` gives the image count per split; synthetic samples are
+    taken in order when keep(number of recognizer crops, number of crosspoint crops) holds (default:
+    the image shows a fully visible marker, so it has crops of both kinds)."""
+    synth = PatternSynthesizer(spec, SynthConfig(image_size=(size, size), marker_px=(56.0, 72.0), occluders=(0, 1),
+                                                 seed=seed))
+    lines, frames, index = [], {}, 0
+    for split, count in splits.items():
+        for _ in range(count):
+            rec_ids = xp_ids = ()
+            while not keep(len(rec_ids), len(xp_ids)):
+                index += 1
+                image, gt = synth.sample(index)
+                rec, rec_ids = recognizer_crops(image, gt, spec)
+                xp, xp_ids, xp_xy, xp_vis = crosspoint_crops(image, gt, spec)
+            name = f"synth_f{index:06d}_v0"
+            save_npz(root / "samples" / f"{name}.npz", {
+                "cells": localizer_targets(gt), "recognizer_crops": rec, "recognizer_ids": rec_ids,
+                "crosspoint_crops": xp, "crosspoint_ids": xp_ids, "crosspoint_xy": xp_xy,
+                "crosspoint_visible": xp_vis})
+            gt.save(root / "gt" / f"{name}.npz")
+            (root / "images").mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(root / "images" / f"{name}.png"), image[:, :, ::-1])
+            meta = {"name": name, "split": split, "motion": "synth", "frame": index, "variation": 0,
+                    "image": f"images/{name}.png", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
+                    "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum())}
+            save_json(root / "meta" / f"{name}.json", meta)
+            lines.append(json.dumps(meta, sort_keys=True))
+            frames.setdefault(split, []).append(f"synth/{index}")
+    (root / "manifest.jsonl").write_text("".join(line + "\n" for line in lines))
+    save_json(root / "splits.json", {s: frames.get(s, []) for s in ("train", "val", "test")})
+    save_json(root / "config.json", {"garment": "none", "motions": ["synth"], "seed": seed})
+    return root
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    return write_factory_dataset(tmp_path_factory.mktemp("ds"), SPEC, {"train": 1, "val": 1, "test": 3})
+
+
+# ---- metric functions on arrays -------------------------------------------------------------------
+
+def _markers(count: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(20, 200, (count, 2)) + np.arange(count)[:, None] * 60  # far apart
+    return (centres[:, None] + rng.uniform(-15, 15, (count, 5, 2))).astype(np.float32)
+
+
+def test_localizer_metrics_perfect_and_imperfect():
+    gt = [_markers(4, 0), _markers(3, 1)]
+    gt[1][2, 3] = np.nan  # a corner off the fabric
+    full = [np.array([True, False, True, True]), np.array([True, True, False])]
+    perfect = localizer_metrics([g.copy() for g in gt], gt, full)
+    for subset in ("all", "full"):
+        assert perfect[subset]["precision"] == perfect[subset]["recall"] == perfect[subset]["f1"] == 1.0
+        for stats in perfect[subset]["error_px"].values():
+            assert stats["median"] == 0.0 and stats["p95"] == 0.0
+    assert perfect["all"]["error_px"]["BL"]["count"] == 6  # the NaN corner is not counted
+    assert perfect["full"]["true_positive"] == 5
+
+    # image 0: marker 1 (not full) missed, one far-away false positive, marker 0 off by (3, 0) px
+    pred0 = np.concatenate([gt[0][[0, 2, 3]], _markers(1, 5) + 1000])
+    pred0[0] += np.array([3.0, 0.0], np.float32)
+    # image 1: marker 0 predicted 5 px away (beyond the 4 px radius): a miss and a false positive
+    pred1 = gt[1].copy()
+    pred1[0] += np.array([0.0, 5.0], np.float32)
+    result = localizer_metrics([pred0, pred1], gt, full, radius_px=4.0)
+    a, f = result["all"], result["full"]
+    assert (a["true_positive"], a["false_positive"], a["false_negative"]) == (5, 2, 2)
+    assert a["precision"] == pytest.approx(5 / 7) and a["recall"] == pytest.approx(5 / 7)
+    # full markers: 5 of them, marker 0 of image 1 missed; the prediction matched to a partial marker
+    # (image 1, marker 2) is neither a true nor a false positive
+    assert (f["true_positive"], f["false_positive"], f["false_negative"]) == (4, 2, 1)
+    assert a["error_px"]["centre"]["count"] == 5
+    assert a["error_px"]["TL"]["p95"] == pytest.approx(np.percentile([3, 0, 0, 0, 0], 95))
+    assert localizer_metrics([pred0], [gt[0]])["all"]["recall"] == pytest.approx(3 / 4)
+    assert "full" not in localizer_metrics([pred0], [gt[0]])
+
+
+def test_match_markers_one_to_one_within_radius():
+    pred = np.array([[0.0, 0.0], [3.0, 0.0], [50.0, 50.0]])
+    gt = np.array([[1.0, 0.0], [4.0, 0.0]])
+    p, g = match_markers(pred, gt, radius_px=4.0)
+    assert sorted(zip(p.tolist(), g.tolist())) == [(0, 0), (1, 1)]  # not both to the nearer truth
+    p, g = match_markers(pred, gt, radius_px=0.5)
+    assert len(p) == len(g) == 0
+    assert len(match_markers(np.zeros((0, 2)), gt)[0]) == 0
+    assert detection_scores(0, 0, 0) == {"precision": 1.0, "recall": 1.0, "f1": 1.0, "true_positive": 0,
+                                         "false_positive": 0, "false_negative": 0}
+
+
+def test_cells_to_markers_undoes_targets_and_border_copies():
+    cells = np.zeros((6, 6, 11), np.float32)
+    cells[2, 3, 0] = 1
+    cells[2, 3, 1:] = np.array([7.5, 0.4] + [1.0, -3.0] * 4, np.float32)  # centre near two borders
+    cells[4, 1, 0] = 1
+    cells[4, 1, 1:] = np.array([4.0, 4.0] + [np.nan] * 2 + [2.0] * 6, np.float32)
+    markers = cells_to_markers(cells)
+    assert markers.shape == (2, 5, 2)
+    np.testing.assert_allclose(markers[0, 0], [3 * 8 + 7.5, 2 * 8 + 0.4], atol=1e-5)
+    assert np.isnan(markers[1, 1]).all()
+    duplicated = duplicate_border_targets(cells)
+    assert (duplicated[..., 0] > 0.5).sum() == 5  # the first marker copied to three neighbours
+    np.testing.assert_allclose(cells_to_markers(duplicated), markers, atol=1e-4)
+
+
+def test_recognizer_and_crosspoint_metrics():
+    ranked = np.array([[3, 1, 2], [0, 5, 6], [7, 8, 9]])
+    result = recognizer_metrics(ranked, np.array([3, 5, 4]))
+    assert result["top1"] == pytest.approx(1 / 3) and result["top5"] == pytest.approx(2 / 3)
+
+    rng = np.random.default_rng(0)
+    gt_xy = rng.uniform(0, 112, (3, 5, 5, 2))
+    gt_visible = rng.random((3, 5, 5)) > 0.3
+    gt_xy[~gt_visible] = np.nan
+    perfect = crosspoint_metrics(gt_visible, gt_xy, gt_visible, gt_xy, gt_xy * 2, gt_xy * 2)
+    assert perfect["visibility"]["precision"] == perfect["visibility"]["recall"] == 1.0
+    assert perfect["crop_error_px"]["median"] == 0 and perfect["image_error_px"]["p95"] == 0
+    assert perfect["crop_error_px"]["count"] == gt_visible.sum()
+    pred_visible = gt_visible.copy()
+    pred_visible[0] = True  # false positives where hidden
+    pred_xy = np.where(np.isnan(gt_xy), 0.0, gt_xy) + [0.6, 0.8]  # 1 px off everywhere
+    result = crosspoint_metrics(pred_visible, pred_xy, gt_visible, gt_xy)
+    assert result["visibility"]["recall"] == 1.0
+    assert result["visibility"]["false_positive"] == (~gt_visible[0]).sum()
+    assert result["crop_error_px"]["median"] == pytest.approx(1.0) and result["image_error_px"] is None
+    with pytest.raises(ValueError, match="shapes differ"):
+        crosspoint_metrics(gt_visible, gt_xy[:2], gt_visible, gt_xy)
+
+
+# ---- the dataset folder and the model runs ---------------------------------------------------------
+
+def test_folder_batches_carry_consistent_ground_truth(dataset):
+    entries = split_entries(dataset, "test")
+    assert len(entries) == 3
+    with pytest.raises(ValueError, match="no images in split 'nope'.*test, train, val"):
+        split_entries(dataset, "nope")
+    with pytest.raises(FileNotFoundError, match="no such dataset folder"):
+        split_entries(dataset / "missing", "test")
+    batches = list(folder_batches("crosspoints", dataset, "test", SPEC, batch_size=4))
+    crops = sum(len(b["crop"]) for b in batches)
+    assert crops > 0
+    for b in batches:
+        assert b["crop"].dtype == torch.uint8 and b["crop"].shape[1:] == (3, 112, 112)
+        assert b["reference"].shape == b["crop"].shape
+        # the crop homography refitted to the five points maps the crop truth back onto the image truth
+        visible = b["visible"].numpy()
+        image = crop_to_image(SPEC, CROSSPOINT_CROP, b["points_px"].numpy().astype(np.float64), b["xy"].numpy())
+        np.testing.assert_allclose(image[visible], b["gt_xy_image"].numpy()[visible], atol=1e-3)
+    localizer = list(folder_batches("localizer", dataset, "test", SPEC))
+    assert len(localizer) == 3
+    for b in localizer:
+        assert b["image"].shape == (1, 3, 128, 128) and b["cells"].shape == (1, 16, 16, 11)
+        assert len(b["gt_full"][0]) == len(cells_to_markers(b["cells"][0].numpy()))
+
+
+@pytest.mark.parametrize("task", ["localizer", "recognizer", "crosspoints"])
+def test_evaluate_untrained_checkpoint_in_range(task, dataset, tmp_path):
+    torch.manual_seed(0)
+    model = build_model(task, SPEC.num_ids, SPEC.crosspoints_per_side)
+    path = save_checkpoint(tmp_path / "best.pt", task, model, TrainConfig(task), SPEC, step=3)
+    metrics = evaluate(path, dataset, "test", task=task, device="cpu", batch_size=8, progress=False)
+    assert metrics["task"] == task and metrics["step"] == 3 and metrics["samples"] > 0
+    assert np.isfinite(metrics["loss"]["total"]) and metrics["loss"]["total"] > 0
+    if task == "localizer":
+        assert metrics["images"] == 3
+        for subset in ("all", "full"):
+            for key in ("precision", "recall", "f1"):
+                assert 0 <= metrics[subset][key] <= 1
+    elif task == "recognizer":
+        assert 0 <= metrics["top1"] <= metrics["top5"] <= 1
+    else:
+        assert 0 <= metrics["visibility"]["precision"] <= 1 and 0 <= metrics["visibility"]["recall"] <= 1
+        assert metrics["crop_error_px"]["median"] >= 0 and metrics["image_error_px"]["count"] > 0
+        assert metrics["crop_error_px"]["count"] == metrics["image_error_px"]["count"]
+    assert task in format_table(metrics)
+
+
+def test_cli_writes_json(dataset, tmp_path, capsys):
+    path = save_checkpoint(tmp_path / "rec.pt", "recognizer", build_model("recognizer", SPEC.num_ids),
+                           TrainConfig("recognizer"), SPEC)
+    assert main(["recognizer", "--checkpoint", str(path), "--data", str(dataset), "--device", "cpu"]) == 0
+    written = json.loads((tmp_path / "eval_recognizer_test.json").read_text())
+    assert written["task"] == "recognizer" and 0 <= written["top1"] <= 1
+    assert "top1" in capsys.readouterr().out
+    assert main(["localizer", "--checkpoint", str(path), "--data", str(dataset)]) == 2
+    assert "a recognizer checkpoint, expected a localizer" in capsys.readouterr().err
+    assert main(["recognizer", "--checkpoint", str(path), "--data", str(tmp_path / "none")]) == 2

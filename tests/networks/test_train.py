@@ -1,0 +1,169 @@
+"""Training: a few real optimizer steps on a tiny dataset folder lower each network's loss; a resumed
+run continues exactly as the uninterrupted one; the CLI, Ctrl-C and bad input."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from assets.pattern import PatternSpec
+from networks.checkpoint import load_checkpoint, read_checkpoint
+from networks.config import TrainConfig
+from networks.train import StepOrder, lr_factor, main, train
+from tests.networks.test_evaluate import write_factory_dataset
+
+SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
+PROJECT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """One training image with one fully visible marker, one validation image."""
+    return write_factory_dataset(tmp_path_factory.mktemp("ds"), SPEC, {"train": 1, "val": 1, "test": 1},
+                                 keep=lambda rec, xp: rec == 1)
+
+
+@pytest.fixture(scope="module")
+def few_crops(tmp_path_factory):
+    """Images with one or two crosspoint crops: the training set of the crosspoints fits in one batch."""
+    return write_factory_dataset(tmp_path_factory.mktemp("few"), SPEC, {"train": 1, "val": 1},
+                                 keep=lambda rec, xp: 1 <= xp <= 2)
+
+
+def _config(task: str, **changes) -> TrainConfig:
+    base = dict(steps=4, batch_size=2, lr=1e-3, warmup_steps=0, augment=False, num_workers=0, log_every=1,
+                val_every=100, val_samples=2, checkpoint_every=100, seed=0)
+    return TrainConfig(task, **{**base, **changes})
+
+
+def _losses(out: Path) -> dict[int, float]:
+    lines = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    return {r["step"]: r["loss"] for r in lines if "loss" in r}
+
+
+def test_step_order_and_schedule():
+    items = list(range(10))
+    order = StepOrder(items, length=30, seed=7, shuffle=True, chunk=2, window=2)
+    sequence = [order[p] for p in range(30)]
+    assert [StepOrder(items, 30, seed=7, shuffle=True, chunk=2, window=2)[p] for p in range(12, 30)] == sequence[12:]
+    for epoch in range(3):  # every epoch is a permutation, and the epochs differ
+        assert sorted(sequence[epoch * 10:(epoch + 1) * 10]) == items
+    assert sequence[:10] != sequence[10:20]
+    for start in range(0, 10, 4):  # a window of two chunks of two holds two pairs of neighbours
+        window = sorted(sequence[start:start + 4])
+        assert all(b - a == 1 for a, b in zip(window[::2], window[1::2]))
+    assert [StepOrder(items, 15, seed=7, shuffle=False)[p] for p in range(15)] == items + items[:5]
+    config = TrainConfig("localizer", steps=100, warmup_steps=10, min_lr_ratio=0.1)
+    assert lr_factor(0, config) == pytest.approx(0.1) and lr_factor(9, config) == pytest.approx(1.0)
+    assert lr_factor(10, config) == pytest.approx(1.0) and lr_factor(100, config) == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("task,steps", [("localizer", 4), ("recognizer", 3), ("crosspoints", 3)])
+def test_a_few_steps_lower_the_loss(task, steps, dataset, few_crops, tmp_path):
+    # batch 1 of one image, or batch 2 of a training set of one or two crops: every step sees the
+    # whole training set, so the loss must fall
+    config = _config(task, steps=steps, batch_size=1 if task == "localizer" else 2)
+    data = few_crops if task == "crosspoints" else dataset
+    result = train(config, data, tmp_path, device="cpu", spec=SPEC, progress=False)
+    losses = _losses(tmp_path)
+    assert sorted(losses) == list(range(1, steps + 1))
+    assert all(np.isfinite(list(losses.values())))
+    assert losses[steps] < losses[1], losses
+    assert result["finished"] and result["step"] == steps
+    assert result["val"]["samples"] > 0 and np.isfinite(result["best_val_loss"])
+    model, saved_config, record = load_checkpoint(tmp_path / "best.pt", expected_task=task, spec=SPEC)
+    assert saved_config == config and record["step"] == steps and record["optimizer"] is None
+    assert read_checkpoint(tmp_path / "last.pt")["optimizer"] is not None
+    assert TrainConfig.load(tmp_path / "config.json") == config
+
+
+def test_resume_continues_exactly(dataset, tmp_path):
+    torch.use_deterministic_algorithms(True)
+    try:
+        config = _config("localizer", steps=4, batch_size=1, lr=3e-4)
+        train(config, dataset, tmp_path / "whole", device="cpu", spec=SPEC, progress=False)
+        first = train(config, dataset, tmp_path / "parts", device="cpu", spec=SPEC, until_step=2, progress=False)
+        assert first["step"] == 2 and not first["finished"]
+        assert read_checkpoint(tmp_path / "parts" / "last.pt")["step"] == 2
+        with pytest.raises(ValueError, match="already holds a training run"):
+            train(config, dataset, tmp_path / "parts", device="cpu", spec=SPEC, progress=False)
+        with pytest.raises(ValueError, match="cannot resume with another config.*lr"):
+            train(config.replace(lr=1e-3), dataset, tmp_path / "parts", device="cpu", resume=True, progress=False)
+        second = train(config, dataset, tmp_path / "parts", device="cpu", resume=True, progress=False)
+        assert second["step"] == 4 and second["finished"]
+    finally:
+        torch.use_deterministic_algorithms(False)
+    whole, parts = _losses(tmp_path / "whole"), _losses(tmp_path / "parts")
+    assert parts == whole  # steps 3 and 4 after the resume equal the uninterrupted run's, bit for bit
+    a = read_checkpoint(tmp_path / "whole" / "last.pt")
+    b = read_checkpoint(tmp_path / "parts" / "last.pt")
+    assert a["step"] == b["step"] == 4
+    for key, value in a["model"].items():
+        assert torch.equal(value, b["model"][key]), key
+    assert a["scheduler"]["last_epoch"] == b["scheduler"]["last_epoch"] == 4
+
+
+def test_bad_input(dataset, tmp_path):
+    config = _config("recognizer")
+    with pytest.raises(FileNotFoundError, match="no such dataset folder"):
+        train(config, tmp_path / "missing", tmp_path / "run", device="cpu", spec=SPEC, progress=False)
+    only_train = write_factory_dataset(tmp_path / "no_val", SPEC, {"train": 1})
+    with pytest.raises(ValueError, match="val"):
+        train(config, only_train, tmp_path / "run", device="cpu", spec=SPEC, progress=False)
+
+
+def test_cli_runs_synth_and_resumes(tmp_path, capsys):
+    pattern = tmp_path / "pattern.json"
+    SPEC.save(pattern)
+    out = tmp_path / "run"
+    common = ["localizer", "--data", "synth", "--out", str(out), "--pattern", str(pattern), "--device", "cpu",
+              "--quiet"]
+    config = _config("localizer", image_size=64, batch_size=1, steps=4)
+    config.save(tmp_path / "config.json")
+    assert main(common + ["--config", str(tmp_path / "config.json"), "--until-step", "2"]) == 0
+    assert "stopped (continue with --resume) at step 2 of 4" in capsys.readouterr().out
+    environment = dict(os.environ)
+    # one spawned data-loading worker; a time limit of 0 s stops after one step
+    assert main(common + ["--resume", "--time-limit", "0", "--num-workers", "1"]) == 0
+    assert "stopped (continue with --resume) at step 3 of 4" in capsys.readouterr().out
+    assert dict(os.environ) == environment
+    assert main(common + ["--resume"]) == 0
+    assert "finished at step 4 of 4" in capsys.readouterr().out
+    saved = read_checkpoint(out / "last.pt")
+    assert saved["config"]["image_size"] == 64 and saved["config"]["num_workers"] == 1 and saved["step"] == 4
+    assert main(common + ["--resume", "--lr", "0.5"]) == 2
+    assert "cannot resume with another config" in capsys.readouterr().err
+    assert main(["recognizer", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "r")]) == 2
+
+
+def test_ctrl_c_writes_last_checkpoint(dataset, tmp_path):
+    config = _config("localizer", steps=10_000, batch_size=1)
+    config.save(tmp_path / "config.json")
+    pattern = tmp_path / "pattern.json"
+    SPEC.save(pattern)
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "networks.train", "localizer", "--data", str(dataset), "--out", str(out),
+               "--config", str(tmp_path / "config.json"), "--pattern", str(pattern), "--device", "cpu", "--quiet"]
+    process = subprocess.Popen(command, cwd=PROJECT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        deadline = time.monotonic() + 40
+        while not (out / "log.jsonl").exists() and time.monotonic() < deadline and process.poll() is None:
+            time.sleep(0.2)
+        assert (out / "log.jsonl").exists(), process.communicate(timeout=5)
+        process.send_signal(signal.SIGINT)
+        _, err = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, err.decode()
+    assert "continue with --resume" in err.decode()
+    saved = read_checkpoint(out / "last.pt")
+    assert saved["step"] >= 1 and saved["optimizer"] is not None
