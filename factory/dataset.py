@@ -63,7 +63,8 @@ from assets.garments import Template
 from assets.pattern.observation import ImageGroundTruth, training_samples
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
-from factory.simulate import SimulationConfig, load_template, simulate
+from assets.garments.loading import load_template
+from factory.simulate import SimulationConfig, simulate
 
 log = logging.getLogger(__name__)
 

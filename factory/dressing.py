@@ -408,7 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def action() -> None:
-        from factory.simulate import load_template
+        from assets.garments.loading import load_template
 
         args.out.mkdir(parents=True, exist_ok=True)
         body = load_body(args.body)

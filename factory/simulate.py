@@ -43,6 +43,7 @@ from assets.body.model import BodyModel
 from assets.cli import run_cli
 from assets.fileio import load_npz, save_npz
 from assets.garments import Template
+from assets.garments.loading import load_template
 from assets.motion.motion import Motion, body_poses, motion_betas, resample, with_transition
 from assets.motion.sources import load_motion
 from factory.cloth import ClothModel, ClothParams, ClothState, MeshCollider, ProjectiveDynamics
@@ -96,18 +97,6 @@ class FrameHealth:
     bad_vertices: int  # NaN or infinite
     penetration: float
     strain: float
-
-
-def load_template(garment: str, dpi: float | None = None) -> Template:
-    """A default garment name, a pattern JSON (ours or GarmentCode) or a saved template `.npz`; its
-    sheet laid out at `dpi` (default: a saved template's own, else `Template.build`'s)."""
-    if garment.endswith(".npz"):
-        template = Template.load(garment)
-        return template if dpi is None else Template.build(template.pattern, template.layout.spec, dpi)
-    from assets.garments.__main__ import load_pattern
-
-    pattern = load_pattern(garment)
-    return Template.build(pattern) if dpi is None else Template.build(pattern, dpi=dpi)
 
 
 def load_simulation_motion(config: SimulationConfig, body: BodyModel) -> Motion:

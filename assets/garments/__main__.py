@@ -16,30 +16,16 @@ from pathlib import Path
 
 
 from assets.cli import run_cli
-from assets.fileio import load_json, save_json
+from assets.fileio import save_json
 from assets.garments.defaults import DEFAULT_GARMENTS, default_pattern
 from assets.garments.export import FORMATS, export_level, flat_positions, placed_positions
-from assets.garments.garmentcode import garmentcode_from_dict
+from assets.garments.loading import load_pattern
 from assets.garments.mesh import triangle_quality
-from assets.garments.sewing import SewingPattern
 from assets.garments.template import LEVELS_MM, Template
 from assets.pattern.raster import write_png
 from assets.pattern.spec import PatternSpec
 
 log = logging.getLogger("assets.garments")
-
-
-def load_pattern(name_or_path: str) -> SewingPattern:
-    """A default garment by name, or a JSON file in our format or GarmentCode's."""
-    if name_or_path in DEFAULT_GARMENTS:
-        return default_pattern(name_or_path)
-    path = Path(name_or_path)
-    if not path.exists():
-        raise ValueError(f"'{name_or_path}' is neither a default garment ({', '.join(DEFAULT_GARMENTS)}) nor a file")
-    data = load_json(path)
-    if isinstance(data, dict) and "pattern" in data:
-        return garmentcode_from_dict(data, str(path))
-    return SewingPattern.from_dict(data, str(path))
 
 
 def level_summary(template: Template, mm: int) -> dict[str, object]:
