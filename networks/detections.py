@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from assets.arrays import check_fields
 from assets.fileio import load_npz, save_npz
 
 
@@ -49,11 +50,7 @@ class Detections:
             "crosspoint_visible": ((n, k, k), np.bool_),
             "partial": ((n,), np.bool_),
         }
-        for name, (shape, dtype) in expected.items():
-            array = getattr(self, name)
-            if not isinstance(array, np.ndarray) or array.shape != shape or array.dtype != dtype or min(n, k) < 0:
-                got = f"{array.shape} {array.dtype}" if isinstance(array, np.ndarray) else type(array).__name__
-                raise ValueError(f"Detections.{name}: expected shape {shape} {np.dtype(dtype).name}, got {got}")
+        check_fields(self, expected, valid=min(n, k) >= 0)
 
     def __len__(self) -> int:
         return len(self.marker_id)

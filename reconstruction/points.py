@@ -29,6 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
+from assets.arrays import check_fields
 from assets.fileio import load_npz, save_npz
 
 _ARRAYS = ("key", "xyz", "face", "bary", "views", "reprojection_px", "confidence")
@@ -61,11 +62,7 @@ class CapturedPoints:
             "reprojection_px": ((n,), np.float64),
             "confidence": ((n,), np.float64),
         }
-        for name, (shape, dtype) in expected.items():
-            array = getattr(self, name)
-            if not isinstance(array, np.ndarray) or array.shape != shape or array.dtype != dtype or min(n, c) < 0:
-                got = f"{array.shape} {array.dtype}" if isinstance(array, np.ndarray) else type(array).__name__
-                raise ValueError(f"CapturedPoints.{name}: expected shape {shape} {np.dtype(dtype).name}, got {got}")
+        check_fields(self, expected, valid=min(n, c) >= 0)
         for name in ("level_mm", "frame"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from assets.arrays import check_fields
 from assets.fileio import load_npz, save_npz
 from assets.geometry import apply_homography
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, CropSpec, crop_homography, unwarp
@@ -66,11 +67,7 @@ class ImageGroundTruth:
             "crosspoint_visible": ((m, k, k), np.bool_),
             "status": ((m,), np.int8),
         }
-        for name, (shape, dtype) in expected.items():
-            array = getattr(self, name)
-            if array.shape != shape or array.dtype != dtype or k < 1:
-                raise ValueError(f"{name}: expected shape {shape} {np.dtype(dtype).name}, "
-                                 f"got {array.shape} {array.dtype}")
+        check_fields(self, expected, valid=k >= 1)
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"image size must be positive, got {self.width} x {self.height}")
 

@@ -298,7 +298,7 @@ def test_ground_truth_files_keep_the_seen_markers_and_name_what_is_wrong(close_u
     arrays = dict(np.load(path))
     arrays["status"] = arrays["status"][:-1]
     np.savez(tmp_path / "bad.npz", **arrays)
-    with pytest.raises(ValueError, match=r"bad\.npz: status: expected shape"):
+    with pytest.raises(ValueError, match=r"bad\.npz: ImageGroundTruth\.status: expected shape"):
         ImageGroundTruth.load(tmp_path / "bad.npz")
     del arrays["crosspoint_visible"]
     np.savez(tmp_path / "bad.npz", **arrays)
