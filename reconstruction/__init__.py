@@ -28,6 +28,13 @@ _EXPORTS = {
     "triangulate_sequence": "reconstruction.triangulate",
     "GroundTruthCapture": "reconstruction.groundtruth",
     "GroundTruthConfig": "reconstruction.groundtruth",
+    "RefineConfig": "reconstruction.refine",
+    "RefinedSequence": "reconstruction.refine",
+    "refine_sequence": "reconstruction.refine",
+    "GarmentSequence": "reconstruction.export",
+    "export_sequence": "reconstruction.export",
+    "write_review_blend": "reconstruction.review",
+    "RunSettings": "reconstruction.pipeline",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -14,16 +14,6 @@ pytestmark = pytest.mark.slow  # the shared shirt simulation (about 70 s, once p
 
 
 @pytest.fixture(scope="module")
-def capture_folder(shirt_run, tmp_path_factory):
-    from factory.dataset import RenderSettings, capture
-
-    _, sim, _ = shirt_run
-    tiny = RenderSettings(resolution=(96, 64), engine="WORKBENCH", samples=1, denoise=False)
-    return capture("shirt", "walk", tmp_path_factory.mktemp("capture"), frames=2, first_frame=3, cameras=3,
-                   resolution=(96, 64), render=tiny, progress=False, simulation=sim)
-
-
-@pytest.fixture(scope="module")
 def ground_truth(capture_folder):
     return GroundTruthCapture(capture_folder)
 

@@ -1,0 +1,326 @@
+"""The reconstruction pipeline: stages over one output folder, each resumable and rerunnable alone.
+
+    detect       views (+ networks, or a factory capture's ground truth) -> detections/<camera>/f<frame>.npz
+    triangulate  detections -> points/f<frame>.npz (`CapturedPoints`)
+    refine       points -> refine/ (per-frame work, resumed) -> sequence.npz (`RefinedSequence`)
+    export       sequence -> export/: npz, OBJ and PLY per frame, PC2, a review .blend
+    evaluate     sequence + points against a factory capture's ground truth -> evaluation.json
+
+Layout of an output folder:
+  run.json                      the settings every stage reads (template, level, where detections come
+                                from); a later stage or a rerun with other settings is refused
+  detections/<camera>/f*.npz    `networks.Detections` per camera and frame (the cache: a rerun skips them)
+  points/f*.npz                 `reconstruction.points.CapturedPoints` per frame
+  refine/                       the post-processing's finished frames (`reconstruction.refine`)
+  sequence.npz                  the complete, refined sequence
+  export/                       `reconstruction.export.export_sequence`'s files
+  evaluation.json               `evaluate`'s numbers
+
+Detections come from the networks (`checkpoints`: localizer, recognizer, crosspoints) run on the views,
+or, with ``detections="groundtruth"``, from a factory capture folder's ground truth with optional
+noise and dropout (`reconstruction.groundtruth`): the source's name is in run.json, in every points
+file and in the sequence.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from assets.cameras import Camera
+from assets.fileio import load_json, save_json
+from assets.garments import Template, load_template
+
+log = logging.getLogger(__name__)
+
+STAGES = ("detect", "triangulate", "refine", "export", "evaluate")
+#: frames per second of a sequence whose capture does not say (the motion-capture rate of the reference)
+DEFAULT_FPS = 120.0
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """What a reconstruction folder was made with (``run.json``).
+
+    template: a default garment name, a pattern JSON or a template .npz; level_mm: the template level
+    the crosspoints are located on (triangulation); detections: "networks" or "groundtruth";
+    noise_px, dropout, seed: the ground-truth mode's perturbation; checkpoints: the three networks'
+    files (networks mode)."""
+
+    template: str
+    level_mm: int = 12
+    detections: str = "networks"
+    noise_px: float = 0.0
+    dropout: float = 0.0
+    seed: int = 0
+    checkpoints: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.detections not in ("networks", "groundtruth"):
+            raise ValueError(f"detections must be 'networks' or 'groundtruth', got {self.detections!r}")
+        if self.detections == "networks" and len(self.checkpoints) != 3:
+            raise ValueError("the networks mode needs three checkpoints: localizer, recognizer, crosspoints")
+        if self.level_mm <= 0:
+            raise ValueError(f"level_mm must be > 0, got {self.level_mm}")
+
+    @property
+    def source(self) -> str:
+        """The name every output carries of where its 2D observations came from."""
+        if self.detections == "networks":
+            return "detector(" + ", ".join(Path(c).name for c in self.checkpoints) + ")"
+        return self.groundtruth_config().source
+
+    def groundtruth_config(self):
+        from reconstruction.groundtruth import GroundTruthConfig
+
+        return GroundTruthConfig(noise_px=self.noise_px, dropout=self.dropout, seed=self.seed)
+
+
+def start(out: str | Path, settings: RunSettings) -> Path:
+    """Create (or reopen) the output folder with `settings`; a folder made with other settings is refused
+    (its outputs would mix)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    record = {**asdict(settings), "checkpoints": list(settings.checkpoints)}
+    path = out / "run.json"
+    if path.exists():
+        saved = load_json(path)
+        if saved != record:
+            differ = sorted(k for k in set(saved) | set(record) if saved.get(k) != record.get(k))
+            raise ValueError(f"{path}: this folder was made with other settings ({', '.join(differ)}); "
+                             "use another --out")
+    else:
+        save_json(path, record)
+    return out
+
+
+def settings_of(out: str | Path) -> RunSettings:
+    path = Path(out) / "run.json"
+    if not path.is_file():
+        raise ValueError(f"{out}: not a reconstruction folder (no run.json); run `detect` or `run` first")
+    data = dict(load_json(path))
+    data["checkpoints"] = tuple(data.get("checkpoints", ()))
+    try:
+        return RunSettings(**data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+
+
+def _detection_path(out: Path, camera: Camera, frame: int) -> Path:
+    return out / "detections" / camera.name / f"f{frame:06d}.npz"
+
+
+# ---- stages ------------------------------------------------------------------------------------
+
+def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None = None,
+           frames: Sequence[int] | None = None, device: str | None = None, progress: bool = True) -> list[int]:
+    """Detections of every camera at every frame (or `frames`) into ``detections/``; returns the frames.
+
+    views: one folder (or video) per camera (networks mode) or the factory capture folder
+    (ground-truth mode, whose cameras.json is used when `cameras` is None)."""
+    out = Path(out)
+    settings = settings_of(out)
+    if settings.detections == "groundtruth":
+        from reconstruction.groundtruth import GroundTruthCapture
+
+        capture = GroundTruthCapture(views)
+        cameras = list(cameras or capture.cameras)
+        chosen = _frames(capture.frames, frames, views)
+        config = settings.groundtruth_config()
+        for frame in tqdm(chosen, desc="detect (ground truth)", unit="frame", disable=not progress):
+            if all(_detection_path(out, c, frame).exists() for c in cameras):
+                continue
+            for camera, found in zip(cameras, capture.detections(frame, config)):
+                found.save(_detection_path(out, camera, frame))
+    else:
+        from networks import Detector
+        from reconstruction.views import Views
+
+        if cameras is None:
+            raise ValueError("the networks mode needs the cameras (cameras.json)")
+        opened = Views.open(views, cameras)
+        chosen = _frames(opened.frames, frames, views)
+        detector = None
+        for frame in tqdm(chosen, desc="detect", unit="frame", disable=not progress):
+            if all(_detection_path(out, c, frame).exists() for c in cameras):
+                continue
+            detector = detector or Detector.from_checkpoints(*settings.checkpoints, device=device)
+            for camera, found in zip(cameras, detector(opened.images(frame))):
+                found.save(_detection_path(out, camera, frame))
+    save_json(out / "detections" / "cameras.json", {"cameras": [c.to_dict() for c in cameras]})
+    return chosen
+
+
+def _frames(available: Sequence[int], wanted: Sequence[int] | None, where: str | Path) -> list[int]:
+    if wanted is None:
+        return list(available)
+    missing = sorted(set(wanted) - set(available))
+    if missing:
+        raise ValueError(f"{where}: frames {missing} were asked for but are not there (it has {list(available)})")
+    return sorted(set(wanted))
+
+
+def detected_frames(out: Path, cameras: Sequence[Camera]) -> list[int]:
+    """The frames every camera has detections for."""
+    per_camera = [{int(p.stem[1:]) for p in (out / "detections" / c.name).glob("f*.npz")} for c in cameras]
+    return sorted(set.intersection(*per_camera)) if per_camera else []
+
+
+def stage_cameras(out: Path) -> list[Camera]:
+    """The cameras the detect stage used (``detections/cameras.json``)."""
+    from assets.cameras import load_cameras
+
+    path = out / "detections" / "cameras.json"
+    if not path.is_file():
+        raise ValueError(f"{out}: no detections yet (run the detect stage first)")
+    return load_cameras(path)
+
+
+def triangulate(out: str | Path, template: Template | None = None, config=None, progress: bool = True) -> list[Path]:
+    """Captured points per detected frame into ``points/`` (frames already there are skipped)."""
+    from networks.detections import Detections
+    from reconstruction.correspondence import CrosspointMap
+    from reconstruction.points import sequence_path
+    from reconstruction.triangulate import TriangulationConfig, triangulate_frame
+
+    out = Path(out)
+    settings = settings_of(out)
+    cameras = stage_cameras(out)
+    frames = detected_frames(out, cameras)
+    if not frames:
+        raise ValueError(f"{out / 'detections'}: no frame has detections from every camera")
+    pending = [f for f in frames if not sequence_path(out / "points", f).exists()]
+    if pending:
+        crosspoints = CrosspointMap.build(template or load_template(settings.template), settings.level_mm)
+        for frame in tqdm(pending, desc="triangulate", unit="frame", disable=not progress):
+            detections = [Detections.load(_detection_path(out, c, frame)) for c in cameras]
+            points = triangulate_frame(crosspoints, cameras, detections, config or TriangulationConfig(), frame,
+                                       settings.source)
+            points.save(sequence_path(out / "points", frame))
+    return [sequence_path(out / "points", f) for f in frames]
+
+
+def refine(out: str | Path, template: Template | None = None, config=None, start_frame: int | None = None,
+           progress: bool = True) -> Path:
+    """The complete, intersection-free sequence from the captured points: ``sequence.npz``."""
+    from reconstruction.points import load_sequence
+    from reconstruction.refine import RefineConfig, refine_sequence
+
+    out = Path(out)
+    settings = settings_of(out)
+    captures = load_sequence(out / "points")
+    if not captures:
+        raise ValueError(f"{out / 'points'}: no captured points (run the triangulate stage first)")
+    sequence = refine_sequence(template or load_template(settings.template), captures, config or RefineConfig(),
+                               start_frame=start_frame, progress=progress, out=out / "refine")
+    sequence.save(out / "sequence.npz")
+    return out / "sequence.npz"
+
+
+def export(out: str | Path, template: Template | None = None, texture: str | Path | None = None,
+           fps: float = DEFAULT_FPS, progress: bool = True) -> Path:
+    """``export/`` from ``sequence.npz``: the sequence npz, OBJ (with the template's UVs and `texture`)
+    and PLY per frame, a PC2 point cache and the review .blend with the cameras."""
+    from reconstruction.export import GarmentSequence, export_sequence
+    from reconstruction.refine import RefinedSequence
+
+    out = Path(out)
+    if not (out / "sequence.npz").is_file():
+        raise ValueError(f"{out}: no sequence.npz (run the refine stage first)")
+    refined = RefinedSequence.load(out / "sequence.npz")
+    level = (template or load_template(settings_of(out).template)).level(refined.level_mm)
+    sequence = GarmentSequence(refined.positions, refined.faces, level.uv[level.faces], refined.captured,
+                               refined.frames, fps, refined.source, refined.level_mm)
+    export_sequence(out / "export", sequence, texture=texture, cameras=stage_cameras(out), progress=progress)
+    return out / "export"
+
+
+def evaluate(out: str | Path, groundtruth: str | Path) -> dict:
+    """Accuracy of the folder's points and sequence against a factory capture's ground truth.
+
+    Per frame: the fraction of the crosspoints seen by at least two cameras in the ground truth that
+    were triangulated; the median and 95th-percentile 3D error of the triangulated points (mm); the
+    error of filled regions (the refined surface at the crosspoints that were not triangulated, mm);
+    intersecting triangle pairs before and after post-processing (refine's diagnostics); and the
+    temporal jitter (mean magnitude of the second difference over frames of the refined surface at
+    every crosspoint, mm per frame^2) beside the ground truth's own.  Writes ``evaluation.json``."""
+    from reconstruction.correspondence import CrosspointMap
+    from reconstruction.groundtruth import GroundTruthCapture
+    from reconstruction.points import load_sequence
+    from reconstruction.refine import RefinedSequence
+
+    out = Path(out)
+    capture = GroundTruthCapture(groundtruth)
+    captures = {p.frame: p for p in load_sequence(out / "points")}
+    refined = RefinedSequence.load(out / "sequence.npz") if (out / "sequence.npz").exists() else None
+    truth_map = capture.crosspoint_map
+    every_key = truth_map.unflat(np.arange(truth_map.num_crosspoints))
+    refined_map = CrosspointMap.build(capture.template, refined.level_mm) if refined is not None else None
+    rows, surfaces, truths = [], [], []
+    for frame in sorted(captures):
+        points = captures[frame]
+        seen = _seen_twice(capture, frame, truth_map)
+        truth = capture.crosspoints(frame, points.key)
+        error_mm = 1e3 * np.linalg.norm(points.xyz - truth, axis=1)
+        triangulated = np.isin(truth_map.flat(points.key), seen)
+        row = {"frame": int(frame), "captured_fraction": float(triangulated.sum() / max(1, len(seen))),
+               "points": len(points), "error_mm_median": _q(error_mm, 50), "error_mm_p95": _q(error_mm, 95)}
+        if refined is not None and frame in refined.frames.tolist():
+            t = refined.frames.tolist().index(frame)
+            surface = refined_map.points(refined.positions[t].astype(np.float64), every_key)
+            exact = capture.crosspoints(frame, every_key)
+            filled = ~np.isin(np.arange(truth_map.num_crosspoints), truth_map.flat(points.key))
+            filled_mm = 1e3 * np.linalg.norm(surface - exact, axis=1)[filled]
+            diagnostics = refined.diagnostics[t]
+            row.update({"filled_error_mm_median": _q(filled_mm, 50), "filled_error_mm_p95": _q(filled_mm, 95),
+                        "intersections_before": diagnostics.get("intersections_before"),
+                        "intersections_after": diagnostics.get("intersections_after")})
+            surfaces.append(surface)
+            truths.append(exact)
+        rows.append(row)
+    summary = {"frames": len(rows), "source": next(iter(captures.values())).source if captures else None}
+    for key in ("captured_fraction", "error_mm_median", "error_mm_p95", "filled_error_mm_median",
+                "filled_error_mm_p95"):
+        values = [r[key] for r in rows if r.get(key) is not None]
+        summary[key] = float(np.median(values)) if values else None
+    after = [r["intersections_after"] for r in rows if r.get("intersections_after") is not None]
+    summary["intersections_after_max"] = max(after) if after else None
+    if len(surfaces) >= 3:
+        summary["jitter_mm"] = _jitter(np.stack(surfaces))
+        summary["jitter_mm_groundtruth"] = _jitter(np.stack(truths))
+    result = {"summary": summary, "frames": rows}
+    save_json(out / "evaluation.json", result)
+    return result
+
+
+def _seen_twice(capture, frame: int, crosspoints) -> np.ndarray:
+    """Flat indices of the crosspoints visible in at least two cameras' ground truth at `frame`."""
+    counts = np.zeros(crosspoints.num_crosspoints, dtype=np.int64)
+    k = None
+    for c in range(len(capture.cameras)):
+        gt = capture.ground_truth(frame, c)
+        k = gt.crosspoints_px.shape[1]
+        rows, cols = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+        marker = np.repeat(gt.marker_id, k * k)
+        key, known = crosspoints.lookup(marker, np.tile(rows.ravel(), len(gt.marker_id)),
+                                        np.tile(cols.ravel(), len(gt.marker_id)))
+        visible = gt.crosspoint_visible.reshape(-1) & known
+        flat = np.unique(crosspoints.flat(key[visible]))
+        counts[flat] += 1
+    return np.flatnonzero(counts >= 2)
+
+
+def _q(values: np.ndarray, q: float) -> float | None:
+    values = values[np.isfinite(values)]
+    return float(np.percentile(values, q)) if len(values) else None
+
+
+def _jitter(surfaces: np.ndarray) -> float:
+    """Mean |x[t+1] - 2 x[t] + x[t-1]| over frames and points, mm."""
+    second = surfaces[2:] - 2 * surfaces[1:-1] + surfaces[:-2]
+    return float(1e3 * np.nanmean(np.linalg.norm(second, axis=-1)))

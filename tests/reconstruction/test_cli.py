@@ -1,0 +1,42 @@
+"""`python -m reconstruction` end to end on the session's tiny capture, in the ground-truth mode: every
+stage's files, the evaluation, resume, and refusal of a folder made with other settings."""
+
+import json
+
+import numpy as np
+import pytest
+
+from reconstruction.__main__ import main
+from reconstruction.points import load_sequence
+from reconstruction.refine import RefinedSequence
+
+pytestmark = pytest.mark.slow  # Newton's first kernel compile and the shared capture
+
+
+def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, capsys):
+    out = tmp_path / "rec"
+    argv = ["run", "--views", str(capture_folder), "--template", str(capture_folder / "template.npz"),
+            "--out", str(out), "--detections", "groundtruth", "--levels", "12", "--evaluate", "--quiet"]
+    assert main(argv) == 0
+    cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
+    for camera in cameras:
+        assert sorted(p.name for p in (out / "detections" / camera).iterdir()) == ["f000003.npz", "f000004.npz"]
+    points = load_sequence(out / "points")
+    assert [p.frame for p in points] == [3, 4]
+    assert all(p.source.startswith("groundtruth(") for p in points)  # named as such in every output
+    sequence = RefinedSequence.load(out / "sequence.npz")
+    assert sequence.source.startswith("groundtruth(") and sequence.positions.shape[0] == 2
+    assert np.isfinite(sequence.positions).all() and sequence.captured.any()
+    summary = json.loads((out / "evaluation.json").read_text())["summary"]
+    assert summary["captured_fraction"] == pytest.approx(1.0)  # noise-free: every point seen twice
+    assert summary["error_mm_median"] < 1e-3
+    assert summary["intersections_after_max"] == 0
+    assert (out / "export" / "sequence.npz").is_file() and (out / "export" / "review.blend").is_file()
+
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "points").iterdir()}
+    assert main(argv) == 0  # resumes: nothing is redone
+    assert {p: p.stat().st_mtime_ns for p in (out / "points").iterdir()} == stamps
+
+    capsys.readouterr()
+    assert main(argv[:-2] + ["--noise", "0.5", "--quiet"]) != 0
+    assert "other settings" in capsys.readouterr().err
