@@ -17,6 +17,8 @@ demo: $(STAMP)
 		--resolution 256 --samples 16 --reuse-simulation walk=$(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/dataset
 	$(BIN)/python -m factory.dataset capture --garment shirt --motion walk --frames 3 --cameras 4 \
 		--resolution 640x360 --samples 16 --reuse-simulation $(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/capture
+	$(BIN)/python -m reconstruction run --views $(DEMO_OUT)/capture --template $(DEMO_OUT)/capture/template.npz \
+		--out $(DEMO_OUT)/reconstruction --detections groundtruth --noise 0.3 --levels 12 --evaluate
 
 test: $(STAMP) blender
 	$(BIN)/python -m pytest -q
