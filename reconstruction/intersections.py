@@ -1,4 +1,5 @@
-"""Intersecting triangle pairs of a triangle mesh: how the post-processing measures self-intersection.
+"""Intersecting triangle pairs of a triangle mesh: how the post-processing measures self-intersection,
+and `untangle`, which refills the regions around them.
 
 Two triangles intersect when an edge of one pierces the interior of the other (in general position
 every intersection of two non-coplanar triangles has such an edge).  Pairs that share a vertex (the
@@ -7,8 +8,10 @@ zero for captured or simulated cloth).
 
 Broad phase: bounding spheres about centroids; a triangle more than twice the median size is cut into
 similar pieces no larger than that, so one k-d tree query at twice the largest piece radius finds
-every candidate however uneven the mesh; then the axis-aligned boxes must overlap.  Narrow phase: six exact segment-triangle tests per candidate pair (signed
-volumes), vectorised in batches.
+every candidate however uneven the mesh (long slivers make many pieces: the placement-hint pose of a
+garment, with its seams stretched across the body, is slow to test); then the axis-aligned boxes
+must overlap.  Narrow phase: six exact segment-triangle tests per candidate pair (signed volumes),
+vectorised in batches.
 """
 
 from __future__ import annotations

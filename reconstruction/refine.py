@@ -26,15 +26,19 @@ smoothed rest shape (stencils not captured take the mean of the previous and nex
 With `out`, every finished frame of each pass is written there (``pass1/f<frame>.npz`` with every
 level's shape, ``final/f<frame>.npz``) and a rerun with the same captures and config skips it.
 
-Diagnostics per frame (finest level, lengths in mm): captured_vertices, points, fit_rms_mm,
-anchor_rms_mm, anchor_max_mm (solved captured vertices from their targets), intersections_before (the
+Diagnostics per frame (finest level, lengths in mm): captured_vertices (surrounded by captured points,
+`reconstruction.anchors`), anchored_vertices (those less the vertices of faces where the capture
+itself intersects: their targets would pull the cloth through itself), points, fit_rms_mm,
+anchor_rms_mm, anchor_max_mm (solved anchored vertices from their targets), intersections_before (the
 start with its captured vertices moved onto their targets: what the capture gives without the
-physics), intersections_start (the shape the solve started from), intersections_after, untangle_left
-(pairs the refill could not remove), seconds; "levels": the same per level, keyed by mm.
+physics), intersections_start (the shape the solve started from), untangle_left (pairs the refill
+could not remove), repair_solves, intersections_after, seconds; "levels": the same per level, keyed
+by mm; "pass1": pass 1's diagnostics, when pass 2 ran.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import time
@@ -49,14 +53,15 @@ from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments.template import Template
 from reconstruction.anchors import Anchors, LevelAnchoring, rigid_fit
 from reconstruction.hierarchy import Hierarchy
-from reconstruction.intersections import count_intersections, untangle
+from reconstruction.intersections import count_intersections, intersecting_pairs, untangle
 from reconstruction.points import CapturedPoints
 from reconstruction.restshape import RestShape, dynamic_rest, measure, pattern_rest, smoothed_rest, stencils_captured
 
 log = logging.getLogger(__name__)
 
-_QUERY_FRACTION = 0.9  # self-contact query radius / smallest triangle altitude, where neighbours collide
-_MIN_GAP_FRACTION = 0.25  # ... as long as that leaves a gap of at least this many contact radii
+_THIN_FRACTION = 1e-3  # triangles thinner than the contact radius that still allow contact between neighbours
+_QUERY_FRACTION = 0.9  # self-contact query radius / (1st-percentile triangle altitude x filter rings)
+_MIN_GAP_FRACTION = 0.25  # smallest contact gap, in contact radii
 
 
 @dataclass(frozen=True)
@@ -71,21 +76,24 @@ class RefineConfig:
     contact_weight: float = 1.0e4  #: N/m, barrier self-contact stiffness
     contact_radius: float = 1.0e-3  #: m, self-contact interaction distance
     #: m, extra self-contact detection distance (at most; less on levels whose triangles are thinner,
-    #: see `_Refiner.solver`); one iteration moves a vertex at most 0.425 (contact_radius + gap)
-    contact_gap: float = 2.0e-3
+    #: see `_Refiner.solver`); one VBD step moves a vertex at most 0.425 (contact_radius + gap)
+    contact_gap: float = 4.0e-3
     density_g_m2: float = 100.0  #: lumped masses for VBD's inertia term (quasi-static: it only damps)
     timestep: float = 1.0 / 30.0  #: s, pseudo-time step of one quasi-static VBD step
-    iterations: int = 10  #: VBD iterations per step
-    steps: int = 5  #: VBD steps per frame on the coarsest level
-    fine_steps: int = 2  #: VBD steps per frame on each finer level (it starts from the coarser solution)
+    iterations: int = 5  #: VBD iterations per step
+    steps: int = 20  #: VBD steps per frame on the coarsest level
+    fine_steps: int = 4  #: VBD steps per frame on each finer level (it starts from the coarser solution)
     initial_weights: tuple[float, ...] = (1.0e2, 1.0e3, 1.0e4, 1.0e5, 1.0e6)  #: N/m, ramp at t_i
-    initial_steps: int = 10  #: VBD steps per ramp stage at t_i (coarsest level)
+    initial_steps: int = 40  #: VBD steps per ramp stage at t_i (coarsest level)
     capture_radius: float = 1.0  #: neighbourhood radius for "captured", in max(level spacing, 2 pitches)
     capture_coverage: float = 0.5  #: fraction of the neighbourhood's crosspoints that must be captured
     capture_sectors: int = 4  #: angular sectors that must each hold a captured crosspoint
     fit_regularizer: float = 1.0e-2  #: Laplacian weight of the anchor-target fit, per crosspoint
     untangle_rings: int = 2  #: rings grown per round around intersections refilled before a solve
     untangle_rounds: int = 4
+    #: rounds of untangling and `steps` more VBD steps when a solve ends with intersections (Newton's
+    #: contact bounds are conservative, but we measured a few crossings under the stiff anchors)
+    repair_solves: int = 2
     smoothing_pass: bool = True  #: pass 2: bidirectional rest-shape smoothing
 
     def __post_init__(self) -> None:
@@ -95,7 +103,7 @@ class RefineConfig:
                     "iterations", "steps", "fine_steps", "initial_steps", "capture_radius", "capture_sectors")
         bad = [name for name in positive if not getattr(self, name) > 0]
         bad += [name for name in ("membrane_lambda", "bending_weight", "contact_gap", "fit_regularizer",
-                                  "untangle_rings", "untangle_rounds") if not getattr(self, name) >= 0]
+                                  "untangle_rings", "untangle_rounds", "repair_solves") if not getattr(self, name) >= 0]
         if not self.levels_mm or min(self.levels_mm) <= 0 or len(set(self.levels_mm)) != len(self.levels_mm):
             bad.append("levels_mm")
         if not 0 < self.capture_coverage <= 1:
@@ -130,7 +138,7 @@ class RefinedSequence:
 
     level_mm int                 the template level (finest of the hierarchy)
     positions (T, V, 3) float32  complete vertex positions, world metres
-    captured (T, V) bool         vertices anchored to captured points
+    captured (T, V) bool         vertices anchored to captured points (`anchored_vertices`)
     faces (F, 3) int32           the level's sewn faces
     frames (T,) int64            frame numbers (the captures')
     start_frame int              index t_i of the frame solved first
@@ -183,8 +191,10 @@ def refine_sequence(template: Template, captures: Sequence[CapturedPoints], conf
     out: folder for per-frame results (resume); None keeps everything in memory.
     initial_shape: (V, 3) a penetration-free shape of the sewn mesh of level `initial_level_mm`
         (default: the coarsest level), e.g. `load_initial_shape(dressed.npz)`; None: the template's
-        placement-hint pose (`assets.garments.export.placed_positions`), which is not free of
-        intersections along its seams."""
+        placement-hint pose (`assets.garments.export.placed_positions`), flat panels with seams
+        stretched across the body: far from penetration-free (3379 intersecting pairs once fitted to a
+        walking shirt's capture) and a poor start (anchors then end 64 mm RMS from their targets, where
+        the dressed garment gives 0.2 mm): pass a dressed shape."""
     return _Refiner(template, captures, config, out, progress).run(start_frame, initial_shape, initial_level_mm)
 
 
@@ -244,15 +254,17 @@ class _Refiner:
             mass = np.bincount(level.sewn_faces.ravel(), np.repeat(area / 3.0, 3), minlength=len(positions))
             mass *= c.density_g_m2 * 1e-3
             faces = level.sewn_faces
-            # Self-contact between topological neighbours too (so a fold at a seam is caught) where
-            # they stay out of the contact query at rest: the query radius (radius + gap) is kept
-            # under 0.9 of the smallest pattern triangle altitude (12 and 4 mm levels; neighbours
-            # inside the query would cost time even without force).  Where triangles are thinner than
-            # that allows, Newton's default: pairs within two rings are ignored.
+            # Self-contact between topological neighbours too (so that a fold at a seam is caught)
+            # where they cannot touch at rest: at most 0.1 % of the pattern triangles have an altitude
+            # under the contact radius (the 12, 4 and 2 mm levels; those few get a small spurious
+            # push).  The gap keeps the query under 0.9 of the 1st-percentile altitude (neighbours in
+            # the query cost time even without force).  Elsewhere Newton's default, pairs within two
+            # rings ignored, with the query under 0.9 of twice that altitude.  Gap at least a quarter
+            # of the contact radius, at most `contact_gap`.
             altitude = 2.0 * area / np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2).max(axis=1)
-            gap = min(c.contact_gap, _QUERY_FRACTION * float(altitude.min()) - c.contact_radius)
-            rings = 1 if gap >= _MIN_GAP_FRACTION * c.contact_radius else 2
-            gap = gap if rings == 1 else c.contact_gap
+            rings = 1 if np.mean(altitude < c.contact_radius) <= _THIN_FRACTION else 2
+            reach = _QUERY_FRACTION * rings * float(np.percentile(altitude, 1.0))
+            gap = min(c.contact_gap, max(reach - c.contact_radius, _MIN_GAP_FRACTION * c.contact_radius))
             log.info("refine %d mm: self-contact query %.2f mm, topological filter %d ring(s)", mm,
                      (c.contact_radius + gap) * 1e3, rings)
             solver = ClothSolver(
@@ -275,7 +287,7 @@ class _Refiner:
         if not 0 <= int(start_frame) < count:
             raise ValueError(f"start_frame: expected an index in [0, {count}), got {start_frame}")
         start_frame = int(start_frame)
-        self._check_out(start_frame)
+        self._check_out(start_frame, initial_shape, initial_level_mm)
         level = self.hierarchy.level(finest)
         positions = np.zeros((count, level.num_sewn_vertices, 3), np.float32)
         captured = np.zeros((count, level.num_sewn_vertices), bool)
@@ -344,79 +356,102 @@ class _Refiner:
             if i:
                 x = self.hierarchy.transfer(x, self.hierarchy.levels_mm[i - 1], mm)
             anchors = self.anchoring(mm).anchors(points.key, points.xyz, points.confidence, reference=x)
+            anchored, conflicts = self._anchored(mm, anchors, x)
             solver = self.solver(mm, x)
             faces = self.hierarchy.level(mm).sewn_faces
-            snapped = np.where(anchors.captured[:, None], anchors.targets, x)
+            snapped = np.where(anchored[:, None], anchors.targets, x)
             prior = None if previous is None else measure(previous[mm].astype(np.float64), faces, solver.hinges)
             rest = dynamic_rest(measure(snapped, faces, solver.hinges),
-                                *stencils_captured(anchors.captured, faces, solver.hinges), prior,
-                                self._template_rest[mm])
+                                *stencils_captured(anchored, faces, solver.hinges), prior, self._template_rest[mm])
             ramp = c.initial_weights if initial and i == 0 else (c.anchor_weight,)
             steps = (c.initial_steps if initial else c.steps) if i == 0 else c.fine_steps
-            x, levels[str(mm)] = self._solve_level(mm, x, anchors, rest, ramp, steps)
+            x, levels[str(mm)] = self._solve_level(mm, x, anchors, anchored, conflicts, rest, ramp, steps)
             shapes[mm] = x.astype(np.float32)
-        finest = self.hierarchy.finest_mm
-        return shapes, self.anchoring(finest).captured_vertices(points.key), {**levels[str(finest)], "levels": levels}
+        return shapes, anchored, {**levels[str(mm)], "levels": levels}
 
     def _smooth_frame(self, t: int, first: np.ndarray, pass1: dict) -> tuple[dict[int, np.ndarray], np.ndarray, dict]:
         """Pass 2 for frame t: the finest level again from its pass-1 shape with the smoothed rest."""
         mm, points = self.hierarchy.finest_mm, self.captures[t]
         x = first[t].astype(np.float64)
         anchors = self.anchoring(mm).anchors(points.key, points.xyz, points.confidence, reference=x)
+        anchored, _ = self._anchored(mm, anchors, x)
         solver = self.solver(mm, x)
         faces = self.hierarchy.level(mm).sewn_faces
-        snapped = np.where(anchors.captured[:, None], anchors.targets, x)
+        snapped = np.where(anchored[:, None], anchors.targets, x)
         sides = [measure(first[s].astype(np.float64), faces, solver.hinges) if 0 <= s < len(first) else None
                  for s in (t - 1, t + 1)]
-        rest = smoothed_rest(measure(snapped, faces, solver.hinges),
-                             *stencils_captured(anchors.captured, faces, solver.hinges), *sides,
-                             self._template_rest[mm])
+        rest = smoothed_rest(measure(snapped, faces, solver.hinges), *stencils_captured(anchored, faces, solver.hinges),
+                             *sides, self._template_rest[mm])
         steps = self.config.steps if len(self.hierarchy.levels_mm) == 1 else self.config.fine_steps
-        x, info = self._solve_level(mm, x, anchors, rest, (self.config.anchor_weight,), steps)
-        # "before" stays what the capture gave before any physics (pass 1's start)
-        info["intersections_before"] = pass1["intersections_before"]
-        return {mm: x.astype(np.float32)}, anchors.captured, {**info, "pass1": pass1}
+        # "before" stays what the capture gave before any physics (with pass 1's fill)
+        x, info = self._solve_level(mm, x, anchors, anchored, pass1["intersections_before"], rest,
+                                    (self.config.anchor_weight,), steps)
+        return {mm: x.astype(np.float32)}, anchored, {**info, "pass1": pass1}
 
-    def _solve_level(self, mm: int, start: np.ndarray, anchors: Anchors, rest: RestShape,
-                     weights: Sequence[float], steps: int) -> tuple[np.ndarray, dict]:
-        """Untangle the start if needed, then VBD steps per anchor weight; returns the shape and its
-        diagnostics (lengths in mm)."""
+    def _anchored(self, mm: int, anchors: Anchors, start: np.ndarray) -> tuple[np.ndarray, int]:
+        """The captured vertices that get anchor springs, and the number of intersecting pairs of the
+        capture itself (captured vertices on their targets, the rest at `start`).  A face of such a pair
+        releases its vertices: their targets would pull the cloth through itself, and the contact
+        barrier would fight the 1e6 springs (noise, or a capture of cloth that touches itself)."""
+        faces = self.hierarchy.level(mm).sewn_faces
+        conflicts = intersecting_pairs(np.where(anchors.captured[:, None], anchors.targets, start), faces)
+        anchored = anchors.captured.copy()
+        anchored[faces[conflicts].ravel()] = False
+        return anchored, len(conflicts)
+
+    def _solve_level(self, mm: int, start: np.ndarray, anchors: Anchors, anchored: np.ndarray, conflicts: int,
+                     rest: RestShape, weights: Sequence[float], steps: int) -> tuple[np.ndarray, dict]:
+        """Untangle the start if needed, then VBD steps per anchor weight (and, should intersections
+        remain, up to `repair_solves` rounds of untangling and `steps` more); returns the shape and
+        its diagnostics (lengths in mm)."""
         began = time.perf_counter()
         c = self.config
         faces = self.hierarchy.level(mm).sewn_faces
-        captured, targets = anchors.captured, anchors.targets
-        before = count_intersections(np.where(captured[:, None], targets, start), faces)
+        targets = anchors.targets
         at_start = count_intersections(start, faces)
         left = 0
         x = start
         if at_start:
-            x, left = untangle(start, faces, captured, c.untangle_rings, c.untangle_rounds)
+            x, left = untangle(start, faces, anchored, c.untangle_rings, c.untangle_rounds)
         solver = self.solver(mm, x)
         solver.set_rest(rest)
         for weight in weights:
-            x = solver.solve(x, targets, captured, steps, anchor_weight=weight)
-        residual = np.linalg.norm(x[captured] - targets[captured], axis=1) if captured.any() else np.zeros(1)
+            x = solver.solve(x, targets, anchored, steps, anchor_weight=weight)
+        after, repairs = count_intersections(x, faces), 0
+        while after and repairs < c.repair_solves:
+            x, _ = untangle(x, faces, anchored, c.untangle_rings, c.untangle_rounds)
+            x = solver.solve(x, targets, anchored, steps)
+            after, repairs = count_intersections(x, faces), repairs + 1
+        residual = np.linalg.norm(x[anchored] - targets[anchored], axis=1) if anchored.any() else np.zeros(1)
         info = {
-            "captured_vertices": int(captured.sum()), "points": anchors.points, "fit_rms_mm": anchors.fit_rms * 1e3,
+            "captured_vertices": int(anchors.captured.sum()), "anchored_vertices": int(anchored.sum()),
+            "points": anchors.points, "fit_rms_mm": anchors.fit_rms * 1e3,
             "anchor_rms_mm": float(np.sqrt(np.mean(residual**2)) * 1e3), "anchor_max_mm": float(residual.max() * 1e3),
-            "intersections_before": int(before), "intersections_start": int(at_start), "untangle_left": int(left),
-            "intersections_after": count_intersections(x, faces), "seconds": time.perf_counter() - began,
+            "intersections_before": int(conflicts), "intersections_start": int(at_start), "untangle_left": int(left),
+            "repair_solves": repairs, "intersections_after": int(after), "seconds": time.perf_counter() - began,
         }
-        log.info("refine %d mm: %d captured, anchors rms %.3f max %.3f mm, intersections %d -> %d, %.1f s", mm,
-                 info["captured_vertices"], info["anchor_rms_mm"], info["anchor_max_mm"], at_start,
-                 info["intersections_after"], info["seconds"])
+        log.info("refine %d mm: %d captured, %d anchored, anchors rms %.3f max %.3f mm, intersections %d -> %d "
+                 "(%d repairs), %.1f s", mm, info["captured_vertices"], info["anchored_vertices"], info["anchor_rms_mm"],
+                 info["anchor_max_mm"], at_start, after, repairs, info["seconds"])
         return x, info
 
     # ---- files ---------------------------------------------------------------------------------
     def _path(self, stage: str, t: int) -> Path | None:
         return None if self.out is None else self.out / stage / f"f{int(self.frames[t]):06d}.npz"
 
-    def _check_out(self, start_frame: int) -> None:
+    def _check_out(self, start_frame: int, initial_shape: np.ndarray | None, initial_level_mm: int | None) -> None:
         """Record what this run is in `out`; refuse an out folder a different run made."""
         if self.out is None:
             return
+        captures = hashlib.sha1()
+        for points in self.captures:
+            for array in (points.key, points.xyz, points.confidence):
+                captures.update(np.ascontiguousarray(array).tobytes())
+        initial = "placement hints" if initial_shape is None else hashlib.sha1(
+            np.ascontiguousarray(initial_shape, dtype=np.float64).tobytes()).hexdigest()
         run = {"config": self.config.to_dict(), "frames": self.frames.tolist(), "start_frame": start_frame,
-               "points": [len(p) for p in self.captures], "source": self.source, "template": self.template.name}
+               "captures": captures.hexdigest(), "source": self.source, "template": self.template.name,
+               "initial_shape": initial, "initial_level_mm": initial_level_mm}
         path = self.out / "refine_run.json"
         if path.exists():
             previous = load_json(path)

@@ -15,10 +15,12 @@ Energies (weights from `reconstruction.refine.RefineConfig`, the reference's num
 - contact: Newton's vertex-triangle and edge-edge barrier self-contact, stiffness `contact_weight`
   (`model.soft_contact_ke`, N/m), interaction distance `contact_radius`, frictionless, with Newton's
   conservative (divide-and-truncate) step bounds, so a shape that starts free of intersections stays
-  so.  Self-contact skips pairs that are topological neighbours (`contact_filter_rings`): the caller
-  keeps that to the mesh's own triangles where every triangle is taller than the contact radius (its
-  neighbours cannot touch at rest), else Newton's default two rings.  Detection runs before every iteration and queries `contact_radius + contact_gap`; between two
-  detections a vertex moves at most 0.425 (radius + gap), which bounds how far one iteration goes.
+  so.  Detection queries `contact_radius + contact_gap` once per step, before it: with detection
+  before every iteration (Newton 1.8's ITERATIONS schedule) we measured vertices crossing triangles
+  within a step under the stiff anchors, never with one detection per step.  So one step moves a
+  vertex at most 0.425 (radius + gap): many short steps of few iterations.  Self-contact skips pairs
+  of topological neighbours within `contact_filter_rings` rings (the caller chooses: 1 where every
+  triangle is taller than the query, so that folds at seams are caught, else Newton's default 2).
 - inertia: lumped masses from the sewing pattern's areas at `density_g_m2`, over a pseudo-time step
   `timestep`; velocities are reset before every step, so each step is a quasi-static solve (the
   inertia only damps it; no gravity: the captured shape already shows its effect).
@@ -69,7 +71,7 @@ class ClothSolver:
             if len(builder.tri_indices) != len(faces):
                 raise ValueError(f"positions: Newton dropped {len(faces) - len(builder.tri_indices)} triangles that "
                                  "are degenerate in the shape the cloth was built from")
-            builder.particle_mass = [float(m) for m in vertex_mass]
+            builder.particle_mass = np.asarray(vertex_mass, dtype=np.float64).tolist()
             builder.begin_world()  # the anchors: a world of their own, so self-contact ignores them
             builder.add_particles(pos=positions.tolist(), vel=[(0.0, 0.0, 0.0)] * n, mass=[0.0] * n,
                                   radius=[contact_radius] * n)
@@ -92,8 +94,7 @@ class ClothSolver:
                 self.model, iterations=iterations, particle_enable_self_contact=True,
                 particle_self_contact_margin=contact_radius, particle_self_contact_gap=contact_gap,
                 particle_topological_contact_filter_threshold=contact_filter_rings,
-                collision_frequency={slot.SOFT_SELF_CONTACT: 1},
-                collision_frequency_type={slot.SOFT_SELF_CONTACT: kind.ITERATIONS},
+                collision_frequency_type={slot.SOFT_SELF_CONTACT: kind.PRE_INIT},
             )
             self.state, self.next_state = self.model.state(), self.model.state()
             self.control = self.model.control()
