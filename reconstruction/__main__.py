@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--frames", help="frames to use, e.g. 120-131 or 120,125 (default: all)")
         p.add_argument("--device", help="networks mode: cuda or cpu (default: a GPU when there is one)")
+        p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
+                       "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
+                       "--views is one, else the template's placement pose)")
 
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--out", type=Path, required=True, help="the reconstruction folder")
@@ -71,6 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(sub.add_parser("triangulate", help="captured 3D points per frame"))
     refine = sub.add_parser("refine", help="Newton VBD post-processing -> sequence.npz")
     common(refine), refine_options(refine)
+    refine.add_argument("--frames", help="refine a window of the triangulated frames, e.g. 120-131 (default: all)")
     export = sub.add_parser("export", help="npz, PLY/OBJ per frame, PC2 and a review .blend")
     common(export)
     export.add_argument("--texture", help="the garment's pattern texture PNG for the OBJ and .blend materials")
@@ -95,9 +99,13 @@ def main(argv: list[str] | None = None) -> int:
                 from reconstruction.cameras import read_cameras
 
                 cameras = read_cameras(args.cameras)
+            initial = args.initial_shape
+            if initial is None and (Path(args.views) / "sim" / "dressed.npz").is_file():
+                initial = Path(args.views) / "sim" / "dressed.npz"  # a factory capture's dressed garment
             settings = pipeline.RunSettings(template=args.template, level_mm=args.level, detections=args.detections,
                                             noise_px=args.noise, dropout=args.dropout, seed=args.seed,
-                                            checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints))
+                                            checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
+                                            initial_shape=str(Path(initial).resolve()) if initial else "")
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")
@@ -109,7 +117,10 @@ def main(argv: list[str] | None = None) -> int:
 
             levels = _levels(args.levels)
             config = RefineConfig(levels_mm=levels) if levels else RefineConfig()
-            print(f"refined sequence {pipeline.refine(args.out, config=config, start_frame=args.start_frame, progress=progress)}")
+            window = _frames(args.frames) if args.command == "refine" else None
+            path = pipeline.refine(args.out, config=config, start_frame=args.start_frame, progress=progress,
+                                   frames=window)
+            print(f"refined sequence {path}")
         if args.command in ("run", "export"):
             texture = getattr(args, "texture", None)
             if texture is None and args.command == "run" and (Path(args.views) / "texture.png").is_file():

@@ -50,7 +50,9 @@ class RunSettings:
     template: a default garment name, a pattern JSON or a template .npz; level_mm: the template level
     the crosspoints are located on (triangulation); detections: "networks" or "groundtruth";
     noise_px, dropout, seed: the ground-truth mode's perturbation; checkpoints: the three networks'
-    files (networks mode)."""
+    files (networks mode); initial_shape: a penetration-free garment shape npz the post-processing
+    starts from (`reconstruction.refine.load_initial_shape`; a factory capture's ``sim/dressed.npz``),
+    or "" for the template's placement pose (a poor start: see `refine_sequence`)."""
 
     template: str
     level_mm: int = 12
@@ -59,6 +61,7 @@ class RunSettings:
     dropout: float = 0.0
     seed: int = 0
     checkpoints: tuple[str, ...] = ()
+    initial_shape: str = ""
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -67,6 +70,8 @@ class RunSettings:
             raise ValueError("the networks mode needs three checkpoints: localizer, recognizer, crosspoints")
         if self.level_mm <= 0:
             raise ValueError(f"level_mm must be > 0, got {self.level_mm}")
+        if self.initial_shape and not Path(self.initial_shape).is_file():
+            raise ValueError(f"initial shape {self.initial_shape}: no such file")
 
     @property
     def source(self) -> str:
@@ -206,18 +211,26 @@ def triangulate(out: str | Path, template: Template | None = None, config=None, 
 
 
 def refine(out: str | Path, template: Template | None = None, config=None, start_frame: int | None = None,
-           progress: bool = True) -> Path:
-    """The complete, intersection-free sequence from the captured points: ``sequence.npz``."""
+           progress: bool = True, frames: Sequence[int] | None = None) -> Path:
+    """The complete, intersection-free sequence from the captured points: ``sequence.npz`` (of every
+    triangulated frame, or of `frames` only: a window of the sequence)."""
     from reconstruction.points import load_sequence
-    from reconstruction.refine import RefineConfig, refine_sequence
+    from reconstruction.refine import RefineConfig, load_initial_shape, refine_sequence
 
     out = Path(out)
     settings = settings_of(out)
     captures = load_sequence(out / "points")
     if not captures:
         raise ValueError(f"{out / 'points'}: no captured points (run the triangulate stage first)")
+    if frames is not None:
+        wanted = set(_frames([p.frame for p in captures], frames, out / "points"))
+        captures = [p for p in captures if p.frame in wanted]
+    shape, shape_level = load_initial_shape(settings.initial_shape) if settings.initial_shape else (None, None)
+    if shape is None:
+        log.warning("%s: no initial shape in run.json; refine starts from the template's placement pose", out)
     sequence = refine_sequence(template or load_template(settings.template), captures, config or RefineConfig(),
-                               start_frame=start_frame, progress=progress, out=out / "refine")
+                               start_frame=start_frame, progress=progress, out=out / "refine",
+                               initial_shape=shape, initial_level_mm=shape_level)
     sequence.save(out / "sequence.npz")
     return out / "sequence.npz"
 

@@ -21,6 +21,8 @@ def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, ca
     cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
     for camera in cameras:
         assert sorted(p.name for p in (out / "detections" / camera).iterdir()) == ["f000003.npz", "f000004.npz"]
+    run = json.loads((out / "run.json").read_text())  # refine started from the capture's dressed garment
+    assert run["initial_shape"] == str((capture_folder / "sim" / "dressed.npz").resolve())
     points = load_sequence(out / "points")
     assert [p.frame for p in points] == [3, 4]
     assert all(p.source.startswith("groundtruth(") for p in points)  # named as such in every output
@@ -40,3 +42,12 @@ def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, ca
     capsys.readouterr()
     assert main(argv[:-2] + ["--noise", "0.5", "--quiet"]) != 0
     assert "other settings" in capsys.readouterr().err
+
+
+def test_a_missing_initial_shape_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "rec"
+    argv = ["detect", "--views", str(tmp_path), "--template", "shirt", "--out", str(out),
+            "--detections", "groundtruth", "--initial-shape", str(tmp_path / "nowhere.npz"), "--quiet"]
+    assert main(argv) != 0
+    assert "nowhere.npz: no such file" in capsys.readouterr().err
+    assert not out.exists()
