@@ -19,6 +19,13 @@ demo: $(STAMP)
 		--resolution 640x360 --samples 16 --reuse-simulation $(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/capture
 	$(BIN)/python -m reconstruction run --views $(DEMO_OUT)/capture --template $(DEMO_OUT)/capture/template.npz \
 		--out $(DEMO_OUT)/reconstruction --detections groundtruth --noise 0.3 --levels 12 --evaluate
+	$(MAKE) addon
+
+# The Blender add-on as one zip (extension and legacy add-on): out/addon/clothcapture-<version>.zip.
+# Standard library only, so any Python 3.11 builds it.
+.PHONY: addon
+addon:
+	$(PYTHON) -m blender_addon.package --out out/addon
 
 test: $(STAMP) blender
 	$(BIN)/python -m pytest -q

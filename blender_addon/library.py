@@ -1,0 +1,116 @@
+"""Where the clothcapture project is, and which Python runs its tools.
+
+The add-on is a UI over the project's packages (`assets`, `factory`, `reconstruction`): the light work
+(reading results, posing a body) runs inside Blender, the long work runs the project's CLIs in a
+background process (`jobs`).  Both need the project:
+
+- project folder: the add-on preference, else the folder of the importable `assets` package (the bpy
+  module in the project's venv imports it already);
+- Python: the add-on preference, else the project's ``.venv`` interpreter, else this process's own
+  interpreter when it is a Python (the bpy module) rather than a Blender executable.
+
+Inside a Blender executable (4.2+: Python 3.11, as the project's venv), `ensure_importable` appends the
+project folder and its venv's site-packages to ``sys.path`` (after Blender's own, so Blender's bundled
+numpy stays in use), as ``factory/render.py`` does for ``blender -b -P``.
+"""
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+import bpy
+
+#: the project's packages the add-on calls
+PACKAGES = ("assets", "factory", "reconstruction")
+
+
+class ClothCapturePreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+    __annotations__ = {  # what Blender reads from annotations; as annotations, linters take strings for types
+        "project_dir": bpy.props.StringProperty(
+            name="Project Folder", subtype="DIR_PATH", default="",
+            description="The clothcapture checkout (holding assets/, factory/, reconstruction/ and .venv/); "
+                        "empty: found from the importable packages"),
+        "python": bpy.props.StringProperty(
+            name="Python", subtype="FILE_PATH", default="",
+            description="The Python that runs the project's tools in the background (its venv's python); "
+                        "empty: <project>/.venv/bin/python"),
+    }
+
+    def draw(self, context):
+        layout = self.layout
+        layout.prop(self, "project_dir")
+        layout.prop(self, "python")
+        try:
+            layout.label(text=f"Using {python_executable()} in {project_root()}", icon="CHECKMARK")
+        except ValueError as exc:
+            layout.label(text=str(exc), icon="ERROR")
+
+
+def _preferences() -> ClothCapturePreferences | None:
+    addon = bpy.context.preferences.addons.get(__package__)
+    return addon.preferences if addon is not None else None
+
+
+def _is_project(folder: Path) -> bool:
+    return all((folder / name / "__init__.py").is_file() for name in PACKAGES)
+
+
+def project_root() -> Path:
+    """The project folder (ValueError when it cannot be found)."""
+    prefs = _preferences()
+    if prefs is not None and prefs.project_dir:
+        root = Path(bpy.path.abspath(prefs.project_dir)).resolve()
+        if not _is_project(root):
+            raise ValueError(f"{root}: not a clothcapture project folder (needs {', '.join(PACKAGES)})")
+        return root
+    spec = importlib.util.find_spec("assets")
+    if spec is not None and spec.origin and _is_project(Path(spec.origin).resolve().parents[1]):
+        return Path(spec.origin).resolve().parents[1]
+    raise ValueError("the clothcapture project was not found: set its folder in the add-on's preferences")
+
+
+def _venv_python(root: Path) -> Path:
+    return root / ".venv" / ("Scripts/python.exe" if os.name == "nt" else "bin/python")
+
+
+def python_executable() -> str:
+    """The interpreter of the background jobs (ValueError when there is none)."""
+    prefs = _preferences()
+    if prefs is not None and prefs.python:
+        python = Path(bpy.path.abspath(prefs.python))
+        if not python.is_file():
+            raise ValueError(f"{python}: no such Python (add-on preferences)")
+        return str(python)
+    venv = _venv_python(project_root())
+    if venv.is_file():
+        return str(venv)
+    if Path(sys.executable).name.lower().startswith("python"):
+        return sys.executable
+    raise ValueError(f"no Python for the background jobs: create {venv} (make test) or set one in the "
+                     "add-on's preferences")
+
+
+def ensure_importable() -> None:
+    """Make the project's packages importable in this process (a no-op where they already are)."""
+    if all(importlib.util.find_spec(name) is not None for name in PACKAGES):
+        return
+    try:
+        root = project_root()
+    except ValueError:
+        return  # the preferences say why; operators raise the same error when used
+    version = f"python{sys.version_info.major}.{sys.version_info.minor}"
+    site = root / ".venv" / ("Lib" if os.name == "nt" else f"lib/{version}") / "site-packages"
+    for path in (root, site):
+        if path.is_dir() and str(path) not in sys.path:
+            sys.path.append(str(path))
+
+
+def register() -> None:
+    bpy.utils.register_class(ClothCapturePreferences)
+    ensure_importable()
+
+
+def unregister() -> None:
+    bpy.utils.unregister_class(ClothCapturePreferences)

@@ -1,0 +1,262 @@
+"""Operators: thin shells over the project's CLIs (background jobs) and result importers.
+
+A background operator builds the CLI's arguments from the scene's settings (`commands`), starts the
+job (`jobs`) and returns at once; when the run succeeds its results are imported into the scene it was
+started from (`results`).  Bad settings are reported as errors before anything starts; a failing run
+shows the CLI's ``error: ...`` line in its panel.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import bpy
+from bpy.props import IntProperty
+
+from . import commands, jobs, library
+
+
+def _results():
+    """The importers: they need numpy and the project's packages, so they are imported on first use,
+    after `library.ensure_importable` (the add-on registers before its preferences name the project)."""
+    from . import results
+
+    return results
+
+
+def _start(context, kind: str, label: str, argv: list[str], out: Path, importer: Callable) -> jobs.Job:
+    """Start a background job; `importer(scene)` imports its results into this scene when it succeeds
+    (unless another .blend file has been opened meanwhile: the results stay on disk)."""
+    scene_name, blend = context.scene.name, bpy.data.filepath
+
+    def on_success(job: jobs.Job) -> str:
+        scene = bpy.data.scenes.get(scene_name)
+        if bpy.data.filepath != blend or scene is None:
+            return f"finished in {out}; not imported: the scene it was started from is no longer open"
+        return importer(scene)
+
+    return jobs.start(jobs.Job(kind, label, argv, out, on_success=on_success), library.python_executable(),
+                      library.project_root())
+
+
+class _Background:
+    """Mixin of the background operators: their `prepare(context)` returns (kind, label, argv, out
+    folder, importer) for `_start`."""
+
+    def execute(self, context):
+        try:
+            library.ensure_importable()
+            job = _start(context, *self.prepare(context))
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{job.label}: started in the background")
+        return {"FINISHED"}
+
+
+class CLOTHCAPTURE_OT_generate_pattern(_Background, bpy.types.Operator):
+    """Generate the printable two-level pattern (python -m assets.pattern)"""
+
+    bl_idname = "clothcapture.generate_pattern"
+    bl_label = "Generate Pattern"
+
+    def prepare(self, context):
+        argv, out = commands.pattern_command(context.scene.clothcapture)
+
+        def importer(scene):
+            width, height = _results().import_pattern(out).size
+            return f"pattern.png {width} x {height} px in {out}"
+
+        return "pattern", "pattern", argv, out, importer
+
+
+def _garment_job(settings, source: str, out: Path, level_mm: int, name: str | None):
+    argv, out = commands.garment_command(settings, source, out, level_mm)
+
+    def importer(scene):
+        obj = _results().import_garment(scene, out, level_mm, name)
+        obj["clothcapture_garment_source"] = source
+        return f"{obj.name}: {len(obj.data.vertices)} vertices at {level_mm} mm, texture {out / 'pattern_texture.png'}"
+
+    return "garment", f"garment {Path(source).stem}", argv, out, importer
+
+
+class CLOTHCAPTURE_OT_apply_pattern(bpy.types.Operator):
+    """Apply the pattern to the selected meshes: a garment of this add-on is rebuilt with the pattern's
+    pitch and seed (its texture is laid out per panel); any other mesh gets the printable pattern
+    through its UV map"""
+
+    bl_idname = "clothcapture.apply_pattern"
+    bl_label = "Apply to Selected"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return any(obj.type == "MESH" for obj in context.selected_objects)
+
+    def execute(self, context):
+        settings = context.scene.clothcapture
+        meshes = [obj for obj in context.selected_objects if obj.type == "MESH"]
+        garments = [obj for obj in meshes if "clothcapture_garment_source" in obj]
+        try:
+            library.ensure_importable()
+            if len(garments) > 1:
+                raise ValueError("select one garment at a time (each is rebuilt in the background)")
+            for obj in meshes:
+                if obj not in garments:
+                    _results().apply_pattern(obj, commands.pattern_dir(settings))
+            if garments:
+                obj = garments[0]
+                _start(context, *_garment_job(settings, obj["clothcapture_garment_source"],
+                                              Path(obj["clothcapture_template"]).parent,
+                                              int(obj["clothcapture_level_mm"]), obj.name))
+        except ValueError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"pattern applied to {len(meshes) - len(garments)} mesh(es)"
+                    + (f", rebuilding {garments[0].name}" if garments else ""))
+        return {"FINISHED"}
+
+
+class CLOTHCAPTURE_OT_import_motion(_Background, bpy.types.Operator):
+    """Pose the body through the motion and import it as an animated mesh (python -m assets.motion preview)"""
+
+    bl_idname = "clothcapture.import_motion"
+    bl_label = "Import Motion"
+
+    def prepare(self, context):
+        settings = context.scene.clothcapture
+        argv, out = commands.motion_command(settings)
+        return "motion", f"motion {commands.motion_name(settings)}", argv, out, \
+            lambda scene: _results().import_motion(scene, out)
+
+
+class CLOTHCAPTURE_OT_import_garment(_Background, bpy.types.Operator):
+    """Build the garment's template at the chosen level with its pattern texture and import it
+    (python -m assets.garments build)"""
+
+    bl_idname = "clothcapture.import_garment"
+    bl_label = "Import Garment"
+
+    def prepare(self, context):
+        settings = context.scene.clothcapture
+        return _garment_job(settings, commands.garment_source(settings), commands.garment_dir(settings),
+                            int(settings.garment.level_mm), None)
+
+
+class CLOTHCAPTURE_OT_simulate(_Background, bpy.types.Operator):
+    """Dress the garment on the body and simulate it through the motion (python -m factory.simulate);
+    resumes what the simulation folder holds"""
+
+    bl_idname = "clothcapture.simulate"
+    bl_label = "Dress & Simulate"
+
+    def prepare(self, context):
+        settings = context.scene.clothcapture
+        argv, out = commands.simulation_command(settings)
+        return "simulation", f"simulation {out.name}", argv, out, lambda scene: _results().import_simulation(scene, out)
+
+
+class CLOTHCAPTURE_OT_render(_Background, bpy.types.Operator):
+    """Render the dataset or the capture with ground truth (python -m factory.dataset build | capture)"""
+
+    bl_idname = "clothcapture.render"
+    bl_label = "Render"
+
+    def prepare(self, context):
+        settings = context.scene.clothcapture
+        rig = settings.render.rig
+        argv, out = commands.render_command(settings)
+        return "render", f"{rig.lower()} {out.name}", argv, out, lambda scene: _results().import_render(scene, out, rig)
+
+
+def _review_options(settings) -> dict:
+    review = settings.review
+    return {"groundtruth_offset": review.groundtruth_offset if review.show_groundtruth else None,
+            "heatmap_max_mm": review.heatmap_max_mm if review.heatmap else None, "cameras": review.import_cameras}
+
+
+def _review_capture(settings) -> Path | None:
+    """The capture to compare with: the Review panel's, else the Render panel's when it has ground truth."""
+    try:
+        capture = commands.capture_dir(settings)
+    except ValueError:
+        if settings.review.capture_dir:
+            raise
+        return None  # no output folder (an unsaved .blend): review without the ground truth
+    return capture if (capture / "garment.npz").is_file() else None
+
+
+class CLOTHCAPTURE_OT_reconstruct(_Background, bpy.types.Operator):
+    """Reconstruct the capture (python -m reconstruction run) and import the result for review"""
+
+    bl_idname = "clothcapture.reconstruct"
+    bl_label = "Reconstruct"
+
+    def prepare(self, context):
+        settings = context.scene.clothcapture
+        argv, out = commands.reconstruction_command(settings)
+        capture, options = _review_capture(settings), _review_options(settings)
+        return "reconstruction", f"reconstruction {out.name}", argv, out, \
+            lambda scene: _results().import_reconstruction(scene, out, capture, **options)
+
+
+class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):
+    """Import a reconstruction folder for review: animated mesh with captured-vs-filled colours, the
+    ground truth beside it and the per-vertex error heat map (with a capture), the cameras"""
+
+    bl_idname = "clothcapture.import_reconstruction"
+    bl_label = "Import Reconstruction"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        settings = context.scene.clothcapture
+        try:
+            library.ensure_importable()
+            message = _results().import_reconstruction(context.scene, commands.reconstruction_dir(settings),
+                                                    _review_capture(settings), **_review_options(settings))
+        except (ValueError, OSError, NotImplementedError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+
+class CLOTHCAPTURE_OT_cancel_job(bpy.types.Operator):
+    """Stop this background run (files it finished stay whole; nothing half-written remains)"""
+
+    bl_idname = "clothcapture.cancel_job"
+    bl_label = "Cancel"
+
+    job_id: IntProperty()
+
+    def execute(self, context):
+        job = jobs.find(self.job_id)
+        if job is None:
+            return {"CANCELLED"}
+        jobs.cancel(job)
+        return {"FINISHED"}
+
+
+class CLOTHCAPTURE_OT_dismiss_job(bpy.types.Operator):
+    """Clear this finished run's message"""
+
+    bl_idname = "clothcapture.dismiss_job"
+    bl_label = "Dismiss"
+
+    job_id: IntProperty()
+
+    def execute(self, context):
+        job = jobs.find(self.job_id)
+        if job is None or job.active:
+            return {"CANCELLED"}
+        jobs.dismiss(job)
+        return {"FINISHED"}
+
+
+CLASSES = (CLOTHCAPTURE_OT_generate_pattern, CLOTHCAPTURE_OT_apply_pattern, CLOTHCAPTURE_OT_import_motion,
+           CLOTHCAPTURE_OT_import_garment, CLOTHCAPTURE_OT_simulate, CLOTHCAPTURE_OT_render,
+           CLOTHCAPTURE_OT_reconstruct, CLOTHCAPTURE_OT_import_reconstruction, CLOTHCAPTURE_OT_cancel_job,
+           CLOTHCAPTURE_OT_dismiss_job)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)

@@ -1,0 +1,197 @@
+"""The "Cloth Capture" tab of the 3D view's sidebar: Pattern, Body & Motion, Garment, Render, Review.
+
+Each panel shows its settings, its operators and its background runs: a progress bar with a cancel
+button while a run is active, then its outcome (the imported result, or the error in red).
+"""
+
+from __future__ import annotations
+
+import textwrap
+
+import bpy
+
+from . import commands, jobs
+from .settings import FILE
+
+_ICONS = {jobs.FINISHED: "CHECKMARK", jobs.FAILED: "ERROR", jobs.CANCELLED: "CANCEL"}
+
+
+def _lines(layout, text: str, width: int = 48) -> None:
+    for line in textwrap.wrap(text, width) or [""]:
+        layout.label(text=line)
+
+
+def draw_jobs(layout, kind: str) -> None:
+    """The runs of `kind`: progress and cancel while active, then the outcome (dismissable)."""
+    for job in jobs.jobs(kind)[-3:]:
+        box = layout.box()
+        row = box.row(align=True)
+        if job.active:
+            text = job.progress_text or f"{job.label}: starting"
+            if job.state == jobs.CANCELLING:
+                text = f"{job.label}: cancelling"
+            row.progress(factor=job.progress or 0.0, type="BAR", text=text)
+            row.operator("clothcapture.cancel_job", text="", icon="CANCEL").job_id = job.id
+            if job.status:
+                _lines(box, job.status)
+            continue
+        row.label(text=f"{job.label}: {job.state.lower()} ({job.seconds:.0f} s)", icon=_ICONS[job.state])
+        row.operator("clothcapture.dismiss_job", text="", icon="X").job_id = job.id
+        column = box.column()
+        column.alert = job.state == jobs.FAILED
+        _lines(column, job.error if job.state == jobs.FAILED else job.message)
+
+
+def _describe(layout, label: str, describe) -> None:
+    """A line naming what an operator will use (or why it cannot)."""
+    try:
+        layout.label(text=f"{label}: {describe()}")
+    except ValueError as exc:
+        layout.label(text=str(exc), icon="ERROR")
+
+
+class _Panel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Cloth Capture"
+
+
+class CLOTHCAPTURE_PT_main(_Panel, bpy.types.Panel):
+    bl_label = "Cloth Capture"
+
+    def draw(self, context):
+        self.layout.prop(context.scene.clothcapture, "output_dir")
+
+
+class CLOTHCAPTURE_PT_pattern(_Panel, bpy.types.Panel):
+    bl_label = "Pattern"
+
+    def draw(self, context):
+        settings = context.scene.clothcapture
+        pattern, layout = settings.pattern, self.layout
+        column = layout.column(align=True)
+        for name in ("pitch_mm", "seed", "dpi"):
+            column.prop(pattern, name)
+        row = layout.row(align=True)
+        row.prop(pattern, "rows")
+        row.prop(pattern, "cols")
+        layout.operator("clothcapture.generate_pattern", icon="TEXTURE")
+        layout.operator("clothcapture.apply_pattern", icon="MATERIAL")
+        _describe(layout, "Into", lambda: commands.pattern_dir(settings))
+        draw_jobs(layout, "pattern")
+
+
+class CLOTHCAPTURE_PT_motion(_Panel, bpy.types.Panel):
+    bl_label = "Body & Motion"
+
+    def draw(self, context):
+        settings = context.scene.clothcapture
+        motion, layout = settings.motion, self.layout
+        layout.prop(motion, "body_source")
+        if motion.body_source == FILE:
+            layout.prop(motion, "body_file")
+        layout.prop(motion, "source")
+        layout.prop(motion, "file" if motion.source == FILE else "builtin")
+        column = layout.column(align=True)
+        if motion.source != FILE:
+            column.prop(motion, "seconds")
+            column.prop(motion, "speed")
+        column.prop(motion, "fps")
+        layout.prop(motion, "transition")
+        layout.operator("clothcapture.import_motion", icon="ARMATURE_DATA")
+        draw_jobs(layout, "motion")
+
+
+class CLOTHCAPTURE_PT_garment(_Panel, bpy.types.Panel):
+    bl_label = "Garment"
+
+    def draw(self, context):
+        settings = context.scene.clothcapture
+        garment, layout = settings.garment, self.layout
+        layout.prop(garment, "source")
+        if garment.source == FILE:
+            layout.prop(garment, "file")
+        row = layout.row(align=True)
+        row.prop(garment, "level_mm")
+        row.prop(garment, "texture_dpi")
+        layout.operator("clothcapture.import_garment", icon="MOD_CLOTH")
+        draw_jobs(layout, "garment")
+        layout.separator()
+        row = layout.row(align=True)
+        row.prop(garment, "sim_frames")
+        row.prop(garment, "sim_level_mm", text="")
+        _describe(layout, "Garment", lambda: commands.garment_spec(settings))
+        _describe(layout, "Into", lambda: commands.simulation_dir(settings))
+        layout.operator("clothcapture.simulate", icon="PHYSICS")
+        draw_jobs(layout, "simulation")
+
+
+class CLOTHCAPTURE_PT_render(_Panel, bpy.types.Panel):
+    bl_label = "Render"
+
+    def draw(self, context):
+        settings = context.scene.clothcapture
+        render, layout = settings.render, self.layout
+        layout.prop(render, "rig", expand=True)
+        column = layout.column(align=True)
+        column.prop(render, "frames")
+        if render.rig == "CAPTURE":
+            for name in ("first_frame", "cameras", "radius", "ring_height"):
+                column.prop(render, name)
+        else:
+            for name in ("frame_step", "frame_list", "variations"):
+                column.prop(render, name)
+        layout.prop(render, "engine")
+        column = layout.column(align=True)
+        column.prop(render, "samples")
+        column.prop(render, "denoise")
+        row = column.row(align=True)
+        row.prop(render, "width")
+        row.prop(render, "height")
+        column.prop(render, "texture_dpi")
+        column.prop(render, "seed")
+        layout.prop(render, "output_dir")
+        _describe(layout, "Into", lambda: commands.render_dir(settings))
+        layout.operator("clothcapture.render", icon="RENDER_ANIMATION")
+        draw_jobs(layout, "render")
+
+
+class CLOTHCAPTURE_PT_review(_Panel, bpy.types.Panel):
+    bl_label = "Review"
+
+    def draw(self, context):
+        settings = context.scene.clothcapture
+        review, layout = settings.review, self.layout
+        layout.prop(review, "capture_dir")
+        layout.prop(review, "reconstruction_dir")
+        box = layout.box()
+        box.prop(review, "detections")
+        if review.detections == "groundtruth":
+            row = box.row(align=True)
+            row.prop(review, "noise_px")
+            row.prop(review, "dropout")
+        else:
+            for name in ("localizer", "recognizer", "crosspoints"):
+                box.prop(review, name)
+        box.prop(review, "levels")
+        box.operator("clothcapture.reconstruct", icon="OUTLINER_OB_POINTCLOUD")
+        draw_jobs(box, "reconstruction")
+        row = layout.row(align=True)
+        row.prop(review, "show_groundtruth")
+        row.prop(review, "groundtruth_offset")
+        row = layout.row(align=True)
+        row.prop(review, "heatmap")
+        row.prop(review, "heatmap_max_mm")
+        layout.prop(review, "import_cameras")
+        layout.operator("clothcapture.import_reconstruction", icon="IMPORT")
+        evaluation = next((obj["clothcapture_evaluation"] for obj in context.scene.objects
+                           if "clothcapture_evaluation" in obj), None)
+        if evaluation:
+            box = layout.box()
+            for key, value in evaluation.items():
+                box.label(text=f"{key}: {value:.4g}")
+
+
+CLASSES = (CLOTHCAPTURE_PT_main, CLOTHCAPTURE_PT_pattern, CLOTHCAPTURE_PT_motion, CLOTHCAPTURE_PT_garment,
+           CLOTHCAPTURE_PT_render, CLOTHCAPTURE_PT_review)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)
