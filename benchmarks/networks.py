@@ -1,22 +1,30 @@
-"""Benchmark the three networks (issue 7), on a GPU machine: train, evaluate on Blender renders, time
-inference.
+"""Benchmark the three networks (issue 7) on a GPU machine: train, evaluate on Blender renders, time
+inference.  One call fits a 10-minute device command; calling it again with the same --out continues.
 
-1. Train the Marker Localizer, Marker Recognizer and Crosspoint Localizer on the procedural
-   synthesizer (`--data synth`), all three at once on one GPU (each with its own data workers), for a
-   short schedule capped by `--minutes`.
-   The localizer is also trained on the rendered dataset's train split mixed half and half with
-   synthesized images, and on the rendered train split alone: which mix trains best.
-2. Evaluate each on the rendered dataset's validation and test images (`--rendered`, a factory
-   dataset folder of Blender renders; its `samples/` are rebuilt from the images and saved ground
-   truth when missing, so only images, gt and template.npz need to travel).
-3. Inference throughput of `networks.Detector` (all three chained) on synthesized 1024 x 1024 and
-   2048 x 2048 images, on the GPU and on the CPU.
+1. Shards.  Pre-synthesize training samples (`networks.shards`) with every core: 256 x 256 localizer
+   images, recognizer and crosspoint crops, drawing the garment's marker IDs.  Written once (capped
+   at --shard-minutes per call; an unfinished folder is continued by the next call and used as far
+   as it goes), shared by all runs and calls.
+2. Train, all runs at once on the one GPU, each resuming from its last.pt (`networks.train`):
+   the main runs, localizer_mix (rendered train split + shards, synth weight 0.5), recognizer and
+   crosspoints (shards + rendered crops, synth weight 0.75), train until the budget's end; the
+   data-mix comparison runs localizer_synth (shards only) and localizer_rendered (rendered only)
+   share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
+   that step (validation on the rendered val split, logged every VAL_EVERY steps) without taking
+   the GPU from the main run for longer.  Data workers are sized to the cores.
+3. Evaluate each run's last.pt on the rendered dataset's validation and test images (`--rendered`, a
+   factory dataset folder of Blender renders, read through a view in --out whose `samples/` are
+   built there from the images and saved ground truth when the folder has none, so only images, gt,
+   the manifest and template.npz need to travel and the folder itself is left as it is).
+4. Inference throughput of `networks.Detector` (the three main runs chained) on synthesized images
+   framed as the renders (markers scaled with the image side), on the GPU and on the CPU.
 
-    python benchmarks/networks.py --rendered .bench/rendered --out out/bench_networks [--minutes 5]
+    python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
 
-Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json` and
-the training logs to `--out`.  The rendered dataset must use the codebook this machine generates:
+Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
+shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
 `--codebook-hash` (the hash printed on the machine that rendered it) stops the run early otherwise.
+`--device cpu --max-steps N` is a smoke run (tiny shards and batches, runs one after another).
 """
 
 from __future__ import annotations
@@ -25,8 +33,11 @@ import argparse
 import json
 import os
 import platform
+import shutil
+import signal
 import subprocess
 import sys
+import tarfile
 import time
 from pathlib import Path
 
@@ -39,100 +50,233 @@ import torch  # noqa: E402
 
 from assets.fileio import save_json, save_npz  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, training_samples  # noqa: E402
-from networks.checkpoint import codebook_hash  # noqa: E402
+from networks.checkpoint import codebook_hash, read_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
-from networks.data import dataset_spec  # noqa: E402
+from networks.data import dataset_spec, garment_marker_ids  # noqa: E402
 from networks.evaluate import evaluate  # noqa: E402
+from networks.shards import write_shards  # noqa: E402
 from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 
-#: the short schedule: (steps, batch size, synthesized localizer image side); Adam at LR, warm-up
-SCHEDULE = {"localizer": (3000, 16, 256), "recognizer": (2000, 64, 256), "crosspoints": (2000, 32, 256)}
-LR, WARMUP = 3e-4, 100
-#: the training runs: name -> (task, data, synth weight).  The localizer is trained three ways to see
-#: which mix trains best: synthesized only, half rendered (the rendered train split) and rendered only.
-RUNS = {"localizer": ("localizer", "synth", 1.0), "localizer_mix": ("localizer", "rendered", 0.5),
-        "localizer_rendered": ("localizer", "rendered", 0.0), "recognizer": ("recognizer", "synth", 1.0),
-        "crosspoints": ("crosspoints", "synth", 1.0)}
+#: per task: (planned steps over all calls, batch size); Adam at LR with WARMUP steps, cosine decay
+SCHEDULE = {"localizer": (8000, 32), "recognizer": (8000, 256), "crosspoints": (4000, 64)}
+LR, WARMUP = 3e-4, 300
+#: side of the localizer's training images (rendered ones are cut to it), pixels
+IMAGE_SIZE = 256
+#: the data-mix comparison: the localizer runs compared at this step
+COMPARE_STEPS = 1500
+VAL_EVERY = {"localizer": 500, "recognizer": 1000, "crosspoints": 1000}
+#: name -> (task, synth weight, stop at step (None: the schedule), share of the data workers)
+RUNS = {
+    "localizer_mix": ("localizer", 0.5, None, 4),
+    "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2),
+    "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2),
+    "recognizer": ("recognizer", 0.75, None, 3),
+    "crosspoints": ("crosspoints", 0.75, None, 2),
+}
+MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints": "crosspoints"}
+#: synthetic images per shard folder (the crop tasks keep up to 32 crops of each)
+SHARD_IMAGES = {"localizer": 9600, "recognizer": 4800, "crosspoints": 2400}
+#: seconds kept after training for evaluation and throughput, and allowed for a run's start
+RESERVE_S, START_S = 100.0, 45.0
 
 
-def rebuild_samples(root: Path) -> int:
-    """Write `samples/<name>.npz` for every manifest entry that lacks it; returns how many."""
-    spec = dataset_spec(root)
+def prepare(root: Path, out: Path) -> tuple[Path, int]:
+    """(a view of the rendered dataset folder in `out`, samples built): its files linked, and
+    `samples/<name>.npz` built in the view for every manifest entry when the folder has none."""
+    view = out / "rendered"
+    view.mkdir(parents=True, exist_ok=True)
+    names = ["images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl"]
+    for name in names + (["samples"] if (root / "samples").is_dir() else []):
+        if (root / name).exists() and not (view / name).exists():
+            (view / name).symlink_to((root / name).resolve())
+    spec = dataset_spec(view)
     made = 0
-    for line in (root / "manifest.jsonl").read_text().splitlines():
+    for line in (view / "manifest.jsonl").read_text().splitlines():
         entry = json.loads(line)
-        target = root / entry["samples"]
+        target = view / entry["samples"]
         if target.exists():
             continue
-        image = cv2.imread(str(root / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
-        save_npz(target, training_samples(image, ImageGroundTruth.load(root / entry["gt"]), spec))
+        image = cv2.imread(str(view / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+        save_npz(target, training_samples(image, ImageGroundTruth.load(view / entry["gt"]), spec))
         made += 1
-    return made
+    return view, made
 
 
-def heldout(root: Path, limit: int | None = None) -> Path:
+def heldout(root: Path, out: Path, limit: int | None = None, markers: int | None = None) -> Path:
     """A view of the rendered dataset holding its validation and test images (the first `limit`) as
-    the split 'heldout': the mixed runs train on its train split."""
-    view = root.parent / f"{root.name}_heldout"
-    view.mkdir(exist_ok=True)
-    for name in ("images", "gt", "samples", "template.npz", "config.json", "meta"):
+    the split 'heldout' (the runs train on its train split).  markers: keep only N markers of each
+    image, fully visible ones first (smoke runs: evaluating every crop on a CPU takes minutes)."""
+    view = out / "heldout"
+    view.mkdir(parents=True, exist_ok=True)
+    linked = ("images", "meta", "template.npz", "config.json", "splits.json") + (() if markers else ("gt", "samples"))
+    for name in linked:
         link = view / name
         if not link.exists():
             link.symlink_to((root / name).resolve())
     entries = [json.loads(line) for line in (root / "manifest.jsonl").read_text().splitlines() if line]
     entries = [dict(e, split="heldout") for e in entries if e["split"] != "train"][:limit]
+    if markers:
+        spec = dataset_spec(root)
+        for e in entries:
+            gt = ImageGroundTruth.load(root / e["gt"])
+            gt = gt.select(np.sort(np.argsort(-gt.status, kind="stable")[:markers]))  # fully visible first
+            gt.save(view / e["gt"])
+            image = cv2.imread(str(root / e["image"]), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+            save_npz(view / e["samples"], training_samples(image, gt, spec))
     (view / "manifest.jsonl").write_text("".join(json.dumps(e) + "\n" for e in entries))
     return view
 
 
-def train_all(out: Path, rendered: Path, minutes: float, workers: int, device: str,
-              max_steps: int | None) -> dict[str, dict]:
-    """Every run of RUNS at once (one process each); returns per run its wall time, steps and first and
-    last logged loss."""
-    processes = {}
-    for name, (task, data, synth_weight) in RUNS.items():
-        steps, batch, size = SCHEDULE[task]
-        steps = min(steps, max_steps or steps)
+def run_step(folder: Path) -> int:
+    """The step of a run folder's last.pt (0 when there is none)."""
+    last = folder / "last.pt"
+    return int(read_checkpoint(last)["step"]) if last.exists() else 0
+
+
+def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: bool) -> dict[str, dict]:
+    """Write (or continue) the shard folder of every task within `seconds` in all, each task getting a
+    share of the time left by its image count, so every run has shards to start from."""
+    spec, ids = dataset_spec(rendered), garment_marker_ids(rendered)
+    config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE))
+    started, results = time.perf_counter(), {}
+    for k, (task, count) in enumerate(SHARD_IMAGES.items()):
+        left = seconds - (time.perf_counter() - started)
+        share = count / sum(list(SHARD_IMAGES.values())[k:])
+        results[task] = write_shards(out / "shards" / task, task, spec, 4 if smoke else count, config, ids,
+                                     workers, images_per_part=4 if smoke else 64, time_limit_s=max(left * share, 0.0),
+                                     progress=False)
+    return results
+
+
+def worker_counts(active: list[str], cores: int, smoke: bool) -> dict[str, int]:
+    """Data workers per active run: the cores left to the runs' own processes, by their shares."""
+    if smoke:
+        return {name: 0 for name in active}
+    spare = max(len(active), cores - len(active))
+    total = sum(RUNS[name][3] for name in active)
+    return {name: max(1, int(RUNS[name][3] * spare / total + 0.5)) for name in active}
+
+
+def run_config(name: str, workers: int, max_steps: int | None) -> TrainConfig:
+    task, synth_weight, _, _ = RUNS[name]
+    steps, batch = SCHEDULE[task]
+    if max_steps:  # smoke runs: a few steps of tiny batches
+        steps, batch = min(steps, max_steps), 2
+    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR, warmup_steps=WARMUP,
+                       num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
+                       checkpoint_every=500, log_every=50, synth_weight=synth_weight)
+
+
+def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None
+              ) -> dict[str, dict]:
+    """Start (or continue) every unfinished run, all at once on a GPU (one after another on the CPU),
+    each for at most `seconds`; returns per run its steps, wall time and logged losses."""
+    smoke = max_steps is not None
+    targets = {name: min(RUNS[name][2] or SCHEDULE[RUNS[name][0]][0], max_steps or 10**9) for name in RUNS}
+    before = {name: run_step(out / name / "run") for name in RUNS}
+    active = [name for name in RUNS if before[name] < targets[name]]
+    workers = worker_counts(active, cores, smoke)
+    deadline = time.monotonic() + seconds + START_S
+    results, processes = {}, {}
+
+    def launch(name: str) -> None:
+        task = RUNS[name][0]
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        config = TrainConfig(task=task, steps=steps, batch_size=batch, image_size=size, lr=LR, warmup_steps=WARMUP,
-                             num_workers=workers, val_every=steps, val_samples=16 if max_steps else 512,
-                             checkpoint_every=steps, log_every=50, synth_weight=synth_weight)
-        config.save(folder / "config.in.json")
-        command = [sys.executable, "-m", "networks.train", task, "--data", "synth" if data == "synth" else str(rendered),
-                   "--out", str(folder / "run"), "--config", str(folder / "config.in.json"), "--device", device,
-                   "--time-limit", str(minutes * 60), "--quiet"]
-        log = open(folder / "train.log", "w")
-        processes[name] = (subprocess.Popen(command, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT),
+        run_config(name, workers[name], max_steps).save(folder / "config.in.json")
+        command = [sys.executable, "-m", "networks.train", task, "--data", str(rendered), "--out", str(folder / "run"),
+                   "--config", str(folder / "config.in.json"), "--device", device, "--resume", "--quiet",
+                   "--num-workers", str(workers[name]), "--until-step", str(targets[name]),
+                   "--time-limit", str(max(1.0, deadline - START_S - time.monotonic()))]
+        if RUNS[name][1] > 0:
+            command += ["--shards", str(out / "shards" / task)]
+        log = open(folder / "train.log", "a")
+        # on a GPU the runs' own processes only feed it: two OpenMP threads each, the cores go to the workers
+        env = dict(os.environ, **({} if smoke else {"OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "2"}))
+        processes[name] = (subprocess.Popen(command, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env),
                            time.perf_counter(), log)
-    results = {}
-    for name, (process, started, log) in processes.items():
-        status = process.wait()
+
+    def collect(name: str) -> None:
+        process, started, log = processes.pop(name)
+        try:
+            status = process.wait(timeout=max(1.0, deadline + 30 - time.monotonic()))
+        except subprocess.TimeoutExpired:  # past the budget: Ctrl-C writes last.pt and stops
+            process.send_signal(signal.SIGINT)
+            status = process.wait()
         log.close()
         text = (out / name / "train.log").read_text()
         if status != 0:  # recorded, and the other runs still count
             results[name] = {"error": f"exit status {status}: {text[-2000:]}"}
-            continue
-        records = [json.loads(line) for line in (out / name / "run" / "log.jsonl").read_text().splitlines() if line]
-        steps = [r for r in records if "loss" in r]
+            return
         results[name] = {"seconds": time.perf_counter() - started, "summary": text.strip().splitlines()[-1],
-                         "step": steps[-1]["step"] if steps else 0,
-                         "first_loss": steps[0]["loss"] if steps else None,
-                         "last_loss": steps[-1]["loss"] if steps else None}
+                         "workers": workers[name]}
+
+    for name in active:
+        launch(name)
+        if smoke:
+            collect(name)
+    for name in list(processes):
+        collect(name)
+    for name in RUNS:
+        records = _log(out / name / "run")
+        losses = [r for r in records if "loss" in r]
+        step = run_step(out / name / "run")
+        entry = results.setdefault(name, {"seconds": 0.0, "summary": "already at its last step"})
+        entry.update(step=step, target=targets[name], steps_this_call=step - before[name],
+                     first_loss=losses[0]["loss"] if losses else None, last_loss=losses[-1]["loss"] if losses else None)
+        if entry.get("seconds"):
+            entry["steps_per_s"] = entry["steps_this_call"] / entry["seconds"]
     return results
 
 
-def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int) -> list[dict]:
-    """Detector images per second on synthesized images of each size (after one warm-up call)."""
-    from networks import Detector
+def _log(run: Path) -> list[dict]:
+    path = run / "log.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines() if line] if path.exists() else []
 
-    runs = {task: out / task / "run" / "last.pt" for task in SCHEDULE}  # the synthesizer-trained runs
-    detector = Detector.from_checkpoints(runs["localizer"], runs["recognizer"], runs["crosspoints"], device=device)
+
+def compare_mixes(out: Path) -> dict[str, dict]:
+    """The localizer runs' validation (rendered val split) at the last step all of them logged."""
+    logs = {name: {r["step"]: r["val"] for r in _log(out / name / "run") if "val" in r}
+            for name, (task, *_) in RUNS.items() if task == "localizer"}
+    common = set.intersection(*(set(v) for v in logs.values())) if all(logs.values()) else set()
+    if not common:
+        return {}
+    step = max(common)
+    return {name: {"step": step, **val[step]} for name, val in logs.items()}
+
+
+def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
+    """Each run's last.pt on the held-out renders (kept from an earlier call when the step is unchanged)."""
+    metrics = {}
+    for name in RUNS:
+        last, cached = out / name / "run" / "last.pt", out / name / "heldout.json"
+        if not last.exists():
+            continue
+        step = run_step(out / name / "run")
+        if cached.exists() and json.loads(cached.read_text()).get("step") == step:
+            metrics[name] = json.loads(cached.read_text())
+            continue
+        metrics[name] = evaluate(last, test, split="heldout", device=device, progress=False)
+        save_json(cached, metrics[name])
+    return metrics
+
+
+def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False) -> list[dict]:
+    """Detector images per second on synthesized images of each size, framed as the renders (marker
+    size grows with the image side), after a warm-up call on a 256 px corner of one.  Smoke runs take
+    only the surest guesses of their untrained localizer (hundreds of crops through the crosspoint
+    network take minutes on a CPU)."""
+    from networks import Detector, DetectorConfig
+
+    paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
+    config = DetectorConfig(presence_threshold=0.9) if smoke else DetectorConfig()
+    detector = Detector.from_checkpoints(*paths, device=device, config=config)
     rows = []
     for size in sizes:
-        synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), seed=7))
+        marker = tuple(v * size / 512 for v in SynthConfig().marker_px)
+        synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), marker_px=marker, seed=7))
         images = [synth.sample(i)[0] for i in range(repeats)]
-        detector(images[:1])
+        detector([np.ascontiguousarray(images[0][:256, :256])])
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         start = time.perf_counter()
@@ -146,67 +290,110 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int) -> 
 
 
 def main() -> None:
+    started = time.monotonic()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rendered", type=Path, required=True, help="a factory dataset folder (Blender renders)")
-    parser.add_argument("--out", type=Path, default=Path("out/bench_networks"))
-    parser.add_argument("--minutes", type=float, default=5.0, help="training time cap per network (all at once)")
-    parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) // len(RUNS)),
-                        help="data workers per training process")
+    parser.add_argument("--out", type=Path, default=Path("out/bench_networks"),
+                        help="shards, runs and results; the same folder again continues the runs")
+    parser.add_argument("--budget-minutes", type=float, default=9.0, help="wall time of this call, all included")
+    parser.add_argument("--shard-minutes", type=float, default=2.5, help="at most this long writing shards per call")
+    parser.add_argument("--cores", type=int, default=os.cpu_count() or 2, help="CPU cores to size the workers to")
     parser.add_argument("--device", default="cuda", help="cpu: a smoke run of this script (with --max-steps)")
-    parser.add_argument("--max-steps", type=int, help="cap every network's steps (smoke runs)")
+    parser.add_argument("--max-steps", type=int, help="cap every run's steps (smoke runs)")
     parser.add_argument("--eval-images", type=int, help="evaluate on the first N rendered images only (smoke runs)")
-    parser.add_argument("--sizes", default="1024,2048", help="image sides for the throughput")
+    parser.add_argument("--sizes", default="1024,2048", help="image sides for the GPU throughput")
+    parser.add_argument("--cpu-sizes", default="1024", help="image sides for the CPU throughput ('' for none)")
     parser.add_argument("--codebook-hash", help="the rendering machine's codebook hash; stop if this one differs")
+    parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         sys.exit("benchmarks/networks.py trains on a CUDA GPU; none is visible")
+    smoke = args.max_steps is not None
+    deadline = started + args.budget_minutes * 60
     args.out.mkdir(parents=True, exist_ok=True)
     spec = dataset_spec(args.rendered)
     here = codebook_hash(spec)
     if args.codebook_hash and here != args.codebook_hash:
         sys.exit(f"codebook differs from the rendering machine's ({here} vs {args.codebook_hash}): the rendered "
                  "IDs would not be this machine's IDs")
-    rebuilt = rebuild_samples(args.rendered)
-    test = heldout(args.rendered, args.eval_images)
+    rendered, rebuilt = prepare(args.rendered, args.out)
+    test = heldout(rendered, args.out, args.eval_images, markers=8 if smoke else None)
+    shards = make_shards(args.out, rendered, max(1, args.cores - 1) if not smoke else 1,
+                         min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke)
     t0 = time.perf_counter()
-    training = train_all(args.out, args.rendered, args.minutes, args.workers, args.device, args.max_steps)
+    training = train_all(args.out, rendered, args.device, args.cores,
+                         deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps)
     train_s = time.perf_counter() - t0
-    metrics = {name: evaluate(args.out / name / "run" / "last.pt", test, split="heldout", device=args.device,
-                              progress=False)
-               for name in RUNS if "error" not in training[name]}
-    save_json(args.out / "results.json", {"training": training, "metrics": metrics})
-    sizes = tuple(int(v) for v in args.sizes.split(","))
-    speed = (throughput(args.out, "cuda", sizes, 4) if args.device.startswith("cuda") else []) + \
-        throughput(args.out, "cpu", sizes, 1)
+    metrics = evaluate_runs(args.out, test, args.device)
+    mixes = compare_mixes(args.out)
+    speed = []
+    if all(name in metrics for name in MAIN.values()):
+        sizes = [int(v) for v in args.sizes.split(",") if v] if not smoke else [256]
+        speed = throughput(args.out, args.device, tuple(sizes), 4 if args.device.startswith("cuda") else 1, smoke)
+        cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
+        if args.device.startswith("cuda") and cpu_sizes and deadline - time.monotonic() > 45:
+            speed += throughput(args.out, "cpu", tuple(cpu_sizes), 1)
     gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
-              "schedule": {t: {"steps": s, "batch": b, "image": i, "lr": LR, "warmup": WARMUP}
-                           for t, (s, b, i) in SCHEDULE.items()},
-              "runs": {name: {"task": t, "data": d, "synth_weight": w} for name, (t, d, w) in RUNS.items()},
-              "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()),
-              "train_wall_s": train_s, "training": training, "metrics": metrics, "throughput": speed}
+              "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP}
+                           for t, (s, b) in SCHEDULE.items()},
+              "runs": {name: {"task": t, "synth_weight": w, "stop": s} for name, (t, w, s, _) in RUNS.items()},
+              "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
+              "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "throughput": speed,
+              "wall_s": time.monotonic() - started}
     save_json(args.out / "results.json", result)
+    if args.export is not None:
+        export(args.out, args.export)
+    _print_tables(result)
+    print("RESULT " + json.dumps(result, default=float))
 
-    print(f"# networks benchmark, {result['date']}, {result['machine']}")
-    print("| run | data (synth weight) | steps done | train s | loss first -> last |")
-    print("|---|---|---|---|---|")
-    for name, r in training.items():
-        task, data, weight = RUNS[name]
+
+def export(out: Path, to: Path) -> None:
+    """Copy results.json to `to`, with logs.tar.gz of each run's config, log.jsonl, train.log and
+    held-out metrics (two files: the device machine returns few)."""
+    to.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(out / "results.json", to / "results.json")
+    with tarfile.open(to / "logs.tar.gz", "w:gz") as tar:
+        for name in RUNS:
+            for path in (out / name / "train.log", out / name / "heldout.json", out / name / "run" / "log.jsonl",
+                         out / name / "run" / "config.json"):
+                if path.exists():
+                    tar.add(path, arcname=f"{name}/{path.name}")
+
+
+def _print_tables(result: dict) -> None:
+    print(f"# networks benchmark, {result['date']}, {result['machine']}, {result['wall_s']:.0f} s")
+    print("\n| shards | parts | items | written images | s | images/s | per worker |\n|---|---|---|---|---|---|---|")
+    for task, r in result["shards"].items():
+        print(f"| {task} | {r['parts']} | {r['items']} | {r['written_images']} | {r['seconds']:.0f} | "
+              f"{r['images_per_s']:.1f} | {r['images_per_s_per_worker']:.1f} |")
+    print("\n| run | synth weight | workers | step / target | this call: steps, s, steps/s | loss first -> last |")
+    print("|---|---|---|---|---|---|")
+    for name, r in result["training"].items():
+        weight = RUNS[name][1]
         if "error" in r:
-            print(f"| {name} | {data} ({weight}) | failed: {r['error'][-200:]!r} | | |")
+            print(f"| {name} | {weight} | | failed: {r['error'][-300:]!r} | | |")
             continue
-        print(f"| {name} | {data} ({weight}) | {r['step']} of {SCHEDULE[task][0]} | {r['seconds']:.0f} | "
-              f"{r['first_loss']:.4g} -> {r['last_loss']:.4g} |")
+        loss = "-" if r["first_loss"] is None else f"{r['first_loss']:.4g} -> {r['last_loss']:.4g}"
+        print(f"| {name} | {weight} | {r.get('workers', '-')} | {r['step']} / {r['target']} | "
+              f"{r['steps_this_call']}, {r['seconds']:.0f}, {r.get('steps_per_s', 0):.2f} | {loss} |")
+    if result["mixes"]:
+        print("\n| localizer data (rendered val split, same step) | step | loss | precision | recall | F1 "
+              "| recall full | centre median px |\n|---|---|---|---|---|---|---|---|")
+        for name, m in result["mixes"].items():
+            a = m["all"]
+            full = f"{m['full']['recall']:.3f}" if "full" in m else "-"
+            print(f"| {name} ({RUNS[name][1]} synth) | {m['step']} | {m['loss']['total']:.4g} | {a['precision']:.3f} | "
+                  f"{a['recall']:.3f} | {a['f1']:.3f} | {full} | {a['error_px']['centre']['median']:.2f} |")
     print(f"\n| metric ({result['heldout_images']} held-out Blender renders) | value |\n|---|---|")
-    for task, m in metrics.items():
+    for name, m in result["metrics"].items():
         for key, value in _flatten(m):
             if isinstance(value, float) and not key.endswith("step"):
-                print(f"| {task}.{key} | {value:.4g} |")
+                print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
     print("\n| device | image | images/s | markers/image |\n|---|---|---|---|")
-    for r in speed:
+    for r in result["throughput"]:
         print(f"| {r['device']} | {r['size']} x {r['size']} | {r['images_per_s']:.3g} | {r['markers_per_image']:.0f} |")
-    print("RESULT " + json.dumps(result, default=float))
 
 
 def _flatten(d: dict, prefix: str = "") -> list[tuple[str, object]]:

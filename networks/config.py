@@ -18,6 +18,9 @@ from assets.fileio import load_json, save_json
 #: The three networks, by the name used in checkpoints, datasets and the CLIs.
 TASKS = ("localizer", "recognizer", "crosspoints")
 
+#: What the Marker Recognizer classifies among (`TrainConfig.recognizer_classes`).
+RECOGNIZER_CLASSES = ("garment", "codebook")
+
 #: Defaults that differ between the tasks (fields left None in `TrainConfig` take these).
 TASK_DEFAULTS: dict[str, dict[str, int]] = {
     "localizer": {"steps": 50_000, "batch_size": 16},
@@ -32,10 +35,17 @@ class TrainConfig:
 
     steps and batch_size default per task (`TASK_DEFAULTS`); lr is the peak learning rate, reached
     after `warmup_steps` of linear warm-up and decayed by a cosine to `lr * min_lr_ratio` at `steps`.
-    synth_weight is the share of training samples drawn from the synthesizer (`networks.synth`) when
-    a rendered dataset is given as well (0: rendered only; `--data synth` uses the synthesizer alone).
-    image_size (pixels, square) is the size of synthesized localizer images when training on the
-    synthesizer alone; mixed with a dataset they take the size of its images.  val_samples caps the validation set, evaluated every `val_every` steps;
+    synth_weight is the share of training samples drawn from the synthesizer (`networks.synth`, or
+    its pre-synthesized shards) when a rendered dataset is given as well (0: rendered only; 1 or
+    `--data synth`: the synthesizer alone).  image_size (pixels, square) is the side of localizer
+    training images: synthesized at that size, rendered ones cut to it at random (cell-aligned; an
+    image smaller than that is used whole and synthesized images take its size).
+    recognizer_classes: "garment" (the reference: the Marker Recognizer classifies among the N marker
+    IDs printed on the garment, `networks.data.garment_marker_ids`; N = 546 for the factory's shirt)
+    or "codebook" (all `num_ids` IDs of the codebook).  The network keeps one output per codebook
+    ID either way (class k is marker ID k); with "garment" the other IDs' outputs are masked off
+    (`networks.train.restrict_classes`) and the checkpoint lists the classes (`recognizer_ids`).
+    val_samples caps the validation set, evaluated every `val_every` steps;
     `last.pt` is written every `checkpoint_every` steps.  pretrained: a torchvision ImageNet ResNet
     state-dict file for the backbone (None: random initialisation).
     """
@@ -51,6 +61,7 @@ class TrainConfig:
     image_size: int = 512
     synth_weight: float = 0.0
     augment: bool = True
+    recognizer_classes: str = "garment"
     seed: int = 0
     num_workers: int = 4
     log_every: int = 50
@@ -83,6 +94,9 @@ class TrainConfig:
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
+        if self.recognizer_classes not in RECOGNIZER_CLASSES:
+            problems.append(f"recognizer_classes must be one of {', '.join(RECOGNIZER_CLASSES)}, "
+                            f"got {self.recognizer_classes!r}")
         if self.task == "localizer" and self.image_size % 8:
             problems.append(f"image_size must be a multiple of 8 (the localizer's cell), got {self.image_size}")
         if self.pretrained is not None and not isinstance(self.pretrained, str):

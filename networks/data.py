@@ -1,4 +1,5 @@
-"""Training data of the three networks as torch Datasets: rendered (factory folders), synthesized, mixed.
+"""Training data of the three networks as torch Datasets: rendered (factory folders), synthesized (on
+the fly or pre-synthesized shards, `networks.shards`), mixed.
 
 Items are dicts of torch tensors without a batch dimension, so the default collate stacks them:
 
@@ -18,7 +19,13 @@ that call deadlocks the worker (measured here: every time).
 A factory dataset folder (`factory.dataset`) holds manifest.jsonl (one JSON object per finished image:
 name, split, image, samples, ...), splits.json, images/<name>.png, samples/<name>.npz (cells,
 recognizer_crops/_ids, crosspoint_crops/_ids/_xy/_visible) and template.npz, whose layout_json
-carries the garment's pattern spec (the codebook of the crosspoint references).
+carries the garment's pattern spec (the codebook of the crosspoint references) and its panels, whose
+marker IDs (`garment_marker_ids`) are the classes of the reference's Marker Recognizer.
+
+A shard folder (`networks.shards` writes it, `ShardDataset` reads it) holds pre-synthesized items of
+one task: shards.json (format, task, pattern spec, codebook hash, synthesizer config, marker IDs) and
+part_NNNNN/ folders of .npy arrays (`SHARD_ARRAYS`), memory-mapped on read, so a worker costs little
+more than the augmentation.
 """
 
 from __future__ import annotations
@@ -34,13 +41,15 @@ import torch
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from assets.fileio import load_npz
+from assets.fileio import load_json, load_npz
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
 from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment
+from networks.checkpoint import codebook_hash
 from networks.config import TASKS
+from networks.models import CELL
 from networks.synth import PatternSynthesizer, SynthConfig
 
 SPLITS = ("train", "val", "test")
@@ -51,14 +60,26 @@ _CROP_KEYS = {
 }
 #: synthetic samples tried for one crop item before giving up (a sample may show no usable marker)
 _ATTEMPTS = 32
+#: shard folders: the format name in shards.json, and the arrays of a part per task (first axis: item)
+SHARD_FORMAT = "clothcapture-synth-shards"
+SHARD_META = "shards.json"
+SHARD_ARRAYS = {
+    "localizer": ("image", "cells"),
+    "recognizer": ("crop", "marker_id"),
+    "crosspoints": ("crop", "marker_id", "xy", "visible"),
+}
 
 
-def dataset_spec(root: str | Path) -> PatternSpec:
-    """The pattern spec of a factory dataset folder, from template.npz's layout_json (read without
-    assets.garments, so without its mesh dependencies)."""
-    path = Path(root) / "template.npz"
+def _template_path(source: str | Path) -> Path:
+    """template.npz itself, or the one in a factory dataset folder."""
+    source = Path(source)
+    return source / "template.npz" if source.is_dir() else source
+
+
+def _layout(source: str | Path) -> dict:
+    path = _template_path(source)
     if not path.is_file():
-        raise ValueError(f"{root}: no template.npz (the garment template holding the pattern spec); "
+        raise ValueError(f"{source}: no template.npz (the garment template holding the pattern spec); "
                          "pass spec= explicitly")
     text = load_npz(path, only=("layout_json",))["layout_json"]
     try:
@@ -67,7 +88,33 @@ def dataset_spec(root: str | Path) -> PatternSpec:
         raise ValueError(f"{path}: layout_json is not valid JSON ({exc})") from exc
     if not isinstance(layout, dict) or "spec" not in layout:
         raise ValueError(f"{path}: layout_json has no 'spec'")
-    return PatternSpec.from_dict(layout["spec"], source=f"{path}:layout_json.spec")
+    return layout
+
+
+def dataset_spec(root: str | Path) -> PatternSpec:
+    """The pattern spec of a factory dataset folder (or of a template.npz), from template.npz's
+    layout_json (read without assets.garments, so without its mesh dependencies)."""
+    return PatternSpec.from_dict(_layout(root)["spec"], source=f"{_template_path(root)}:layout_json.spec")
+
+
+def garment_marker_ids(root: str | Path) -> np.ndarray:
+    """(N,) int64 sorted marker IDs printed on the garment of a factory dataset folder (or of a
+    template.npz): every panel's first_id + 0 .. rows * cols - 1.  N is the reference's number of
+    Marker Recognizer classes."""
+    path = _template_path(root)
+    layout = _layout(root)
+    try:
+        ids = [int(p["first_id"]) + np.arange(int(p["spec"]["rows"]) * int(p["spec"]["cols"]))
+               for p in layout["panels"]]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: layout_json.panels lacks first_id or spec rows / cols ({exc!r})") from exc
+    if not ids:
+        raise ValueError(f"{path}: layout_json has no panels, so no marker IDs")
+    ids = np.unique(np.concatenate(ids)).astype(np.int64)
+    num_ids = int(layout["spec"].get("num_ids", PatternSpec().num_ids))
+    if ids[0] < 0 or ids[-1] >= num_ids:
+        raise ValueError(f"{path}: panel marker IDs {ids[0]}..{ids[-1]} are outside the codebook of {num_ids}")
+    return ids
 
 
 class _Items:
@@ -102,13 +149,13 @@ class _Items:
         """The task's item from numpy arrays: images and crops (H, W, 3) uint8 (augmented here)."""
         if self.task == "localizer":
             return {"image": _chw(self._augmented(image, index)),
-                    "cells": torch.from_numpy(np.asarray(cells, np.float32))}
+                    "cells": torch.from_numpy(np.array(cells, np.float32))}  # a copy: never a cached array
         item = {"crop": _chw(self._augmented(crop, index))}
         if self.task == "recognizer":
             return {**item, "marker_id": torch.tensor(int(marker_id), dtype=torch.int64)}
         return {**item, "reference": _chw(self._reference(int(marker_id))),
-                "xy": torch.from_numpy(np.asarray(xy, np.float32)),
-                "visible": torch.from_numpy(np.asarray(visible, bool))}
+                "xy": torch.from_numpy(np.array(xy, np.float32)),
+                "visible": torch.from_numpy(np.array(visible, bool))}
 
 
 class RenderedDataset(_Items, Dataset):
@@ -117,17 +164,25 @@ class RenderedDataset(_Items, Dataset):
     root: the folder; split: "train", "val" or "test"; task: one of `networks.config.TASKS`.  A crop
     task indexes every crop of every image of the split (the index is built once, reading only the
     ID arrays).  spec: the pattern spec for the crosspoint references (default: the folder's
-    template.npz).  cache_images: decoded samples/<name>.npz kept per worker (crops of one image are
-    read together; a sampler that keeps an image's crops close together profits most)."""
+    template.npz).  cache_images: images whose decoded files (the localizer's PNG and cells, a crop
+    task's samples/<name>.npz) are kept per worker (crops of one image are read together; a sampler
+    that keeps an image's crops close together profits most).
+    crop_px: localizer items are random crops of min(crop_px, side) pixels per side (rounded down to
+    whole 8 px cells and placed on the cell grid, so the cell targets stay exact; seeded per
+    (seed, epoch, index)); None: whole images."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
-                 spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32):
+                 spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
+                 crop_px: int | None = None):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
             raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
         self.root, self.split, self.task, self.augment, self.seed = Path(root), split, task, augment, seed
         self.cache_images = max(1, int(cache_images))
+        if crop_px is not None and crop_px < CELL:
+            raise ValueError(f"crop_px must be >= {CELL} (one localizer cell), got {crop_px}")
+        self.crop_px = crop_px
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
@@ -158,26 +213,43 @@ class RenderedDataset(_Items, Dataset):
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} items")
         image_index, crop = (int(v) for v in self._index[index])
-        entry = self.entries[image_index]
-        if self.task == "localizer":
-            image = _read_png(self.root / entry["image"])
-            cells = load_npz(self.root / entry["samples"], only=("cells",))["cells"]
-            h, w = image.shape[:2]
-            if cells.shape != (h // 8, w // 8, 11):
-                raise ValueError(f"{self.root / entry['samples']}: cells has shape {cells.shape}, expected "
-                                 f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
-            return self._item(index, image=image, cells=cells)
         arrays = self._arrays(image_index)
+        if self.task == "localizer":
+            image, cells = arrays["image"], arrays["cells"]
+            h, w = image.shape[:2]
+            if self.crop_px is not None:
+                width, height = self.crop_size((w, h))
+                rng = self._rng(index, 3)
+                i0, j0 = (int(rng.integers(0, n + 1)) for n in ((h - height) // CELL, (w - width) // CELL))
+                image = image[i0 * CELL:i0 * CELL + height, j0 * CELL:j0 * CELL + width]
+                cells = cells[i0:i0 + height // CELL, j0:j0 + width // CELL]
+            return self._item(index, image=image, cells=cells)
         if self.task == "recognizer":
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
                           xy=arrays["crosspoint_xy"][crop], visible=arrays["crosspoint_visible"][crop])
 
+    def crop_size(self, image_size: tuple[int, int]) -> tuple[int, int]:
+        """(width, height) of the localizer items cut from an image of `image_size` (width, height)."""
+        if self.crop_px is None:
+            return tuple(image_size)
+        return tuple(min(self.crop_px, side) // CELL * CELL for side in image_size)
+
     def _arrays(self, image_index: int) -> dict[str, np.ndarray]:
+        """One image's decoded arrays, kept in a small per-worker cache: the localizer's image and cells,
+        or a crop task's arrays of samples/<name>.npz."""
         if image_index in self._cache:
             self._cache.move_to_end(image_index)
             return self._cache[image_index]
-        path = self.root / self.entries[image_index]["samples"]
+        entry = self.entries[image_index]
+        path = self.root / entry["samples"]
+        if self.task == "localizer":
+            arrays = {"image": _read_png(self.root / entry["image"]), **load_npz(path, only=("cells",))}
+            h, w = arrays["image"].shape[:2]
+            if arrays["cells"].shape != (h // 8, w // 8, 11):
+                raise ValueError(f"{path}: cells has shape {arrays['cells'].shape}, expected "
+                                 f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
+            return self._keep(image_index, arrays)
         arrays = load_npz(path, only=_CROP_KEYS[self.task])
         count = len(arrays[_CROP_KEYS[self.task][1]])
         size = (RECOGNIZER_CROP if self.task == "recognizer" else CROSSPOINT_CROP).size_px
@@ -190,6 +262,9 @@ class RenderedDataset(_Items, Dataset):
                     if arrays[name].shape != shape or arrays[name].dtype != dtype]
         if problems:
             raise ValueError(f"{path}: " + "; ".join(problems))
+        return self._keep(image_index, arrays)
+
+    def _keep(self, image_index: int, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self._cache[image_index] = arrays
         while len(self._cache) > self.cache_images:
             self._cache.popitem(last=False)
@@ -206,11 +281,12 @@ class SynthDataset(_Items, Dataset):
     sequential sampling, which loses nothing on i.i.d. synthetic data, profits from it).  Crosspoint
     items come from markers whose centre is visible, as the Detector's crops do (the factory's
     rendered crops also include markers seen only at their edge).
-    codebook: (num_ids, n, n) codes of `spec` (generated if not given)."""
+    codebook: (num_ids, n, n) codes of `spec` (generated if not given); marker_ids: the IDs that
+    may appear (default all; `PatternSynthesizer`)."""
 
     def __init__(self, task: str, spec: PatternSpec, length: int, seed: int, config: SynthConfig | None = None,
                  augment: Augment | None = None, image_size: tuple[int, int] | None = None,
-                 codebook: np.ndarray | None = None, crops_per_sample: int = 2):
+                 codebook: np.ndarray | None = None, crops_per_sample: int = 2, marker_ids: np.ndarray | None = None):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if length < 1 or crops_per_sample < 1:
@@ -220,7 +296,7 @@ class SynthDataset(_Items, Dataset):
         config = config.replace(seed=int(seed), **({"image_size": tuple(image_size)} if image_size else {}))
         self.task, self.spec, self.length, self.seed, self.augment = task, spec, int(length), int(seed), augment
         self.crops_per_sample = 1 if task == "localizer" else int(crops_per_sample)
-        self.synthesizer = PatternSynthesizer(spec, config, codebook)
+        self.synthesizer = PatternSynthesizer(spec, config, codebook, marker_ids)
         self.codebook = self.synthesizer.codebook
         self._references = {}
         self._last: tuple[tuple[int, int], list[tuple]] | None = None
@@ -250,20 +326,95 @@ class SynthDataset(_Items, Dataset):
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         for attempt in range(_ATTEMPTS):
-            image, gt = self.synthesizer.sample(base + attempt)
-            if self.task == "recognizer":
-                made = recognizer_crops(image, gt, self.spec)
-            else:
-                made = crosspoint_crops(image, gt, self.spec)
-                # as the Detector will see them: markers whose centre is seen (the localizer finds those)
-                centre = self.spec.crosspoints_per_side // 2
-                made = tuple(a[made[3][:, centre, centre]] for a in made)
+            made = synth_crops(self.task, *self.synthesizer.sample(base + attempt), self.spec)
             if len(made[0]):
                 crops = list(zip(*made))
                 self._last = (key, crops)
                 return crops
         raise RuntimeError(f"SynthDataset: {_ATTEMPTS} synthetic samples in a row showed no usable marker; "
                            f"check SynthConfig.marker_px against image_size ({self.synthesizer.config})")
+
+
+def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec) -> tuple[np.ndarray, ...]:
+    """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
+    crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
+    see them (the localizer finds those)."""
+    if task == "recognizer":
+        return recognizer_crops(image, gt, spec)
+    made = crosspoint_crops(image, gt, spec)
+    centre = spec.crosspoints_per_side // 2
+    return tuple(a[made[3][:, centre, centre]] for a in made)
+
+
+class ShardDataset(_Items, Dataset):
+    """The items of a shard folder of pre-synthesized samples (module docstring; `networks.shards`).
+
+    Arrays are memory-mapped per worker on first use (the dataset pickles without them, so spawned
+    DataLoader workers each open their own).  spec: the pattern to train on; the shards' codebook
+    must be its codebook.  Items are augmented per (seed, epoch, index) as the other datasets'."""
+
+    def __init__(self, root: str | Path, task: str, augment: Augment | None = None, spec: PatternSpec | None = None,
+                 seed: int = 0):
+        self.root, self.task, self.augment, self.seed = Path(root), task, augment, int(seed)
+        self.meta = read_shard_meta(self.root)
+        if self.meta["task"] != task:
+            raise ValueError(f"{self.root / SHARD_META}: shards of the {self.meta['task']} task, not {task}")
+        self.spec = PatternSpec.from_dict(self.meta["spec"], source=f"{self.root / SHARD_META}:spec")
+        if spec is not None and codebook_hash(spec) != self.meta.get("codebook_hash"):
+            raise ValueError(f"{self.root}: the shards were synthesized with another codebook than the pattern "
+                             "to train on; write them with that pattern")
+        self.marker_ids = None if self.meta.get("marker_ids") is None else np.asarray(self.meta["marker_ids"])
+        self.parts = shard_parts(self.root)
+        if not self.parts:
+            raise ValueError(f"{self.root}: no finished part_NNNNN folders; write some with "
+                             "`python -m networks.synth write`")
+        key = SHARD_ARRAYS[task][0]
+        counts = [len(np.load(part / f"{key}.npy", mmap_mode="r")) for part in self.parts]
+        self._starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.codebook = generate_codebook(self.spec) if task == "crosspoints" else None
+        self._references = {}
+        self._open: dict[int, dict[str, np.ndarray]] = {}
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_open": {}}  # memory maps are opened again in each worker
+
+    def __len__(self) -> int:
+        return int(self._starts[-1])
+
+    def _part(self, number: int) -> dict[str, np.ndarray]:
+        if number not in self._open:
+            self._open[number] = {name: np.load(self.parts[number] / f"{name}.npy", mmap_mode="r")
+                                  for name in SHARD_ARRAYS[self.task]}
+        return self._open[number]
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} items")
+        number = int(np.searchsorted(self._starts, index, side="right")) - 1
+        row = {name: np.array(array[index - self._starts[number]]) for name, array in self._part(number).items()}
+        if self.task == "localizer":
+            return self._item(index, image=row["image"], cells=row["cells"])
+        return self._item(index, crop=row["crop"], marker_id=row["marker_id"], xy=row.get("xy"),
+                          visible=row.get("visible"))
+
+
+def read_shard_meta(root: str | Path) -> dict:
+    """shards.json of a shard folder, checked to be one."""
+    path = Path(root) / SHARD_META
+    if not path.is_file():
+        raise ValueError(f"{root}: no {SHARD_META} (not a shard folder of `python -m networks.synth write`)")
+    meta = load_json(path)
+    if not isinstance(meta, dict) or meta.get("format") != SHARD_FORMAT:
+        raise ValueError(f"{path}: not a {SHARD_FORMAT} file")
+    missing = [k for k in ("task", "spec", "codebook_hash", "synth", "images_per_part") if k not in meta]
+    if missing or meta["task"] not in TASKS:
+        raise ValueError(f"{path}: missing field(s) {', '.join(missing) or 'task'} or unknown task")
+    return meta
+
+
+def shard_parts(root: str | Path) -> list[Path]:
+    """The finished parts of a shard folder, in order (unfinished ones are *.tmp folders)."""
+    return sorted(p for p in Path(root).glob("part_*") if p.is_dir() and p.suffix != ".tmp")
 
 
 class MixedDataset(Dataset):

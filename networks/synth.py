@@ -8,32 +8,45 @@ One sample (`PatternSynthesizer.render(index)`, deterministic in (config.seed, i
 
 * Geometry.  A patch of marker fabric in its grid coordinates g = (u, v) (cells, u = column right,
   v = row down, as printed; `assets.pattern.spec`) is seen through ``F = D o H``: H a homography
-  (marker edge `marker_px` long at the image centre, any in-plane rotation, a perspective tilt; its
-  third homogeneous coordinate is the relative depth of the plane) and D(p) = p + sum_i a_i sin(k_i.p
-  + phi_i) a smooth displacement in image pixels whose Lipschitz constant sum |a_i| |k_i| stays below
-  `deformation` < 1, so F is invertible and orientation-preserving.  Ground-truth crosspoints are
-  F(g) exactly.  Marker IDs run row-major over the patch from a random first ID, modulo the codebook
-  size, so every ID is equally likely.
+  (marker edge `marker_px` long at the image centre, an in-plane rotation, mostly near upright as on
+  a standing person, a foreshortening along a random direction as where the cloth turns away from
+  the camera, a perspective tilt; its third homogeneous coordinate is the relative depth of the
+  plane) and D(p) = p + sum_i a_i sin(k_i.p + phi_i) a smooth displacement in image pixels whose
+  Lipschitz constant sum |a_i| |k_i| stays below `deformation` < 1, so F is invertible and
+  orientation-preserving.  Ground-truth crosspoints are F(g) exactly.  Marker IDs run row-major over
+  the patch from a random first ID through the synthesizer's `marker_ids` (default: the whole
+  codebook), wrapping around, so every ID is equally likely (a view larger than the ID set repeats
+  IDs).
 * Appearance.  The fabric texture is `assets.pattern.raster.render_grid_view` (the printable
   pattern's exact box filter) at about one texel per image pixel; each supersampled image pixel looks
   it up at F^-1 (Newton's method on a coarse grid of nodes, Catmull-Rom interpolated in between).
   Shading (when on): wrinkle shading that follows the displacement terms, elongated highlights, a
   light gradient, exposure and a colour cast; a fabric boundary (a gently curved cut line, sometimes
   two) beyond which the background shows; a smooth background with clutter; random occluders
-  (polygons and ellipses, plain, graded or striped) with soft shadows.
+  (polygons and ellipses, plain, graded or striped) with soft shadows; last a slight Gaussian blur
+  (`blur_px`: a renderer's pixel filter and denoiser).
 * Visibility follows `assets.pattern.observation.ImageGroundTruth`: a point is visible when it is on
   the fabric, inside the image and its pixel (floor of its coordinates) is less than half covered by
   occluders; off-fabric points are NaN, as the factory writes them.  Depth is the plane's camera depth
   (`depth_m` at the image centre).
 
-Randomness comes from separate generators per part (geometry, IDs, lighting, occluders, background),
-each seeded from (seed, index, part), so switching a part off (no occluders, no shading) leaves the
-others unchanged: tests compare such pairs.
+The defaults match the factory's renders (512 x 512, the garment filling the frame; measured on the
+20 Blender renders of a shirt walk of issue 7): markers 19-24 px across (longer edge, 5th to 95th
+percentile), foreshortened by 1.6 (median; 3.3 at the 75th percentile), 75 % of them within 30
+degrees of upright, the same white / code-colour contrast and blur (a crop's correlation with its
+reference texture) and fold shading of about the same strength.  The first defaults (markers 40-160
+px, square, any rotation, sharp) matched none of it, and a localizer trained on them found no marker
+in the renders.
+
+Randomness comes from separate generators per part (geometry, IDs, lighting, occluders, background,
+camera), each seeded from (seed, index, part), so switching a part off (no occluders, no shading)
+leaves the others unchanged: tests compare such pairs.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from dataclasses import dataclass
 
 import cv2
@@ -46,7 +59,7 @@ from assets.pattern.raster import render_grid_view
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import MarkerTable, localization_rc
 
-_GEOMETRY, _IDS, _LIGHT, _OCCLUDERS, _BACKGROUND = range(5)
+_GEOMETRY, _IDS, _LIGHT, _OCCLUDERS, _BACKGROUND, _CAMERA = range(6)
 _SKIN_RGB = np.array([[224, 172, 140], [198, 134, 102], [141, 85, 60], [92, 58, 40], [240, 200, 175]], np.float32)
 
 
@@ -54,37 +67,47 @@ _SKIN_RGB = np.array([[224, 172, 140], [198, 134, 102], [141, 85, 60], [92, 58, 
 class SynthConfig:
     """Ranges of one synthetic sample.  Pixels of the output image unless named otherwise.
 
-    image_size (width, height) multiples of 8; marker_px: marker edge length at the image centre,
-    log-uniform; max_tilt: relative depth change of the plane from the image centre to the middle of
-    the nearest image edge (perspective); deformation: largest Lipschitz constant of the smooth
-    displacement (0: a pure homography; < 0.9); wavelength_markers: displacement wavelengths in
-    marker edges, log-uniform; shading: False renders the pattern's own colours only (no lighting,
-    highlights, cast or shadows); boundary_probability: chance of a fabric cut line through the view;
+    image_size (width, height) multiples of 8; marker_px: marker edge length at the image centre
+    (along the direction that is not foreshortened), log-uniform; foreshortening: largest
+    compression factor of the fabric along one random direction (1: none; drawn as
+    foreshortening ** (U^3), U uniform in [0, 1), so most views are mildly compressed);
+    upright_probability: chance that the marker rotation is near upright (normal, upright_spread_deg
+    standard deviation), else uniform; max_tilt: relative depth change of the plane from the image
+    centre to the middle of the nearest image edge (perspective); deformation: largest Lipschitz
+    constant of the smooth displacement (0: a pure homography; < 0.9); wavelength_markers:
+    displacement wavelengths in marker edges, log-uniform; shading: False renders the pattern's own
+    colours only (no lighting, highlights, cast or shadows); boundary_probability: chance of a fabric
+    cut line through the view;
     occluders: (min, max) count, occluder_px: their (min, max) diameter; centred: a marker's centre
     lies within 1/6 marker of the image centre (crop tasks: a whole marker in most samples, whatever
-    its size); depth_m: the plane's depth at the image centre; supersample: rendering
-    resolution factor before area averaging; node_px: spacing of the nodes where F^-1 is solved.
+    its size); depth_m: the plane's depth at the image centre; blur_px: (min, max) standard deviation
+    of the final Gaussian blur, uniform; supersample: rendering resolution factor before area
+    averaging; node_px: spacing of the nodes where F^-1 is solved.
     """
 
     image_size: tuple[int, int] = (512, 512)
-    marker_px: tuple[float, float] = (40.0, 160.0)
+    marker_px: tuple[float, float] = (16.0, 32.0)
+    foreshortening: float = 4.0
+    upright_probability: float = 0.8
+    upright_spread_deg: float = 20.0
     max_tilt: float = 0.25
     deformation: float = 0.5
     deformation_terms: int = 4
     wavelength_markers: tuple[float, float] = (0.75, 6.0)
     shading: bool = True
     exposure: tuple[float, float] = (0.6, 1.25)
-    light_gradient: float = 0.4
-    wrinkle_shading: float = 0.35
+    light_gradient: float = 0.6
+    wrinkle_shading: float = 0.6
     colour_cast: float = 0.12
     highlights: tuple[int, int] = (0, 3)
     highlight_strength: tuple[float, float] = (0.1, 0.6)
     shadow_strength: tuple[float, float] = (0.0, 0.5)
-    boundary_probability: float = 0.3
+    boundary_probability: float = 0.5
     occluders: tuple[int, int] = (0, 4)
     occluder_px: tuple[float, float] = (20.0, 220.0)
     background_clutter: int = 12
     depth_m: float = 1.0
+    blur_px: tuple[float, float] = (0.2, 0.7)
     centred: bool = False
     supersample: int = 2
     node_px: int = 8
@@ -97,6 +120,13 @@ class SynthConfig:
             problems.append(f"image_size must be multiples of 8, got {self.image_size}")
         if not 0 < self.marker_px[0] <= self.marker_px[1]:
             problems.append(f"marker_px must be 0 < min <= max, got {self.marker_px}")
+        if not 1 <= self.foreshortening <= 10:
+            problems.append(f"foreshortening must be in [1, 10], got {self.foreshortening}")
+        if not 0 <= self.upright_probability <= 1 or self.upright_spread_deg < 0:
+            problems.append(f"upright_probability must be in [0, 1] and upright_spread_deg >= 0, got "
+                            f"{self.upright_probability}, {self.upright_spread_deg}")
+        if not 0 <= self.blur_px[0] <= self.blur_px[1]:
+            problems.append(f"blur_px must be 0 <= min <= max, got {self.blur_px}")
         if not 0 <= self.max_tilt < 0.5:
             problems.append(f"max_tilt must be in [0, 0.5), got {self.max_tilt}")
         if not 0 <= self.deformation < 0.9:
@@ -114,6 +144,23 @@ class SynthConfig:
 
     def replace(self, **changes: object) -> "SynthConfig":
         return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain JSON types (ranges as lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: object, source: str = "SynthConfig") -> "SynthConfig":
+        """From a dict as `to_dict` writes (missing fields take the defaults); errors name `source`."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ValueError(f"{source}: unknown SynthConfig field(s) {', '.join(unknown)}")
+        try:
+            return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: {exc}") from exc
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,15 +234,22 @@ class SynthSample:
 
 class PatternSynthesizer:
     """Draws samples of the pattern `spec` (its rows, cols and origin are ignored: every sample is a
-    patch of its own) with IDs from `codebook` (num_ids, n, n), generated from the spec if not given."""
+    patch of its own) with IDs from `codebook` (num_ids, n, n), generated from the spec if not given.
+    marker_ids: the IDs that may appear (e.g. a garment's, `networks.data.garment_marker_ids`);
+    default every ID of the codebook."""
 
-    def __init__(self, spec: PatternSpec, config: SynthConfig = SynthConfig(), codebook: np.ndarray | None = None):
+    def __init__(self, spec: PatternSpec, config: SynthConfig = SynthConfig(), codebook: np.ndarray | None = None,
+                 marker_ids: np.ndarray | None = None):
         self.spec = spec
         self.config = config
         self.codebook = generate_codebook(spec) if codebook is None else np.asarray(codebook, dtype=np.uint8)
         n = spec.modules_per_side
         if self.codebook.ndim != 3 or self.codebook.shape[1:] != (n, n):
             raise ValueError(f"codebook must have shape (num_ids, {n}, {n}), got {self.codebook.shape}")
+        ids = np.arange(len(self.codebook)) if marker_ids is None else np.asarray(marker_ids, dtype=np.int64)
+        if ids.ndim != 1 or len(ids) == 0 or ids.min() < 0 or ids.max() >= len(self.codebook):
+            raise ValueError(f"marker_ids must be a non-empty list of IDs in 0..{len(self.codebook) - 1}")
+        self.marker_ids = ids
 
     def sample(self, index: int) -> tuple[np.ndarray, ImageGroundTruth]:
         """(image (H, W, 3) uint8, ground truth) of sample `index`."""
@@ -205,7 +259,7 @@ class PatternSynthesizer:
     def render(self, index: int) -> SynthSample:
         """Sample `index` with everything that made it (`SynthSample`); see the module docstring."""
         cfg = self.config
-        rngs = [np.random.default_rng([cfg.seed, int(index), part]) for part in range(5)]
+        rngs = [np.random.default_rng([cfg.seed, int(index), part]) for part in range(6)]
         width, height = cfg.image_size
         ss = cfg.supersample
         warp = self._warp(rngs[_GEOMETRY])
@@ -233,11 +287,8 @@ class PatternSynthesizer:
         v -= i0 * n
         shift = np.array([[1, 0, -j0 * n], [0, 1, -i0 * n], [0, 0, 1]], dtype=np.float64)
         warp = dataclasses.replace(warp, homography=warp.homography @ np.linalg.inv(shift))
-        num_ids = len(self.codebook)
-        if rows * cols > num_ids:
-            raise ValueError(f"the view needs {rows} x {cols} markers but the codebook has {num_ids} IDs; "
-                             "raise spec.num_ids or SynthConfig.marker_px")
-        ids = (rngs[_IDS].integers(num_ids) + np.arange(rows * cols)) % num_ids
+        pool = self.marker_ids
+        ids = pool[(rngs[_IDS].integers(len(pool)) + np.arange(rows * cols)) % len(pool)]
         texture, tex_u0, tex_v0, texels = self._texture(ids, rows, cols, u, v, g)
         fabric = cv2.remap(texture, (u - tex_u0) * texels - 0.5, (v - tex_v0) * texels - 0.5,
                            cv2.INTER_LINEAR).astype(np.float32)
@@ -259,6 +310,9 @@ class PatternSynthesizer:
         on_fabric = cv2.resize(on_fabric, (width, height), interpolation=cv2.INTER_AREA)
         if cfg.shading:
             image = _light(rngs[_LIGHT], cfg, image, occluder)
+        blur = rngs[_CAMERA].uniform(*cfg.blur_px)
+        if blur > 0:
+            image = cv2.GaussianBlur(image, (0, 0), blur, borderType=cv2.BORDER_REFLECT)
         image = np.clip(image + 0.5, 0, 255).astype(np.uint8)
         gt = self._ground_truth(warp, ids.reshape(rows, cols), side, occluder)
         return SynthSample(image, gt, on_fabric * (1 - occluder), occluder, warp, ids.reshape(rows, cols))
@@ -269,9 +323,17 @@ class PatternSynthesizer:
         width, height = cfg.image_size
         n = self.spec.cells_per_side
         marker = float(np.exp(rng.uniform(*np.log(cfg.marker_px))))
-        angle = rng.uniform(0, 2 * np.pi)
+        if rng.uniform() < cfg.upright_probability:
+            angle = np.radians(rng.normal(0, cfg.upright_spread_deg))
+        else:
+            angle = rng.uniform(0, 2 * np.pi)
         scale = marker / n
         rotate = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+        squeeze = cfg.foreshortening ** -(rng.uniform() ** 3)  # 1 / compression along `across`
+        across = rng.uniform(0, np.pi)
+        c, s = np.cos(across), np.sin(across)
+        foreshorten = np.eye(3)
+        foreshorten[:2, :2] = np.array([[c, -s], [s, c]]) @ np.diag([squeeze, 1.0]) @ np.array([[c, s], [-s, c]])
         phase = rng.uniform(0, n, 2)  # grid point at the image centre
         if cfg.centred:
             phase = n / 2 + (phase - n / 2) / 3  # within 1/6 marker of a marker's centre
@@ -280,7 +342,7 @@ class PatternSynthesizer:
         perspective = np.array([[1, 0, 0], [0, 1, 0], [tilt * np.cos(tilt_dir), tilt * np.sin(tilt_dir), 1]])
         centre = np.array([[1, 0, width / 2], [0, 1, height / 2], [0, 0, 1]])
         to_centre = np.array([[scale, 0, -scale * phase[0]], [0, scale, -scale * phase[1]], [0, 0, 1]])
-        homography = centre @ perspective @ rotate @ to_centre
+        homography = centre @ perspective @ foreshorten @ rotate @ to_centre
         terms = cfg.deformation_terms
         wavelength = marker * np.exp(rng.uniform(*np.log(cfg.wavelength_markers), terms))
         direction = rng.uniform(0, 2 * np.pi, terms)
@@ -309,8 +371,10 @@ class PatternSynthesizer:
         if max(tex_w, tex_h) > 8192:
             raise ValueError(f"texture of {tex_w} x {tex_h} texels is too large; "
                              "lower SynthConfig.marker_px or image_size")
-        spec = dataclasses.replace(self.spec, rows=rows, cols=cols, origin_xy=(0.0, 0.0))
-        # only the codes and the spec's geometry and colours are used: marker IDs are ours (`ids`)
+        # only the codes and the spec's geometry and colours are used: marker IDs are ours (`ids`), and a
+        # large view may hold more markers than the codebook has IDs (they repeat)
+        spec = dataclasses.replace(self.spec, rows=rows, cols=cols, origin_xy=(0.0, 0.0),
+                                   num_ids=max(self.spec.num_ids, rows * cols))
         table = MarkerTable(spec=spec, codes=self.codebook[ids])
         texture = render_grid_view(table, u0 + np.arange(tex_w + 1) / texels, v0 + np.arange(tex_h + 1) / texels)
         return texture, u0, v0, texels
@@ -321,10 +385,17 @@ class PatternSynthesizer:
         spec = self.spec
         n, k = spec.cells_per_side, spec.crosspoints_per_side
         rows, cols = ids.shape
-        local = np.arange(k)
-        gu = np.arange(cols)[None, :, None, None] * n + local[None, None, None, :]
-        gv = (np.arange(rows)[:, None, None, None] * n + local[None, None, :, None])
-        grid = np.stack(np.broadcast_arrays(gu, gv), axis=-1).reshape(rows * cols, k, k, 2).astype(np.float64)
+        # the patch reaches beyond the image: keep the markers whose coarse 5 x 5 crosspoints, grown by
+        # their spacing (F is smooth, nearly affine over a marker), come near the image
+        coarse = _marker_grid(rows, cols, n, np.linspace(0, n, 5))
+        cpx, _ = warp.forward(coarse)
+        spacing = np.abs(np.diff(cpx, axis=1)).max(axis=(1, 2, 3)) + np.abs(np.diff(cpx, axis=2)).max(axis=(1, 2, 3))
+        with np.errstate(invalid="ignore"):
+            near = ((cpx.max(axis=(1, 2)) + spacing[:, None] >= 0).all(axis=1)
+                    & (cpx.min(axis=(1, 2)) - spacing[:, None] < [width, height]).all(axis=1))
+        near = np.flatnonzero(near)
+        ids = ids.reshape(-1)[near]
+        grid = _marker_grid(rows, cols, n, np.arange(k))[near]
         px, w = warp.forward(grid)
         on = (side(grid) >= 0) & (w > 0)
         px[~on] = np.nan
@@ -339,7 +410,7 @@ class PatternSynthesizer:
         status = np.where(full, 2, np.where(seen.any(axis=(1, 2)), 1, 0)).astype(np.int8)
         depth = np.where(on, w * cfg.depth_m, np.nan).astype(np.float32)
         gt = ImageGroundTruth(
-            width=width, height=height, marker_id=ids.reshape(-1).astype(np.int32),
+            width=width, height=height, marker_id=ids.astype(np.int32),
             points_px=px[:, rc[:, 0], rc[:, 1]].astype(np.float32), points_depth=depth[:, rc[:, 0], rc[:, 1]],
             point_visible=point_visible, crosspoints_px=px.astype(np.float32), crosspoint_visible=seen,
             status=status)
@@ -347,6 +418,15 @@ class PatternSynthesizer:
 
 
 # ---- helpers -------------------------------------------------------------------------------------
+def _marker_grid(rows: int, cols: int, cells: int, local: np.ndarray) -> np.ndarray:
+    """(rows * cols, L, L, 2) float64 grid points (u, v) of every marker at local offsets (L,) cells,
+    markers row-major, points [row, col]."""
+    gu = np.arange(cols)[None, :, None, None] * cells + local[None, None, None, :]
+    gv = np.arange(rows)[:, None, None, None] * cells + local[None, None, :, None]
+    grid = np.stack(np.broadcast_arrays(gu, gv), axis=-1)
+    return grid.reshape(rows * cols, len(local), len(local), 2).astype(np.float64)
+
+
 def _catmull_rom(t: np.ndarray, count: int) -> np.ndarray:
     """(len(t), count) weights interpolating values on nodes 0..count-1 at positions t (node units)."""
     i0 = np.floor(t).astype(np.int64)
@@ -475,3 +555,10 @@ def _light(rng: np.random.Generator, cfg: SynthConfig, image: np.ndarray, occlud
     gain = 1 + ys[:, None] * direction[1] + xs[None, :] * direction[0]
     cast = rng.uniform(*cfg.exposure) * (1 + rng.uniform(-cfg.colour_cast, cfg.colour_cast, 3))
     return image * gain[..., None].astype(np.float32) * cast.astype(np.float32)
+
+
+# ---- CLI: `python -m networks.synth write ...` is `networks.shards`' writer ------------------------
+if __name__ == "__main__":
+    from networks.shards import main
+
+    sys.exit(main())

@@ -1,13 +1,18 @@
 """Train one of the three networks: one short loop shared by all of them.
 
     python -m networks.train localizer --data out/ds --out runs/loc --pretrained resnet18.pth
-    python -m networks.train recognizer --data synth --out runs/rec --steps 20000
+    python -m networks.train recognizer --data synth --garment out/ds --out runs/rec --steps 20000
     python -m networks.train crosspoints --data out/ds --synth-weight 0.5 --out runs/xp
     python -m networks.train crosspoints --data out/ds --out runs/xp --resume --time-limit 540
+    python -m networks.train localizer --data out/ds --synth-weight 0.5 --shards shards/loc --out runs/loc
 
 Data: `--data DIR` is a factory dataset folder (train split for training, val split for
 validation), mixed with synthesized samples at `--synth-weight`; `--data synth` trains and validates on
-the synthesizer alone.  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
+the synthesizer alone.  Synthesized training samples come from the synthesizer on the fly, or from a
+shard folder written before (`--shards`, `python -m networks.synth write`; validation stays on the
+rendered val split, or on the fly).  The garment (`--garment`, default the dataset's template.npz)
+gives the marker IDs that are synthesized and that the recognizer classifies among
+(`TrainConfig.recognizer_classes`).  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
 with the loss and its parts, and one per validation with the metrics of `networks.evaluate`),
 `last.pt` (every `checkpoint_every` steps, at the end, on Ctrl-C and at --until-step/--time-limit) and
 `best.pt` (the lowest validation loss).  `--resume` continues from `last.pt` with the same model,
@@ -23,16 +28,13 @@ run would have seen.  Mixed precision (bf16 autocast) on CUDA.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import math
-import os
 import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 from torch.utils.data import BatchSampler, DataLoader, Dataset, Subset
@@ -41,17 +43,18 @@ from tqdm import tqdm
 from assets.pattern import PatternSpec
 from networks.augment import Augment
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
-from networks.config import TASKS, TrainConfig
-from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec
+from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
+from networks.data import MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids
 from networks.evaluate import evaluate_model, resolve_device
 from networks.tasks import autocast, build_model, forward
+from networks.workers import one_thread, worker_environment
 
 log = logging.getLogger(__name__)
 
 #: config fields a resumed run may change (they do not alter what the network learns from)
 RESUMABLE_CHANGES = ("steps", "num_workers", "log_every", "val_every", "val_samples", "checkpoint_every")
-#: environment of the data-loading workers: one BLAS / OpenMP thread each (the workers are the parallelism)
-WORKER_THREADS_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: the logit of the codebook IDs outside a recognizer's classes: never the arg max, nothing of the softmax
+MASKED_LOGIT = -1e4
 #: the validation synthesizer's seed is the training seed plus this, so the two never share samples
 VAL_SEED_OFFSET = 1_000_003
 
@@ -98,34 +101,36 @@ class StepOrder(Dataset):
         return self.dataset[int(self.order(epoch)[offset])]
 
 
-def _worker_init(worker_id: int) -> None:
-    cv2.setNumThreads(1)  # safe in a spawned worker (in a forked one it can deadlock, see networks.data)
-
-
 def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoader:
     """A DataLoader whose `num_workers` workers are spawned interpreters, each with one BLAS, OpenMP and
-    OpenCV thread (start them inside `worker_environment`).  Forked workers would inherit the parent's
-    initialised OpenBLAS and run a pool of every core in each worker: synthesis measured 8-17x slower
-    with 14 workers on 16 cores; and OpenCV or CUDA state inherited by a fork can deadlock."""
+    OpenCV thread (start them inside `networks.workers.worker_environment`, which says why)."""
     if num_workers == 0:
         return DataLoader(dataset, **kwargs)
-    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context="spawn", worker_init_fn=_worker_init,
+    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context="spawn", worker_init_fn=one_thread,
                       persistent_workers=True, **kwargs)
 
 
-@contextlib.contextmanager
-def worker_environment():
-    """`WORKER_THREADS_ENV` set while data-loading workers start (they read it at import), then restored."""
-    saved = {k: os.environ.get(k) for k in WORKER_THREADS_ENV}
-    os.environ.update(WORKER_THREADS_ENV)
-    try:
-        yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+def restrict_classes(model: torch.nn.Module, marker_ids: np.ndarray) -> None:
+    """Make a `MarkerRecognizer` (one output per codebook ID) a classifier over `marker_ids` only.
+
+    The other IDs' rows of ``backbone.fc`` become zero with bias `MASKED_LOGIT` and get no gradient
+    (hooks), so their logits stay far below every class's: softmax and cross-entropy are those of an
+    N-way classifier (N = len(marker_ids)), while output k stays marker ID k for checkpoints, the
+    evaluation and the Detector.  Call before loading a state dict of a restricted run (the hooks are
+    not part of it)."""
+    fc = model.backbone.fc
+    ids = np.asarray(marker_ids, dtype=np.int64)
+    if ids.ndim != 1 or len(ids) < 2 or ids.min() < 0 or ids.max() >= fc.out_features:
+        raise ValueError(f"restrict_classes: need >= 2 marker IDs in 0..{fc.out_features - 1}, got {len(ids)} "
+                         f"IDs in {ids.min(initial=0)}..{ids.max(initial=0)}")
+    keep = torch.zeros(fc.out_features, dtype=torch.bool, device=fc.weight.device)
+    keep[torch.as_tensor(ids, device=fc.weight.device)] = True
+    with torch.no_grad():
+        fc.weight[~keep] = 0.0
+        fc.bias[~keep] = MASKED_LOGIT
+    mask = keep.to(fc.weight.dtype)
+    fc.weight.register_hook(lambda grad: grad * mask[:, None])
+    fc.bias.register_hook(lambda grad: grad * mask)
 
 
 def lr_factor(step: int, config: TrainConfig) -> float:
@@ -148,29 +153,42 @@ def training_spec(data: str | Path, pattern: str | Path | None = None) -> Patter
     return PatternSpec()
 
 
-def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec) -> tuple[Dataset, Dataset]:
+def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shards: str | Path | None = None,
+                  marker_ids: np.ndarray | None = None) -> tuple[Dataset, Dataset]:
     """(training set, validation set) of `config.task` from a factory dataset folder and/or the
-    synthesizer (`data` == "synth"); see the module docstring."""
+    synthesizer (`data` == "synth"); synthesized training samples from the shard folder `shards` when
+    given; marker_ids: the IDs to synthesize (default all); see the module docstring."""
     task = config.task
     augment = Augment() if config.augment else None
     length = config.steps * config.batch_size
     size = (config.image_size, config.image_size) if task == "localizer" else None  # crops: the synthesizer's own
 
-    def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None) -> Dataset:
-        return SynthDataset(task, spec, length=count, seed=seed, image_size=image_size, augment=with_augment)
+    def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
+              stored: bool = True) -> Dataset:
+        if shards is None or not stored:
+            return SynthDataset(task, spec, length=count, seed=seed, image_size=image_size, augment=with_augment,
+                                marker_ids=marker_ids)
+        dataset = ShardDataset(shards, task, with_augment, spec, seed)
+        if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
+                                                  else np.arange(spec.num_ids), marker_ids).all():
+            raise ValueError(f"{shards}: the shards hold marker IDs outside the {len(marker_ids)} of this run; "
+                             "write them with its garment (--garment)")
+        if image_size is not None and tuple(dataset.meta["synth"]["image_size"]) != tuple(image_size):
+            raise ValueError(f"{shards}: shards of {dataset.meta['synth']['image_size']} images, but this run "
+                             f"trains on {list(image_size)} (image_size)")
+        return dataset
 
     if str(data) == "synth":
         return (synth(length, config.seed, augment, size),
-                synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size))
-    root = Path(data)
-    if not root.is_dir():
-        raise FileNotFoundError(f"{root}: no such dataset folder (give a factory dataset folder or 'synth')")
-    rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed)
+                synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size, stored=False))
+    root = _dataset_root(data)
+    rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
+                               crop_px=config.image_size if task == "localizer" else None)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
             raise ValueError(f"{root}: the {split} split has no {task} samples")
-    if task == "localizer":  # synthesized images take the dataset's size, so batches can mix them
+    if task == "localizer":  # synthesized images take the size of the rendered crops, so batches can mix them
         height, width = rendered[0]["image"].shape[1:]
         size = (width, height)
     if config.synth_weight >= 1.0:
@@ -180,6 +198,29 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec) -> t
                              [1.0 - config.synth_weight, config.synth_weight], length=length, seed=config.seed)
         return mixed, val
     return rendered, val
+
+
+def _dataset_root(data: str | Path) -> Path:
+    root = Path(data)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: no such dataset folder (give a factory dataset folder or 'synth')")
+    return root
+
+
+def run_marker_ids(config: TrainConfig, data: str | Path, garment: str | Path | None) -> tuple[np.ndarray | None,
+                                                                                            np.ndarray | None]:
+    """(the garment's marker IDs or None, the recognizer's class IDs or None for the whole codebook).
+    The garment is `garment` (a dataset folder or template.npz), else the dataset's template.npz."""
+    if garment is None and str(data) != "synth" and (_dataset_root(data) / "template.npz").is_file():
+        garment = data
+    ids = garment_marker_ids(garment) if garment is not None else None
+    if config.task != "recognizer" or config.recognizer_classes == "codebook":
+        return ids, None
+    if ids is None:
+        raise ValueError(f"recognizer_classes 'garment' needs the garment whose marker IDs are the classes: "
+                         f"{data} has no template.npz; pass --garment (a factory dataset folder or its "
+                         "template.npz) or --recognizer-classes codebook")
+    return ids, ids
 
 
 def _append_log(path: Path, record: dict) -> None:
@@ -199,9 +240,13 @@ def _check_resume(saved: dict, config: TrainConfig, path: Path) -> None:
 
 def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | torch.device | None = None,
           resume: bool = False, spec: PatternSpec | None = None, until_step: int | None = None,
-          time_limit_s: float | None = None, progress: bool = True) -> dict:
+          time_limit_s: float | None = None, progress: bool = True, shards: str | Path | None = None,
+          garment: str | Path | None = None) -> dict:
     """Train `config.task` on `data` (a factory dataset folder or "synth") into the run folder `out`.
 
+    shards: a shard folder of `config.task` (`networks.shards`) to draw the synthesized training
+    samples from.  garment: a factory dataset folder or template.npz whose marker IDs are
+    synthesized and, for the recognizer, are its classes (default: `data`'s template.npz).
     spec: the pattern (default `training_spec(data)`).  resume: continue from `out/last.pt` (a fresh
     run refuses a folder that already holds one).  until_step / time_limit_s: stop early at that step
     or after that many seconds, writing `last.pt` (resume later).  Ctrl-C writes `last.pt` and
@@ -228,11 +273,17 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
         log.info("%s: no last.pt yet, starting a new run", out)
     if spec is None:
         spec = training_spec(data)
+    if saved is not None and saved.get("recognizer_ids") is not None:  # the classes are the run's, once chosen
+        garment_ids = class_ids = np.asarray(saved["recognizer_ids"], dtype=np.int64)
+    else:
+        garment_ids, class_ids = run_marker_ids(config, data, garment)
 
-    train_set, val_set = make_datasets(config, data, spec)
+    train_set, val_set = make_datasets(config, data, spec, shards, garment_ids)
     torch.manual_seed(config.seed)
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained).to(device)
+    if class_ids is not None:
+        restrict_classes(model, class_ids)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
     def schedule(step: int) -> float:
@@ -256,7 +307,8 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
 
     stop = min(config.steps, until_step) if until_step is not None else config.steps
     sequence = StepOrder(train_set, config.steps * config.batch_size, config.seed,
-                         shuffle=isinstance(train_set, RenderedDataset), chunk=1 if config.task == "localizer" else 32)
+                         shuffle=isinstance(train_set, (RenderedDataset, ShardDataset)),
+                         chunk=32 if isinstance(train_set, RenderedDataset) and config.task != "localizer" else 1)
     batches = BatchSampler(range(step * config.batch_size, stop * config.batch_size), config.batch_size, False)
     # own generators: creating a loader draws a seed, which must not disturb the global random state
     loader = data_loader(sequence, config.num_workers, batch_sampler=batches, pin_memory=device.type == "cuda",
@@ -270,7 +322,9 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     def checkpoint(path: Path, with_optimizer: bool = True) -> None:
         save_checkpoint(path, config.task, model, config, spec, optimizer if with_optimizer else None,
                         scheduler if with_optimizer else None, step, val_metrics or {},
-                        extra={"best_val_loss": best_val, "data": str(data)})
+                        extra={"best_val_loss": best_val, "data": str(data),
+                               "shards": None if shards is None else str(shards),
+                               "recognizer_ids": None if class_ids is None else class_ids.tolist()})
 
     def validate() -> None:
         nonlocal val_metrics, best_val
@@ -336,6 +390,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
     overrides = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "pretrained": args.pretrained,
                  "synth_weight": args.synth_weight, "seed": args.seed, "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
+                 "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
     if args.pretrained is not None:
         overrides["pretrained"] = str(Path(args.pretrained).resolve())
@@ -352,6 +407,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="run folder: config.json, log.jsonl, last.pt, best.pt")
     parser.add_argument("--config", type=Path, help="a TrainConfig JSON file (flags below override it)")
     parser.add_argument("--synth-weight", type=float, help="share of synthesized samples mixed into a dataset (0-1)")
+    parser.add_argument("--shards", type=Path, help="a shard folder of pre-synthesized samples of the task "
+                        "(python -m networks.synth write) to draw the synthesized training samples from")
+    parser.add_argument("--garment", type=Path, help="a factory dataset folder or template.npz: the marker IDs to "
+                        "synthesize and to recognize (default: the dataset's template.npz)")
+    parser.add_argument("--recognizer-classes", choices=RECOGNIZER_CLASSES,
+                        help="recognizer: the garment's marker IDs (the reference; default) or the whole codebook")
     parser.add_argument("--steps", type=int, help="optimizer steps in total")
     parser.add_argument("--batch-size", type=int)
     parser.add_argument("--lr", type=float, help="peak learning rate (Adam, cosine decay)")
@@ -373,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
         config = _config_from_args(args)
         spec = PatternSpec.load(args.pattern) if args.pattern is not None else None
         result = train(config, args.data, args.out, args.device, args.resume, spec, args.until_step,
-                       args.time_limit, progress=not args.quiet)
+                       args.time_limit, progress=not args.quiet, shards=args.shards, garment=args.garment)
         state = "finished" if result["finished"] else "stopped (continue with --resume)"
         best = result["best_val_loss"]
         print(f"{config.task}: {state} at step {result['step']} of {config.steps}; "

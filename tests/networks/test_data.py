@@ -14,7 +14,7 @@ from assets.fileio import save_json, save_npz
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
 from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
 from networks.augment import Augment
-from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec
+from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids
 from networks.synth import PatternSynthesizer, SynthConfig
 
 SPEC = PatternSpec(rows=8, cols=8, num_ids=512)
@@ -39,7 +39,9 @@ def folder(tmp_path_factory, codebook) -> Path:
     save_json(out / "config.json", {"garment": "skirt", "motions": ["walk"], "variations": VARIATIONS, "seed": 0})
     save_json(out / "splits.json", {s: [f"{m}/{f}" for (m, f), name in FRAMES.items() if name == s]
                                     for s in ("train", "val", "test")})
-    synth = PatternSynthesizer(SPEC, SynthConfig(image_size=(192, 128), marker_px=(36, 56)), codebook)
+    # square markers and few cut lines: every split of these small images shows whole markers
+    synth = PatternSynthesizer(SPEC, SynthConfig(image_size=(192, 128), marker_px=(36, 56), foreshortening=1.0,
+                                                 boundary_probability=0.3), codebook)
     (out / "images").mkdir()
     for k, ((motion, frame), split) in enumerate(sorted(FRAMES.items())):
         for v in range(VARIATIONS):
@@ -85,6 +87,40 @@ def test_localizer_items_are_the_images_and_their_cells(folder):
             assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), png)
             cells = np.load(folder / entries[i]["samples"])["cells"]
             assert np.array_equal(item["cells"].numpy(), cells, equal_nan=True)
+
+
+def test_garment_marker_ids_are_the_ids_printed_on_its_panels(folder):
+    from assets.garments import Template
+
+    ids = garment_marker_ids(folder)
+    assert np.array_equal(ids, garment_marker_ids(folder / "template.npz"))
+    tables = Template.load(folder / "template.npz").layout.tables()
+    printed = np.concatenate([t.marker_ids for t in tables])
+    assert np.array_equal(ids, np.unique(printed)) and len(ids) == len(printed)
+    assert ids.dtype == np.int64 and ids.max() < SPEC.num_ids
+
+
+def test_localizer_crops_are_cut_on_the_cell_grid(folder):
+    whole = RenderedDataset(folder, "train", "localizer")
+    cropped = RenderedDataset(folder, "train", "localizer", crop_px=70, seed=4)
+    assert cropped.crop_size((192, 128)) == (64, 64) and cropped.crop_size((40, 128)) == (40, 64)
+    offsets = set()
+    for i in range(len(whole)):
+        image, cells = whole[i]["image"].numpy(), whole[i]["cells"].numpy()
+        item = cropped[i]
+        assert item["image"].shape == (3, 64, 64) and item["cells"].shape == (8, 8, 11)
+        # the crop's cells are the whole image's cells at the crop's place: the targets stay exact
+        rows, cols = np.nonzero((image[:, ::8, ::8] == item["image"].numpy()[:, :1, :1]).all(axis=0)[:9, :17])
+        found = [(r, c) for r, c in zip(rows, cols)
+                 if np.array_equal(image[:, 8 * r:8 * r + 64, 8 * c:8 * c + 64], item["image"].numpy())]
+        assert len(found) >= 1
+        r, c = found[0]
+        assert np.array_equal(cells[r:r + 8, c:c + 8], item["cells"].numpy(), equal_nan=True)
+        assert torch.equal(item["image"], cropped[i]["image"])  # seeded per (seed, epoch, index)
+        offsets.add((r, c))
+    assert len(offsets) > 1
+    with pytest.raises(ValueError, match="crop_px"):
+        RenderedDataset(folder, "train", "localizer", crop_px=4)
 
 
 def test_crop_tasks_index_every_crop_of_the_split(folder, codebook):

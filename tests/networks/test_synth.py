@@ -9,9 +9,9 @@ from assets.pattern import (CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, g
 from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
 from networks.synth import PatternSynthesizer, SynthConfig
 
-#: plain appearance: the pattern's own colours on a plain background, nothing in front
+#: plain appearance: the pattern's own colours on a plain background, nothing in front, no blur, seen square
 PLAIN = SynthConfig(image_size=(384, 384), marker_px=(80, 140), shading=False, occluders=(0, 0),
-                    boundary_probability=0.0, background_clutter=0)
+                    boundary_probability=0.0, background_clutter=0, blur_px=(0.0, 0.0), foreshortening=1.0)
 
 
 @pytest.fixture(scope="module")
@@ -183,3 +183,40 @@ def test_invalid_configs_are_refused(spec):
         SynthConfig(deformation=0.95)
     with pytest.raises(ValueError, match="codebook"):
         PatternSynthesizer(spec, SynthConfig(), np.zeros((4, 3, 3), np.uint8))
+
+
+def _longer_edge_px(gt) -> np.ndarray:
+    """(M,) the longer side of each marker's parallelogram fitted to its four corners, pixels."""
+    p = gt.points_px.astype(np.float64)
+    p = p[np.isfinite(p).all(axis=(1, 2))]
+    across = ((p[:, 2] - p[:, 1]) + (p[:, 4] - p[:, 3])) / 2
+    down = ((p[:, 3] - p[:, 1]) + (p[:, 4] - p[:, 2])) / 2
+    return np.linalg.svd(np.stack([across, down], axis=-1), compute_uv=False)[:, 0]
+
+
+def test_default_markers_have_the_size_of_the_factory_renders():
+    # the domain-gap bug of the first GPU run: markers were synthesized 40-160 px across while the
+    # factory's 512 px renders show them 19-24 px across (5th-95th percentile), so a localizer
+    # trained on the synthesizer found nothing in the renders
+    spec = PatternSpec()
+    synth = PatternSynthesizer(spec, SynthConfig(image_size=(128, 128)))
+    edges = np.concatenate([_longer_edge_px(synth.sample(i)[1]) for i in range(4)])
+    assert len(edges) > 100
+    assert 18 < np.median(edges) < 26
+    assert np.percentile(edges, 95) < 40
+
+
+def test_marker_ids_are_drawn_from_the_given_set_and_repeat_when_the_view_needs_more(spec, codebook):
+    ids = np.array([3, 7, 11, 20, 21, 40, 41, 42])
+    config = SynthConfig(image_size=(128, 128), marker_px=(24, 32), foreshortening=1.0)
+    synth = PatternSynthesizer(spec, config, codebook, marker_ids=ids)
+    for index in range(2):
+        s = synth.render(index)
+        assert np.isin(s.patch_ids, ids).all() and s.patch_ids.size > len(ids)
+        assert np.isin(s.gt.marker_id, ids).all()
+        # row-major through the set from a random start, wrapping around
+        flat = s.patch_ids.reshape(-1)
+        position = np.searchsorted(ids, flat)
+        assert np.all(np.diff(position) % len(ids) == 1)
+    with pytest.raises(ValueError, match="marker_ids"):
+        PatternSynthesizer(spec, config, codebook, marker_ids=np.array([0, len(codebook)]))

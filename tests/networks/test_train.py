@@ -13,10 +13,14 @@ import numpy as np
 import pytest
 import torch
 
+from assets.fileio import save_npz
 from assets.pattern import PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint
 from networks.config import TrainConfig
-from networks.train import StepOrder, lr_factor, main, train
+from networks.models import normalize
+from networks.shards import write_shards
+from networks.synth import SynthConfig
+from networks.train import MASKED_LOGIT, StepOrder, lr_factor, main, train
 from tests.networks.test_evaluate import write_factory_dataset
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
@@ -38,8 +42,9 @@ def few_crops(tmp_path_factory):
 
 
 def _config(task: str, **changes) -> TrainConfig:
+    # the test datasets have no garment template: the recognizer classifies among the whole codebook
     base = dict(steps=4, batch_size=2, lr=1e-3, warmup_steps=0, augment=False, num_workers=0, log_every=1,
-                val_every=100, val_samples=2, checkpoint_every=100, seed=0)
+                val_every=100, val_samples=2, checkpoint_every=100, seed=0, recognizer_classes="codebook")
     return TrainConfig(task, **{**base, **changes})
 
 
@@ -167,3 +172,53 @@ def test_ctrl_c_writes_last_checkpoint(dataset, tmp_path):
     assert "continue with --resume" in err.decode()
     saved = read_checkpoint(out / "last.pt")
     assert saved["step"] >= 1 and saved["optimizer"] is not None
+
+
+def _write_garment(folder: Path, panels: list[tuple[int, int, int]]) -> Path:
+    """folder/template.npz holding only what the networks read of a garment template: its layout, with
+    panels of (first_id, rows, cols)."""
+    spec = SPEC.to_dict()
+    layout = {"spec": spec, "panels": [{"name": f"panel{k}", "spec": {**spec, "rows": rows, "cols": cols},
+                                        "first_id": first} for k, (first, rows, cols) in enumerate(panels)]}
+    folder.mkdir(parents=True, exist_ok=True)
+    save_npz(folder / "template.npz", {"layout_json": np.frombuffer(json.dumps(layout).encode(), np.uint8)})
+    return folder
+
+
+def test_the_recognizer_classifies_among_the_garment_ids(dataset, tmp_path):
+    seen = sorted({int(i) for split in ("train", "val") for i in np.concatenate(
+        [np.load(p)["recognizer_ids"] for p in sorted((dataset / "samples").glob("*.npz"))])})
+    garment = _write_garment(tmp_path / "garment", [(i, 1, 1) for i in seen] + [(50, 2, 3)])
+    classes = sorted(set(seen) | set(range(50, 56)))
+    config = _config("recognizer", recognizer_classes="garment", steps=2)
+    with pytest.raises(ValueError, match="--garment"):
+        train(config, dataset, tmp_path / "none", device="cpu", spec=SPEC, progress=False)
+    train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, garment=garment, progress=False)
+    saved = read_checkpoint(tmp_path / "run" / "last.pt")
+    assert saved["recognizer_ids"] == classes  # class k is marker ID k; these are the classes
+    model, _, _ = load_checkpoint(tmp_path / "run" / "last.pt", expected_task="recognizer", spec=SPEC)
+    fc = model.backbone.fc
+    outside = np.setdiff1d(np.arange(SPEC.num_ids), classes)
+    assert torch.all(fc.weight[outside] == 0) and torch.all(fc.bias[outside] == MASKED_LOGIT)
+    assert torch.all(fc.bias[classes] > MASKED_LOGIT / 2)
+    crops = torch.randint(0, 256, (4, 3, 96, 96), dtype=torch.uint8)
+    with torch.no_grad():
+        predicted = model(normalize(crops)).argmax(dim=1)
+    assert set(predicted.tolist()) <= set(classes)
+    resumed = train(config.replace(steps=3), dataset, tmp_path / "run", device="cpu", resume=True, progress=False)
+    assert resumed["step"] == 3  # the classes come back from the checkpoint; the hooks keep them masked
+    bias = read_checkpoint(tmp_path / "run" / "last.pt")["model"]["backbone.fc.bias"]
+    assert torch.all(bias[outside] == MASKED_LOGIT)
+
+
+def test_the_localizer_trains_on_shards_mixed_with_rendered_crops(dataset, tmp_path):
+    shards = tmp_path / "shards"
+    write_shards(shards, "localizer", SPEC, count=4, config=SynthConfig(image_size=(64, 64)), images_per_part=4,
+                 progress=False)
+    config = _config("localizer", image_size=64, synth_weight=0.5, steps=2)
+    result = train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, shards=shards, progress=False)
+    assert result["step"] == 2 and result["val"]["samples"] == 1  # validated on the whole 128 px val image
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["shards"] == str(shards)
+    with pytest.raises(ValueError, match="image_size"):
+        train(config.replace(image_size=96), dataset, tmp_path / "other", device="cpu", spec=SPEC, shards=shards,
+              progress=False)

@@ -1,0 +1,214 @@
+"""Pre-synthesized training data: shard folders of `PatternSynthesizer` samples for one task.
+
+    python -m networks.synth write --out shards/localizer --task localizer --count 20000 --workers 15 \\
+        --garment out/ds --image-size 256
+
+Synthesizing on the fly in DataLoader workers feeds a GPU poorly (about 50 localizer images/s from 3
+workers in the first GPU run, RESULTS.md issue 7) and is paid again by every run and every epoch.  A
+shard folder is written once by a pool of processes, then read by `networks.data.ShardDataset` from
+memory-mapped .npy files, where a worker costs little more than the augmentation; several runs (the
+data-mix comparison) and resumed runs share it.
+
+Layout (`networks.data` defines the names): shards.json (format, task, pattern spec, codebook hash,
+synthesizer config, the marker IDs drawn, images_per_part, crops_per_image) and part_NNNNN/ with the
+arrays of `SHARD_ARRAYS[task]`.  Part p holds synthetic samples p * images_per_part ... (p + 1) *
+images_per_part - 1 of the synthesizer (deterministic in its config and seed): the localizer's images
+and cell targets, or up to crops_per_image crops of each image for the crop tasks (a random subset,
+seeded by the sample).  A part is written under a .tmp name and renamed when complete, so an
+interrupted writer leaves no half part, and writing again with a larger --count adds parts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from assets.fileio import save_json
+from assets.pattern.observation import localizer_targets
+from assets.pattern.spec import PatternSpec
+from networks.checkpoint import codebook_hash
+from networks.config import TASKS
+from networks.data import (SHARD_ARRAYS, SHARD_FORMAT, SHARD_META, dataset_spec, garment_marker_ids, read_shard_meta,
+                           shard_parts, synth_crops)
+from networks.synth import PatternSynthesizer, SynthConfig
+from networks.workers import one_thread, worker_environment
+
+log = logging.getLogger(__name__)
+
+VERSION = 1
+#: the generator part of the crop subset of a sample (distinct from the synthesizer's parts)
+_SUBSET = 101
+
+_worker: dict = {}
+
+
+def _start_worker(task: str, spec: dict, config: dict, codebook: np.ndarray, marker_ids: list | None,
+                  images_per_part: int, crops_per_image: int) -> None:
+    one_thread()
+    spec = PatternSpec.from_dict(spec)
+    _worker.update(task=task, spec=spec, images_per_part=images_per_part, crops_per_image=crops_per_image,
+                   synth=PatternSynthesizer(spec, SynthConfig.from_dict(config), codebook, marker_ids))
+
+
+def _write_part(root: str, number: int) -> tuple[int, int, float]:
+    """Synthesize part `number` into root/part_NNNNN (atomically); returns (number, items, seconds)."""
+    started = time.perf_counter()
+    task, spec, synth = _worker["task"], _worker["spec"], _worker["synth"]
+    count = _worker["images_per_part"]
+    columns: dict[str, list[np.ndarray]] = {name: [] for name in SHARD_ARRAYS[task]}
+    for index in range(number * count, (number + 1) * count):
+        image, gt = synth.sample(index)
+        if task == "localizer":
+            columns["image"].append(image[None])
+            columns["cells"].append(localizer_targets(gt)[None])
+            continue
+        made = synth_crops(task, image, gt, spec)
+        rng = np.random.default_rng([synth.config.seed, index, _SUBSET])
+        keep = np.sort(rng.permutation(len(made[0]))[:_worker["crops_per_image"]])
+        for name, array in zip(SHARD_ARRAYS[task], made):
+            columns[name].append(array[keep])
+    final = Path(root) / f"part_{number:05d}"
+    tmp = final.with_suffix(".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    for name, arrays in columns.items():
+        np.save(tmp / f"{name}.npy", np.concatenate(arrays))
+    os.replace(tmp, final)
+    return number, sum(len(a) for a in columns[SHARD_ARRAYS[task][0]]), time.perf_counter() - started
+
+
+def shard_meta(task: str, spec: PatternSpec, config: SynthConfig, marker_ids: np.ndarray | None,
+               images_per_part: int, crops_per_image: int) -> dict:
+    """The shards.json record of a shard folder (plain JSON types)."""
+    return json.loads(json.dumps({
+        "format": SHARD_FORMAT, "version": VERSION, "task": task, "spec": spec.to_dict(),
+        "codebook_hash": codebook_hash(spec), "synth": config.to_dict(),
+        "marker_ids": None if marker_ids is None else [int(i) for i in marker_ids],
+        "images_per_part": int(images_per_part), "crops_per_image": int(crops_per_image)}))
+
+
+def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, config: SynthConfig = SynthConfig(),
+                 marker_ids: np.ndarray | None = None, workers: int = 1, images_per_part: int = 64,
+                 crops_per_image: int = 32, time_limit_s: float | None = None, progress: bool = True) -> dict:
+    """Write the parts of `count` synthetic images (rounded up to whole parts) that `out` lacks.
+
+    task: one of `TASKS`; spec and config: the pattern and the synthesizer (its seed included);
+    marker_ids: the IDs drawn (default all of the codebook); workers: spawned processes of one thread
+    each; time_limit_s: submit no part after that many seconds (parts under way finish; an empty
+    folder gets one part whatever the limit).  A folder
+    written before must have been written with the same settings.  Returns {"parts", "items" (in the
+    folder), "written_parts", "written_images", "seconds", "images_per_s", "images_per_s_per_worker",
+    "complete"}."""
+    if task not in TASKS:
+        raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
+    if count < 1 or workers < 1 or images_per_part < 1 or crops_per_image < 1:
+        raise ValueError(f"count, workers, images_per_part and crops_per_image must be >= 1, got {count}, "
+                         f"{workers}, {images_per_part}, {crops_per_image}")
+    out = Path(out)
+    meta = shard_meta(task, spec, config, marker_ids, images_per_part, crops_per_image)
+    if (out / SHARD_META).exists():
+        old = read_shard_meta(out)
+        differ = sorted(k for k in set(old) | set(meta) if old.get(k) != meta.get(k))
+        if differ:
+            raise ValueError(f"{out}: holds shards written with other settings ({', '.join(differ)}); "
+                             "use another --out")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        save_json(out / SHARD_META, meta)
+    done = {int(p.name.split("_")[1]) for p in shard_parts(out)}
+    todo = [n for n in range(-(-count // images_per_part)) if n not in done]
+    started = time.perf_counter()
+    written = 0
+    if todo:
+        codebook = PatternSynthesizer(spec, config).codebook  # once here, not in every worker
+        initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
+                    crops_per_image)
+        bar = tqdm(total=len(todo), desc=f"shards {task}", unit="part", disable=not progress)
+        with worker_environment(), ProcessPoolExecutor(min(workers, len(todo)), mp_context=get_context("spawn"),
+                                                       initializer=_start_worker, initargs=initargs) as pool:
+            pending, queue = set(), list(todo)
+            while queue or pending:
+                late = time_limit_s is not None and time.perf_counter() - started > time_limit_s
+                late &= bool(done) or written > 0 or len(pending) > 0  # an empty folder gets one part at least
+                while queue and not late and len(pending) < 2 * workers:
+                    pending.add(pool.submit(_write_part, str(out), queue.pop(0)))
+                if not pending:
+                    break
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    future.result()
+                    written += 1
+                    bar.update(1)
+        bar.close()
+    seconds = time.perf_counter() - started
+    parts = shard_parts(out)
+    key = SHARD_ARRAYS[task][0]
+    items = sum(len(np.load(p / f"{key}.npy", mmap_mode="r")) for p in parts)
+    rate = written * images_per_part / seconds if written else 0.0
+    have = {int(p.name.split("_")[1]) for p in parts}
+    return {"task": task, "parts": len(parts), "items": items, "written_parts": written,
+            "written_images": written * images_per_part, "seconds": seconds, "images_per_s": rate,
+            "images_per_s_per_worker": rate / min(workers, max(1, len(todo))),
+            "complete": set(range(-(-count // images_per_part))) <= have}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m networks.synth write ...`: pre-synthesize a shard folder (`networks.shards`)."""
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m networks.synth", description="Pre-synthesized training data.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    write = commands.add_parser("write", help="write (or extend) a shard folder of pre-synthesized samples",
+                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    write.add_argument("--out", type=Path, required=True, help="the shard folder")
+    write.add_argument("--task", choices=TASKS, required=True, help="the network whose items to write")
+    write.add_argument("--count", type=int, required=True, help="synthetic images (rounded up to whole parts)")
+    write.add_argument("--workers", type=int, default=1, help="processes, one thread each")
+    write.add_argument("--garment", type=Path, help="a factory dataset folder or template.npz: its pattern, and "
+                       "only its garment's marker IDs (unless --all-ids)")
+    write.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the garment's, else PatternSpec())")
+    write.add_argument("--all-ids", action="store_true", help="draw every codebook ID, not only the garment's")
+    write.add_argument("--config", type=Path, help="SynthConfig JSON (fields given override the defaults)")
+    write.add_argument("--image-size", type=int, help="side of the synthesized images, pixels")
+    write.add_argument("--seed", type=int, help="synthesizer seed")
+    write.add_argument("--images-per-part", type=int, default=64)
+    write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
+    write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
+    write.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        config = SynthConfig() if args.config is None else SynthConfig.from_dict(
+            json.loads(args.config.read_text()), source=str(args.config))
+        if args.image_size is not None:
+            config = config.replace(image_size=(args.image_size, args.image_size))
+        if args.seed is not None:
+            config = config.replace(seed=args.seed)
+        if args.pattern is not None:
+            spec = PatternSpec.load(args.pattern)
+        else:
+            spec = dataset_spec(args.garment) if args.garment is not None else PatternSpec()
+        ids = garment_marker_ids(args.garment) if args.garment is not None and not args.all_ids else None
+        result = write_shards(args.out, args.task, spec, args.count, config, ids, args.workers,
+                              args.images_per_part, args.crops_per_image, args.time_limit, not args.quiet)
+        print(f"{args.out}: {result['parts']} parts, {result['items']} {args.task} items "
+              f"({'complete' if result['complete'] else 'incomplete: run again to continue'}); wrote "
+              f"{result['written_images']} images in {result['seconds']:.0f} s = {result['images_per_s']:.1f} "
+              f"images/s ({result['images_per_s_per_worker']:.1f} per worker)")
+
+    return run_cli(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,77 @@
+"""Pre-synthesized shards: written by a process pool, read back as exactly the synthesizer's samples."""
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from assets.pattern import PatternSpec
+from assets.pattern.observation import localizer_targets
+from networks.data import ShardDataset, synth_crops
+from networks.shards import main, write_shards
+from networks.synth import PatternSynthesizer, SynthConfig
+
+SPEC = PatternSpec(rows=2, cols=2, num_ids=128)
+CONFIG = SynthConfig(image_size=(64, 64), marker_px=(20, 28), seed=3)
+
+
+def test_localizer_shards_hold_the_synthesizer_samples_and_grow(tmp_path):
+    out = tmp_path / "loc"
+    result = write_shards(out, "localizer", SPEC, count=5, config=CONFIG, workers=1, images_per_part=2,
+                          progress=False)
+    assert (result["parts"], result["items"], result["written_parts"], result["complete"]) == (3, 6, 3, True)
+    data = ShardDataset(out, "localizer", spec=SPEC)
+    synth = PatternSynthesizer(SPEC, CONFIG)
+    assert len(data) == 6
+    for index in (0, 3, 5):
+        image, gt = synth.sample(index)
+        item = data[index]
+        assert item["image"].dtype == torch.uint8 and item["cells"].shape == (8, 8, 11)
+        assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), image)
+        assert np.array_equal(item["cells"].numpy(), localizer_targets(gt), equal_nan=True)
+    again = pickle.loads(pickle.dumps(data))  # as a spawned DataLoader worker gets it: maps reopened there
+    assert torch.equal(again[4]["image"], data[4]["image"])
+    (out / "part_00009.tmp").mkdir()  # an interrupted part is not read
+    grown = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=1, images_per_part=2, progress=False)
+    assert (grown["parts"], grown["written_parts"]) == (4, 1)
+    assert len(ShardDataset(out, "localizer")) == 8
+    with pytest.raises(ValueError, match="other settings.*synth"):
+        write_shards(out, "localizer", SPEC, count=8, config=CONFIG.replace(seed=4), images_per_part=2,
+                     progress=False)
+    with pytest.raises(ValueError, match="recognizer"):
+        ShardDataset(out, "recognizer")
+    with pytest.raises(ValueError, match="codebook"):
+        ShardDataset(out, "localizer", spec=PatternSpec(rows=2, cols=2, num_ids=128, seed=1))
+
+
+def test_crop_shards_keep_a_subset_of_each_image_with_the_given_ids(tmp_path):
+    ids = np.arange(40, 80)
+    config = CONFIG.replace(image_size=(128, 128), foreshortening=1.0)
+    write_shards(tmp_path / "rec", "recognizer", SPEC, count=2, config=config, marker_ids=ids, workers=1,
+                 images_per_part=2, crops_per_image=3, progress=False)
+    data = ShardDataset(tmp_path / "rec", "recognizer", spec=SPEC)
+    assert 0 < len(data) <= 6 and np.array_equal(data.marker_ids, ids)
+    first = synth_crops("recognizer", *PatternSynthesizer(SPEC, config, marker_ids=ids).sample(0), SPEC)
+    crop = data[0]["crop"].permute(1, 2, 0).numpy()
+    match = [k for k in range(len(first[0])) if np.array_equal(first[0][k], crop)]
+    assert match and first[1][match[0]] == data[0]["marker_id"]
+    assert all(40 <= int(data[i]["marker_id"]) < 80 for i in range(len(data)))
+    write_shards(tmp_path / "xp", "crosspoints", SPEC, count=1, config=config, workers=1, images_per_part=1,
+                 progress=False)
+    item = ShardDataset(tmp_path / "xp", "crosspoints")[0]
+    assert item["crop"].shape == item["reference"].shape == (3, 112, 112)
+    assert item["xy"].shape == (25, 25, 2) and item["visible"].dtype == torch.bool
+
+
+def test_cli_writes_a_shard_folder(tmp_path, capsys):
+    pattern = tmp_path / "pattern.json"
+    SPEC.save(pattern)
+    out = tmp_path / "shards"
+    assert main(["write", "--out", str(out), "--task", "localizer", "--count", "2", "--pattern", str(pattern),
+                 "--image-size", "64", "--images-per-part", "2", "--quiet"]) == 0
+    assert "1 parts, 2 localizer items (complete)" in capsys.readouterr().out
+    assert ShardDataset(out, "localizer")[1]["image"].shape == (3, 64, 64)
+    assert main(["write", "--out", str(out), "--task", "localizer", "--count", "2", "--pattern", str(pattern),
+                 "--image-size", "32", "--images-per-part", "2", "--quiet"]) == 2
+    assert "other settings" in capsys.readouterr().err
