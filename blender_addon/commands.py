@@ -12,8 +12,10 @@ type; nothing here computes anything else.  Folders, below the output folder ``<
 
 The garment given to the simulation and the factory is the template built by the Garment panel when
 there is one (its pitch, seed and texture follow the Pattern panel), else the default garment or the
-pattern file itself; the simulation folder is handed to the factory (``--reuse-simulation``), which
-takes it up when it is the same simulation (same garment, motion, body and defaults).
+pattern file itself; the simulation folder is handed to the factory (``--reuse-simulation``) with the
+options it was made with (simulation level, motion speed, the Render panel's seed), so that it is the
+same simulation (the factory refuses one made with other options, naming them: a seed changed since
+the simulation, for one).
 """
 
 from __future__ import annotations
@@ -135,9 +137,10 @@ def simulation_dir(settings) -> Path:
 def simulation_command(settings) -> tuple[list[str], Path]:
     g, m = settings.garment, settings.motion
     out = simulation_dir(settings)
+    # the Render panel's seed: the factory's simulation records its seed, and reuses only an identical one
     argv = ["-m", "factory.simulate", "--garment", garment_spec(settings), "--motion", motion_spec(settings),
             "--body", body_spec(settings), "--frames", str(g.sim_frames), "--level", g.sim_level_mm,
-            "--out", str(out), "--no-preview"]
+            "--seed", str(settings.render.seed), "--out", str(out), "--no-preview"]
     return argv + (["--speed", _number(m.speed)] if m.speed != 1.0 else []), out
 
 
@@ -154,6 +157,7 @@ def render_command(settings) -> tuple[list[str], Path]:
     out = render_dir(settings)
     motion = motion_spec(settings)
     common = ["--garment", garment_spec(settings), "--body", body_spec(settings), "--seed", str(r.seed),
+              "--level", settings.garment.sim_level_mm, "--speed", _number(settings.motion.speed),
               "--resolution", f"{r.width}x{r.height}", "--engine", r.engine, "--samples", str(r.samples),
               "--texture-dpi", _number(r.texture_dpi), *([] if r.denoise else ["--no-denoise"]), "--out", str(out)]
     simulation = simulation_dir(settings)

@@ -216,7 +216,7 @@ class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):
             library.ensure_importable()
             message = _results().import_reconstruction(context.scene, commands.reconstruction_dir(settings),
                                                     _review_capture(settings), **_review_options(settings))
-        except (ValueError, OSError, NotImplementedError) as exc:
+        except (ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, message)

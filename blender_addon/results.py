@@ -8,9 +8,10 @@ Objects (in the "Cloth Capture" collection; importing again replaces them):
   "Body"                    the posed body of a motion or of a simulation
   "<garment>"               a template level in its pre-dressing pose (panels placed around the body)
   "<garment> simulation"    the simulated garment
-  "reconstruction"          a reconstructed sequence (`reconstruction.review`'s garment object:
-                            "captured" colours, "captured_fraction"; plus "error_mm" and the "error"
-                            heat map against the ground truth)
+  "reconstruction"          a reconstructed sequence (`reconstruction.review.build_review_scene`'s
+                            garment object: "captured" colours, "captured_fraction"; plus "error_mm"
+                            and the "error" heat map against the ground truth,
+                            `reconstruction.groundtruth.vertex_errors`)
   "ground truth"            the capture's ground-truth garment, moved beside the reconstruction
 Custom properties ``clothcapture_*`` on them say where they came from.
 """
@@ -23,11 +24,14 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from reconstruction import review
+
 from . import scene as build
-from .compare import heat_colours, vertex_errors
 
 BODY = "Body"
 RECONSTRUCTION, GROUND_TRUTH = "reconstruction", "ground truth"
+#: the error heat map's colour ramp (linear RGBA) from no error to its maximum and beyond
+HEAT_STOPS = np.array([[0.02, 0.05, 0.6, 1.0], [0.0, 0.6, 0.2, 1.0], [0.9, 0.8, 0.0, 1.0], [0.8, 0.02, 0.02, 1.0]])
 
 
 def _cache(folder: Path, name: str) -> Path:
@@ -51,12 +55,11 @@ def apply_pattern(obj: bpy.types.Object, folder: Path) -> bpy.types.Material:
 
 # ---- body and motion -------------------------------------------------------------------------------
 def _body_object(scene, vertices: np.ndarray, faces: np.ndarray, fps: float, folder: Path, source: str):
-    obj = build.put_object(scene, BODY, build.mesh(BODY, vertices[0], faces))
+    obj = build.put_object(scene, BODY, review.new_mesh(BODY, vertices[0], faces))
     build.set_material(obj, "clothcapture skin", None, build.SKIN_RGBA)
-    frames = np.arange(len(vertices))
-    mode = build.animate(obj, vertices, frames, fps, _cache(folder, "body"))
+    mode = review.animate(obj, vertices, np.arange(len(vertices)), _cache(folder, "body"))
     obj["clothcapture_source"] = source
-    build.set_frames(scene, 0, len(vertices) - 1, fps)
+    review.set_frame_range(scene, 0, len(vertices) - 1, fps)
     return obj, mode
 
 
@@ -83,7 +86,7 @@ def import_garment(scene, folder: Path, level_mm: int, name: str | None = None) 
     template = Template.load(folder / "template.npz")
     level = template.level(level_mm)
     name = name or template.name
-    data = build.mesh(name, placed_positions(template, level_mm), level.faces, level.uv[level.faces])
+    data = review.new_mesh(name, placed_positions(template, level_mm), level.faces, level.uv[level.faces])
     obj = build.put_object(scene, name, data)
     build.set_material(obj, f"{template.name} pattern", folder / "pattern_texture.png")
     obj["clothcapture_template"] = str(folder / "template.npz")
@@ -105,12 +108,12 @@ def import_simulation(scene, folder: Path) -> str:
     spec, level_mm, fps = meta["garment_spec"], int(meta["level_mm"]), float(data["fps"])
     level = load_template(spec).level(level_mm)
     name = f"{meta['garment']} simulation"
-    data_mesh = build.mesh(name, data["positions"][0], data["faces"], level.uv[level.faces])
+    data_mesh = review.new_mesh(name, data["positions"][0], data["faces"], level.uv[level.faces])
     garment = build.put_object(scene, name, data_mesh)
     texture = Path(spec).parent / "pattern_texture.png" if spec.endswith(".npz") else None
     build.set_material(garment, f"{meta['garment']} simulation", texture if texture and texture.is_file() else None)
     frames = np.arange(len(data["positions"]))
-    mode = build.animate(garment, data["positions"], frames, fps, _cache(folder, "garment"))
+    mode = review.animate(garment, data["positions"], frames, _cache(folder, "garment"))
     garment["clothcapture_simulation"] = str(folder)
     garment["clothcapture_level_mm"] = level_mm
     for placed in scene.objects:  # the template in its pre-dressing pose would hide the result
@@ -143,37 +146,30 @@ def import_render(scene, folder: Path, rig: str) -> str:
 # ---- review ----------------------------------------------------------------------------------------
 def import_reconstruction(scene, folder: Path, capture: Path | None, groundtruth_offset: float | None = None,
                           heatmap_max_mm: float | None = None, cameras: bool = True) -> str:
-    """A reconstruction folder's ``export/sequence.npz`` as "reconstruction" (`reconstruction.review`'s
-    garment object: the capture's texture, "captured" colours; animated by `scene.animate`); with the
-    capture folder, its ground truth as "ground truth" moved `groundtruth_offset` m along X and the
-    per-vertex error (attributes "error_mm" mean and "error_mm_max" over frames, colour "error" red at
-    `heatmap_max_mm`); the detect stage's cameras in "reconstruction cameras"."""
-    from reconstruction import review
-    from reconstruction.export import load_sequence_npz
+    """A reconstruction folder's sequence (`reconstruction.review.reconstruction_sequence`: the export
+    stage's, or the refined one when it was not exported) as "reconstruction"
+    (`reconstruction.review.build_review_scene`: the capture's texture, "captured" colours, animated,
+    the detect stage's cameras in "reconstruction cameras"); with the capture folder, its ground truth
+    as "ground truth" moved `groundtruth_offset` m along X and the per-vertex error (attributes
+    "error_mm" mean and "error_mm_max" over frames, colour "error" red at `heatmap_max_mm`)."""
+    from reconstruction.pipeline import stage_cameras
 
-    path = folder / "export" / "sequence.npz"
-    if not path.is_file():
-        raise ValueError(f"{folder}: no export/sequence.npz: run the reconstruction (its export stage) first")
-    sequence = load_sequence_npz(path)
+    sequence = review.reconstruction_sequence(folder)
     texture = capture / "texture.png" if capture is not None and (capture / "texture.png").is_file() else None
+    found = stage_cameras(folder) if cameras else None
     build.remove_object(RECONSTRUCTION)
-    obj = review._garment_object(bpy, scene, sequence, texture)
-    scene.collection.objects.unlink(obj)
-    build.collection(scene).objects.link(obj)
-    obj.name = obj.data.name = obj.active_material.name = RECONSTRUCTION
-    build.animate(obj, sequence.positions, sequence.frames, sequence.fps, _cache(folder, RECONSTRUCTION))
+    if cameras:
+        build.remove_cameras("reconstruction cameras")
+    made = review.build_review_scene(scene, sequence, found, texture, cache=_cache(folder, RECONSTRUCTION),
+                                     name=RECONSTRUCTION, collection=build.collection(scene),
+                                     cameras_name="reconstruction cameras")
+    obj = made.garment
     obj["clothcapture_reconstruction"] = str(folder)
-    build.set_frames(scene, sequence.frames[0], sequence.frames[-1], sequence.fps)
-    review._show_captured_colours(bpy)
     notes = [f"{len(sequence)} frames, {sequence.num_vertices} vertices at {sequence.level_mm} mm "
              f"({sequence.captured.mean():.0%} captured)"]
     if capture is not None and (groundtruth_offset is not None or heatmap_max_mm is not None):
         notes += _compare(scene, obj, sequence, capture, folder, groundtruth_offset, heatmap_max_mm)
-    if cameras:
-        from reconstruction.pipeline import stage_cameras
-
-        found = stage_cameras(folder)
-        build.add_cameras(scene, found, "reconstruction cameras")
+    if found is not None:
         notes.append(f"{len(found)} cameras")
     evaluation = folder / "evaluation.json"
     if evaluation.is_file():
@@ -184,23 +180,23 @@ def import_reconstruction(scene, folder: Path, capture: Path | None, groundtruth
 
 def _compare(scene, obj, sequence, capture_dir: Path, folder: Path, offset: float | None,
              max_mm: float | None) -> list[str]:
-    from reconstruction.groundtruth import GroundTruthCapture
+    from reconstruction.groundtruth import GroundTruthCapture, vertex_errors
 
     capture = GroundTruthCapture(capture_dir)
     notes = []
     if offset is not None:
         garment = capture.garment
-        level = capture.template.level(int(garment["level_mm"]))
-        data = build.mesh(GROUND_TRUTH, garment["positions"][0], garment["faces"], level.uv[level.faces])
+        level = capture.template.level(capture.level_mm)
+        data = review.new_mesh(GROUND_TRUTH, garment["positions"][0], garment["faces"], level.uv[level.faces])
         truth = build.put_object(scene, GROUND_TRUTH, data)
         texture = capture_dir / "texture.png"
         build.set_material(truth, GROUND_TRUTH, texture if texture.is_file() else None)
-        build.animate(truth, garment["positions"], garment["frames"], sequence.fps, _cache(folder, "groundtruth"))
+        review.animate(truth, garment["positions"], garment["frames"], _cache(folder, "groundtruth"))
         truth.location = (offset, 0.0, 0.0)
         truth["clothcapture_capture"] = str(capture_dir)
         notes.append(f"ground truth beside at +{offset:g} m X")
     if max_mm is not None:
-        errors = vertex_errors(capture, sequence.level_mm, sequence.frames, sequence.positions.astype(np.float64))
+        errors = vertex_errors(capture, sequence.positions, sequence.frames, sequence.level_mm)
         mean, worst = errors.mean(axis=0), errors.max(axis=0)
         mesh = obj.data
         for name, values in (("error_mm", mean * 1e3), ("error_mm_max", worst * 1e3)):
@@ -211,3 +207,11 @@ def _compare(scene, obj, sequence, capture_dir: Path, folder: Path, offset: floa
         mesh.color_attributes.active_color = heat
         notes.append(f"error {np.median(mean) * 1e3:.2f} mm median, {worst.max() * 1e3:.2f} mm max")
     return notes
+
+
+def heat_colours(error_m: np.ndarray, max_mm: float) -> np.ndarray:
+    """Linear RGBA (N, 4) float32 of errors (N,) metres: blue at 0, green, yellow, red at `max_mm`."""
+    t = np.clip(np.asarray(error_m) * 1e3 / max_mm, 0.0, 1.0) * (len(HEAT_STOPS) - 1)
+    low = np.minimum(t.astype(int), len(HEAT_STOPS) - 2)
+    w = (t - low)[:, None]
+    return ((1 - w) * HEAT_STOPS[low] + w * HEAT_STOPS[low + 1]).astype(np.float32)

@@ -64,6 +64,7 @@ from assets.pattern.observation import ImageGroundTruth, training_samples
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 from assets.garments.loading import load_template
+from factory.dressing import DressingParams
 from factory.simulate import SimulationConfig, simulate
 
 log = logging.getLogger(__name__)
@@ -101,6 +102,9 @@ class DatasetConfig:
     frame_list: tuple[int, ...] | None = None
     variations: int = 5
     seed: int = 0
+    #: the simulation's template level (mm) and motion speed multiplier (`factory.simulate`'s --level, --speed)
+    level_mm: int = DressingParams.level_mm
+    motion_speed: float = 1.0
     render: RenderSettings = field(default_factory=RenderSettings)
     #: largest random tilt (degrees) and translation (m) of garment and body per variation
     max_tilt_deg: float = 10.0
@@ -247,22 +251,36 @@ def ground_truth_for(surface: MarkerSurface, positions: np.ndarray, image_path: 
 
 # ---- build -------------------------------------------------------------------------------------
 
-def reuse_simulation(source: str | Path, target: Path) -> None:
+def simulation_config(garment: str, motion: str, body: str = "default", frames: int = 1, seed: int = 0,
+                      level_mm: int = DressingParams.level_mm, motion_speed: float = 1.0) -> SimulationConfig:
+    """The simulation the factory makes of `motion` (`factory.simulate`'s defaults otherwise)."""
+    return SimulationConfig(garment=garment, motion=motion, body=body, frames=frames, seed=seed,
+                            motion_speed=motion_speed, dressing=replace(DressingParams(), level_mm=level_mm))
+
+
+def reuse_simulation(source: str | Path, target: Path, config: SimulationConfig) -> None:
     """Copy a finished simulation folder (``sequence.npz``, ``dressed.npz``) to `target`, where
-    `factory.simulate` takes it up when it is the same simulation with enough frames."""
+    `factory.simulate` takes it up (and continues it when it has fewer frames than needed).  A folder
+    holding another simulation than `config`'s (which would silently be simulated again) is refused,
+    naming the options that differ."""
     source = Path(source)
     if not (source / "sequence.npz").is_file():
         raise ValueError(f"{source}: no sequence.npz (not a finished simulation folder)")
+    meta = json.loads(str(load_npz(source / "sequence.npz", only=("meta",))["meta"]))
+    if meta.get("key") != config.key():
+        differ = config.differences(meta.get("config", {})) or ["the simulator's version"]
+        raise ValueError(f"{source / 'sequence.npz'}: another simulation than this one's (recorded there, not here: "
+                         f"{'; '.join(differ)}); give the options it was made with (--garment, --motion, --body, "
+                         "--seed, --level, --speed) or leave out --reuse-simulation")
     target.mkdir(parents=True, exist_ok=True)
     for name in ("sequence.npz", "dressed.npz"):
         if (source / name).is_file() and not (target / name).exists():
             shutil.copyfile(source / name, target / name)
 
 
-def _simulate_motion(config: DatasetConfig, motion: str, out: Path, frames_needed: int, progress: bool) -> Path:
-    sim_config = SimulationConfig(garment=config.garment, motion=motion, body=config.body, frames=frames_needed,
-                                  seed=config.seed)
-    return simulate(sim_config, out / "sim" / motion, progress=progress)
+def _simulation_of(config: DatasetConfig, motion: str, frames: int = 1) -> SimulationConfig:
+    return simulation_config(config.garment, motion, config.body, frames, config.seed, config.level_mm,
+                             config.motion_speed)
 
 
 def _frames_of(config: DatasetConfig, transition_frames: int) -> list[int]:
@@ -275,7 +293,9 @@ def _check_config(out: Path, config: DatasetConfig) -> None:
     path = out / "config.json"
     current = json.loads(json.dumps(asdict(config)))
     if path.exists():
-        saved = load_json(path)
+        # a setting added since the folder was made has its default there
+        defaults = json.loads(json.dumps(asdict(DatasetConfig(garment="", motions=()))))
+        saved = {**defaults, **load_json(path)}
         if saved != current:
             raise ValueError(f"{path}: this folder holds a dataset built with other settings; use a new --out "
                              f"(differences: {sorted(k for k in current if saved.get(k) != current[k])})")
@@ -298,12 +318,12 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
     out.mkdir(parents=True, exist_ok=True)
     _check_config(out, config)
     for motion, folder in (simulations or {}).items():
-        reuse_simulation(folder, out / "sim" / motion)
+        reuse_simulation(folder, out / "sim" / motion, _simulation_of(config, motion))
     body = load_body(config.body)
     timing = {"images": 0, "setup_s": 0.0, "render_s": 0.0, "groundtruth_s": 0.0}
     template = render_template(config.garment, config.render.texture_dpi, out)
     if not (out / "template.npz").exists():
-        template.save(out / "template.npz", levels=(SimulationConfig(config.garment, "").dressing.level_mm,))
+        template.save(out / "template.npz", levels=(config.level_mm,))
     from factory.render import bundled_environments
 
     envs = environments(bundled_environments())
@@ -313,8 +333,9 @@ def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1
     transition = int(round(SimulationConfig(config.garment, "").transition_seconds * 120))
     for motion in config.motions:
         frames = _frames_of(config, transition)
-        sequence = load_npz(_simulate_motion(config, motion, out, max(frames) + 1, progress),
-                            required=("positions", "faces", "body_poses", "body_trans", "body_betas", "meta"))
+        simulated = simulate(_simulation_of(config, motion, max(frames) + 1), out / "sim" / motion, progress)
+        sequence = load_npz(simulated, required=("positions", "faces", "body_poses", "body_trans", "body_betas",
+                                                 "meta"))
         plans.append((motion, frames, sequence))
     level_mm = int(json.loads(str(plans[0][2]["meta"])).get("level_mm", 12))
     surface = MarkerSurface.build(template, level_mm)
@@ -447,21 +468,24 @@ def fitted_ring(count: int, radius: float, height: float, points: np.ndarray, wi
 def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_frame: int | None = None,
             cameras: int = 8, resolution: tuple[int, int] = (1920, 1080), render: RenderSettings = RenderSettings(),
             body: str = "default", radius: float = 3.0, camera_height: float = 1.3, seed: int = 0,
-            progress: bool = True, simulation: str | Path | None = None) -> Path:
+            progress: bool = True, simulation: str | Path | None = None, level_mm: int = DressingParams.level_mm,
+            motion_speed: float = 1.0) -> Path:
     """Render `frames` consecutive simulation frames from a ring of `cameras` (each fitting the garment
-    in its view), with ground truth and ``contact_sheet.png``; returns the folder."""
+    in its view), with ground truth and ``contact_sheet.png``; returns the folder.  The garment is
+    simulated on template level `level_mm` with the motion at `motion_speed` (or taken from the
+    finished simulation folder `simulation`, which must be that simulation)."""
     out = Path(out)
+    transition = int(round(SimulationConfig(garment, motion).transition_seconds * 120))
+    start = transition if first_frame is None else first_frame
+    picked = list(range(start, start + frames))
+    sim_config = simulation_config(garment, motion, body, picked[-1] + 1, seed, level_mm, motion_speed)
+    if simulation is not None:
+        reuse_simulation(simulation, out / "sim", sim_config)
     out.mkdir(parents=True, exist_ok=True)
     render = replace(render, resolution=tuple(resolution))
     body_model = load_body(body)
     template = render_template(garment, render.texture_dpi, out)
-    transition = int(round(SimulationConfig(garment, motion).transition_seconds * 120))
-    start = transition if first_frame is None else first_frame
-    picked = list(range(start, start + frames))
-    if simulation is not None:
-        reuse_simulation(simulation, out / "sim")
-    sim = simulate(SimulationConfig(garment=garment, motion=motion, body=body, frames=picked[-1] + 1, seed=seed),
-                   out / "sim", progress=progress)
+    sim = simulate(sim_config, out / "sim", progress=progress)
     sequence = load_npz(sim, required=("positions", "faces", "body_poses", "body_trans", "body_betas", "meta"))
     level_mm = int(json.loads(str(sequence["meta"])).get("level_mm", 12))
     positions = sequence["positions"][picked]
@@ -604,6 +628,13 @@ def _add_render_args(p: argparse.ArgumentParser, resolution: str) -> None:
     p.add_argument("--texture-dpi", type=float, default=RenderSettings.texture_dpi)
 
 
+def _add_simulation_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--level", type=int, default=DressingParams.level_mm,
+                   help="template level (mm) the garment is simulated on (factory.simulate --level)")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="built-in motions: speed multiplier (factory.simulate --speed)")
+
+
 def _render_settings(args: argparse.Namespace) -> RenderSettings:
     return RenderSettings(resolution=tuple(args.resolution), engine=args.engine, samples=args.samples,
                           denoise=not args.no_denoise, device=args.device, texture_dpi=args.texture_dpi)
@@ -624,9 +655,11 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--frame-list", help="explicit comma-separated simulation frames instead")
     b.add_argument("--variations", type=int, default=DatasetConfig.variations)
     b.add_argument("--seed", type=int, default=0)
+    _add_simulation_args(b)
     b.add_argument("--shard", type=_shard, default=(0, 1), help="i/n: this process's share of the images")
     b.add_argument("--reuse-simulation", action="append", default=[], metavar="MOTION=DIR",
-                   help="a finished `factory.simulate` folder for a motion (repeatable)")
+                   help="a finished `factory.simulate` folder for a motion (repeatable), made with the same "
+                   "--garment, --body, --seed, --level and --speed")
     b.add_argument("--out", type=Path, required=True)
     _add_render_args(b, "512")
     c = sub.add_parser("capture", help="render a sequence from a calibrated ring of cameras")
@@ -639,7 +672,9 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--radius", type=float, default=3.0, help="ring radius (m)")
     c.add_argument("--height", type=float, default=1.3, help="ring height (m), about chest height")
     c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--reuse-simulation", type=Path, metavar="DIR", help="a finished `factory.simulate` folder")
+    _add_simulation_args(c)
+    c.add_argument("--reuse-simulation", type=Path, metavar="DIR",
+                   help="a finished `factory.simulate` folder made with the same options")
     c.add_argument("--out", type=Path, required=True)
     _add_render_args(c, "1920x1080")
     v = sub.add_parser("preview", help="contact sheet of a dataset or capture folder")
@@ -654,7 +689,7 @@ def main(argv: list[str] | None = None) -> int:
             config = DatasetConfig(garment=args.garment, motions=tuple(m for m in args.motions.split(",") if m),
                                    body=args.body, frames=args.frames, frame_step=args.frame_step,
                                    frame_list=frame_list, variations=args.variations, seed=args.seed,
-                                   render=_render_settings(args))
+                                   level_mm=args.level, motion_speed=args.speed, render=_render_settings(args))
             started = time.perf_counter()
             reuse = dict(item.split("=", 1) for item in args.reuse_simulation if "=" in item)
             if len(reuse) != len(args.reuse_simulation):
@@ -667,7 +702,8 @@ def main(argv: list[str] | None = None) -> int:
             folder = capture(args.garment, args.motion, args.out, frames=args.frames, first_frame=args.first_frame,
                              cameras=args.cameras, resolution=tuple(args.resolution),
                              render=_render_settings(args), body=args.body, radius=args.radius,
-                             camera_height=args.height, seed=args.seed, simulation=args.reuse_simulation)
+                             camera_height=args.height, seed=args.seed, simulation=args.reuse_simulation,
+                             level_mm=args.level, motion_speed=args.speed)
             print(f"capture in {folder}: cameras.json, garment.npz, {args.cameras} camera folders; "
                   f"contact sheet {folder / 'contact_sheet.png'}")
         else:

@@ -82,10 +82,35 @@ class SimulationConfig:
     def key(self) -> str:
         """What makes two runs the same simulation (resume only continues an identical one); length,
         checkpointing and health limits do not change the frames."""
+        return _digest(self._keyed())
+
+    def _keyed(self) -> dict:
         data = asdict(self)
-        for name in ("frames", "checkpoint_every", "health"):
+        for name in _NOT_KEYED:
             data.pop(name)
-        return _digest(data)
+        return data
+
+    def differences(self, recorded: dict) -> list[str]:
+        """The options in which a simulation recorded with config `recorded` (its ``meta["config"]``) is
+        another simulation than this one's, as "name: recorded value, not this value" (nested options
+        dotted: "dressing.level_mm")."""
+        mine = json.loads(json.dumps(self._keyed(), default=str))
+        return _differences({k: v for k, v in recorded.items() if k not in _NOT_KEYED}, mine)
+
+
+#: the options of a `SimulationConfig` that do not change its frames (not in its key)
+_NOT_KEYED = ("frames", "checkpoint_every", "health")
+
+
+def _differences(recorded: dict, wanted: dict, prefix: str = "") -> list[str]:
+    found = []
+    for name in sorted(set(recorded) | set(wanted)):
+        a, b = recorded.get(name), wanted.get(name)
+        if isinstance(a, dict) and isinstance(b, dict):
+            found += _differences(a, b, f"{prefix}{name}.")
+        elif a != b:
+            found.append(f"{prefix}{name}: {a!r}, not {b!r}")
+    return found
 
 
 def _digest(value: object) -> str:

@@ -28,12 +28,15 @@ _EXPORTS = {
     "triangulate_sequence": "reconstruction.triangulate",
     "GroundTruthCapture": "reconstruction.groundtruth",
     "GroundTruthConfig": "reconstruction.groundtruth",
+    "vertex_errors": "reconstruction.groundtruth",
     "RefineConfig": "reconstruction.refine",
     "RefinedSequence": "reconstruction.refine",
     "refine_sequence": "reconstruction.refine",
     "GarmentSequence": "reconstruction.export",
     "export_sequence": "reconstruction.export",
     "write_review_blend": "reconstruction.review",
+    "build_review_scene": "reconstruction.review",
+    "reconstruction_sequence": "reconstruction.review",
     "RunSettings": "reconstruction.pipeline",
 }
 

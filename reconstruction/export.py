@@ -35,6 +35,7 @@ Files (every writer is atomic, `assets.fileio`):
   ignores start frame and sample rate in its default 'FRAME' time mode: its modifier's own
   ``frame_start`` and ``frame_scale`` place the samples (`reconstruction.review` sets them).
 - `export_sequence`: any of these (and the review .blend) into one folder, for the CLI.
+- `from_refined`: the post-processing's `RefinedSequence` with its template's UVs, ready for these.
 """
 
 from __future__ import annotations
@@ -138,11 +139,27 @@ class GarmentSequence:
     @property
     def frame_step(self) -> int:
         """Frames between consecutive samples (1 for a single frame); ValueError unless uniform."""
-        steps = np.unique(np.diff(self.frames))
-        if len(steps) > 1:
-            raise ValueError(f"{type(self).__name__}.frames: a point cache needs evenly spaced frames, got steps "
-                             f"{steps.tolist()}")
-        return int(steps[0]) if len(steps) else 1
+        return frame_step(self.frames, f"{type(self).__name__}.frames")
+
+
+def frame_step(frames: np.ndarray, where: str = "frames") -> int:
+    """Frames between consecutive frame numbers `frames` (T,) (1 for a single frame); ValueError naming
+    `where` unless they are evenly spaced (a point cache plays samples at a fixed rate)."""
+    steps = np.unique(np.diff(np.asarray(frames)))
+    if len(steps) > 1:
+        raise ValueError(f"{where}: a point cache needs evenly spaced frames, got steps {steps.tolist()}")
+    return int(steps[0]) if len(steps) else 1
+
+
+def from_refined(refined, template, fps: float) -> GarmentSequence:
+    """A refined sequence (`reconstruction.refine.RefinedSequence`) on its level of `template`
+    (`assets.garments.Template`) as a `GarmentSequence` with the level's corner UVs, at `fps` Hz."""
+    level = template.level(refined.level_mm)
+    if len(refined.faces) != len(level.faces):
+        raise ValueError(f"from_refined: the sequence has {len(refined.faces)} faces, the {refined.level_mm} mm level "
+                         f"of template '{template.name}' {len(level.faces)}: not the sequence's template")
+    return GarmentSequence(refined.positions, refined.faces, level.uv[level.faces], refined.captured, refined.frames,
+                           fps, refined.source, refined.level_mm)
 
 
 def save_sequence_npz(path: str | os.PathLike, sequence: GarmentSequence) -> None:

@@ -11,7 +11,9 @@ these detections says so through `GroundTruthConfig.source` (for example
 their outputs (`CapturedPoints.source`).
 
 The folder's ground-truth garment (``garment.npz``: sewn-mesh positions (T, V, 3) at ``level_mm``,
-``faces``, ``frames``; ``template.npz``) is read too, for measuring: `GroundTruthCapture.crosspoints`.
+``faces``, ``frames``; ``template.npz``) is read too, for measuring: `GroundTruthCapture.crosspoints`
+at crosspoints, `GroundTruthCapture.garment_positions` on any template level and `vertex_errors` of a
+reconstructed sequence, vertex by vertex.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import re
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Sequence
+
 import numpy as np
 
 from assets.cameras import Camera, load_cameras
@@ -30,6 +34,7 @@ from assets.pattern.table import localization_rc
 from assets.pattern.spec import PatternSpec
 from networks.detections import Detections
 from reconstruction.correspondence import CrosspointMap
+from reconstruction.hierarchy import Hierarchy
 from reconstruction.views import check_synchronised
 
 _GT_FILE = re.compile(r"^f(\d+)_gt\.npz$")
@@ -160,14 +165,48 @@ class GroundTruthCapture:
     @cached_property
     def crosspoint_map(self) -> CrosspointMap:
         """The crosspoints on the ground-truth garment's level."""
-        return CrosspointMap.build(self.template, int(self.garment["level_mm"]))
+        return CrosspointMap.build(self.template, self.level_mm)
 
     def crosspoints(self, frame: int, key: np.ndarray) -> np.ndarray:
         """The ground-truth positions (N, 3) metres of crosspoints `key` (N, 2) at frame number `frame`
         (interpolated in the garment's sewn mesh; NaN off the fabric)."""
-        frames = self.garment["frames"].tolist()
-        if frame not in frames:
-            raise ValueError(f"{self.folder / 'garment.npz'}: no positions for frame {frame} (frames: {frames})")
-        positions = self.garment["positions"][frames.index(frame)].astype(np.float64)
-        return self.crosspoint_map.points(positions, key)
+        return self.crosspoint_map.points(self.garment_positions([frame])[0], key)
+
+    @property
+    def level_mm(self) -> int:
+        """The template level of the ground-truth garment (the simulation's)."""
+        return int(self.garment["level_mm"])
+
+    @cached_property
+    def _hierarchy(self) -> Hierarchy:
+        return Hierarchy(self.template, (self.level_mm,))
+
+    def garment_positions(self, frames: Sequence[int], level_mm: int | None = None) -> np.ndarray:
+        """The ground-truth garment (T, V, 3) metres at frame numbers `frames` (T,) on the sewn mesh of
+        template level `level_mm` (default: its own, `level_mm`).  Another level is reached through the
+        template's barycentric map between the levels in the sewing pattern (`Hierarchy.transfer`): a
+        finer level's vertices lie on the ground-truth mesh, a coarser level's vertices are sampled
+        from it."""
+        known = self.garment["frames"].tolist()
+        missing = [int(f) for f in frames if int(f) not in known]
+        if missing:
+            raise ValueError(f"{self.folder / 'garment.npz'}: no positions for frames {missing} (frames: {known})")
+        positions = self.garment["positions"][[known.index(int(f)) for f in frames]].astype(np.float64)
+        if level_mm is None or int(level_mm) == self.level_mm:
+            return positions
+        return self._hierarchy.transfer(positions, self.level_mm, int(level_mm))
+
+
+def vertex_errors(capture: GroundTruthCapture, positions: np.ndarray, frames: Sequence[int],
+                  level_mm: int) -> np.ndarray:
+    """Per-vertex distance (T, V) metres of a reconstruction, positions (T, V, 3) on the sewn mesh of
+    template level `level_mm` at capture frame numbers `frames` (T,), from the ground truth of
+    `capture` on that level (`GroundTruthCapture.garment_positions`)."""
+    truth = capture.garment_positions(frames, level_mm)
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.shape != truth.shape:
+        raise ValueError(f"vertex_errors: positions {positions.shape}, but the ground truth of {len(truth)} frames "
+                         f"on the {level_mm} mm level of {capture.folder / 'template.npz'} is {truth.shape}: not a "
+                         "reconstruction of this capture's garment at that level")
+    return np.linalg.norm(positions - truth, axis=-1)
 

@@ -37,19 +37,20 @@ class Hierarchy:
         return self.template.level(mm)
 
     def transfer(self, positions: np.ndarray, from_mm: int, to_mm: int) -> np.ndarray:
-        """A shape on level `from_mm`'s sewn mesh (Vs, 3) -> on level `to_mm`'s (Vt, 3): every vertex of
-        the target level interpolated barycentrically in the source level's face that holds it in the
-        sewing pattern; the copies of a seam vertex (one per panel) are averaged.  Coarse to fine is the
-        hierarchy's upsampling; any other pair (an initial shape given at another level) works too."""
+        """A shape on level `from_mm`'s sewn mesh (..., Vs, 3) -> on level `to_mm`'s (..., Vt, 3): every
+        vertex of the target level interpolated barycentrically in the source level's face that holds it
+        in the sewing pattern; the copies of a seam vertex (one per panel) are averaged.  Coarse to fine
+        is the hierarchy's upsampling; any other pair (an initial shape given at another level, a fine
+        shape sampled at a coarse level's vertices) works too."""
         source, target = self.level(from_mm), self.level(to_mm)
         positions = np.asarray(positions, dtype=np.float64)
-        if positions.shape != (source.num_sewn_vertices, 3):
-            raise ValueError(f"positions: expected ({source.num_sewn_vertices}, 3) (the sewn {from_mm} mm level), "
-                             f"got {positions.shape}")
+        if positions.ndim < 2 or positions.shape[-2:] != (source.num_sewn_vertices, 3):
+            raise ValueError(f"positions: expected (..., {source.num_sewn_vertices}, 3) (the sewn {from_mm} mm "
+                             f"level), got {positions.shape}")
         if from_mm == to_mm:
             return positions.copy()
         key = (from_mm, to_mm)
         if key not in self._maps:
             self._maps[key] = self.template.prolongation(from_mm, to_mm)
-        unsewn = self._maps[key](source.faces, positions[source.sewn_index])
+        unsewn = self._maps[key](source.faces, positions[..., source.sewn_index, :])
         return target.sew(unsewn)

@@ -3,6 +3,9 @@
     python -m assets.pattern --out out/pattern                       # default 32 x 32 markers, 300 DPI
     python -m assets.pattern --out out/small --rows 4 --cols 6 --dpi 150
     python -m assets.pattern --out out/shirt --panels panels.json     # print only inside panel outlines
+
+The folder gets pattern.png, preview.png, marker_table.npz/.json (and reference_textures.npz), then
+spec.json last: a folder is finished when its spec.json exists (a rerun removes it first).
 """
 
 from __future__ import annotations
@@ -113,8 +116,9 @@ def run(args: argparse.Namespace) -> dict[str, Path]:
         "summary": out / "marker_table.json",
         "preview": out / "preview.png",
     }
-    spec.save(files["spec"])
-    table.save(files["table"], files["summary"])
+    # spec.json marks a finished folder: removed before anything is written and written last, so a run
+    # stopped midway (cancelled, failed) leaves no spec that does not describe the files beside it
+    files["spec"].unlink(missing_ok=True)
     image = render_region(table, bounds, args.dpi, polygons, progress=True)
     log.info("pattern %d x %d px at %g DPI", image.shape[1], image.shape[0], args.dpi)
     write_png(files["pattern"], image, args.dpi)
@@ -122,6 +126,7 @@ def run(args: argparse.Namespace) -> dict[str, Path]:
     side = max(bounds[2] - bounds[0], bounds[3] - bounds[1])
     preview_dpi = min(args.dpi, math.floor(args.preview_px / (side / 0.0254)))
     write_png(files["preview"], render_region(table, bounds, max(preview_dpi, 1e-3), polygons), preview_dpi)
+    table.save(files["table"], files["summary"])
     if args.reference_textures:
         files["references"] = out / "reference_textures.npz"
         save_npz(
@@ -132,6 +137,7 @@ def run(args: argparse.Namespace) -> dict[str, Path]:
                 "crosspoint": reference_textures(spec, table.codes, CROSSPOINT_CROP),
             },
         )
+    spec.save(files["spec"])
     log.info("wrote %s in %.1f s", ", ".join(p.name for p in files.values()), time.perf_counter() - t0)
     return files
 

@@ -61,3 +61,17 @@ def test_bad_input_is_reported_and_keeps_earlier_output(tmp_path, capsys):
     assert main(["--out", str(out), *ARGS, "--panels", str(outside)]) == 2
     assert "outside" in capsys.readouterr().err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_run_stopped_midway_leaves_no_spec_beside_other_files(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["--out", str(out), *ARGS]) == 0
+    (out / "preview.png").unlink()
+    (out / "preview.png").mkdir()  # the preview cannot be written: the run fails after the new pattern.png
+    assert main(["--out", str(out), *ARGS, "--seed", "5"]) == 2
+    assert "preview.png" in capsys.readouterr().err
+    assert not (out / "spec.json").exists()  # the old spec does not describe the new pattern.png
+    (out / "preview.png").rmdir()
+    assert main(["--out", str(out), *ARGS, "--seed", "5"]) == 0
+    assert json.loads((out / "spec.json").read_text())["seed"] == 5
+    assert MarkerTable.load(out / "marker_table.npz").spec.seed == 5

@@ -90,7 +90,7 @@ def test_the_same_zip_installs_as_a_legacy_addon(addon_zip, tmp_path):
         assert sys.modules[ADDON_ID].bl_info["blender"] == (4, 2, 0)
         # an operator of the legacy add-on at work: a missing reconstruction is reported, not raised
         bpy.context.scene.clothcapture.review.reconstruction_dir = str(tmp_path / "nowhere")
-        with pytest.raises(RuntimeError, match="no export/sequence.npz"):
+        with pytest.raises(RuntimeError, match="nowhere: no sequence.npz"):
             bpy.ops.clothcapture.import_reconstruction()
         addon_utils.disable(ADDON_ID, default_set=True)
         assert registered() == NOTHING

@@ -8,6 +8,7 @@ texture, dressed and simulated for 3 frames of the built-in walk, captured from 
 """
 
 import json
+import shutil
 import time
 
 import bpy
@@ -313,3 +314,25 @@ def test_importing_again_replaces_the_review_without_the_ground_truth(addon, set
     obj = bpy.data.objects["reconstruction"]
     assert "ground truth" not in bpy.data.objects and "reconstruction.001" not in bpy.data.objects
     assert "error" not in obj.data.attributes and obj.data.color_attributes.active_color.name == "captured"
+
+
+def test_a_reconstruction_refined_but_not_exported_is_imported_from_its_sequence(addon, settings, reconstruction):
+    from reconstruction.refine import RefinedSequence
+
+    folder = addon.commands.reconstruction_dir(settings)
+    review = settings.review
+    review.show_groundtruth, review.heatmap, review.import_cameras = False, False, False
+    shutil.move(folder / "export", folder / "export.kept")
+    try:
+        assert bpy.ops.clothcapture.import_reconstruction() == {"FINISHED"}
+    finally:
+        shutil.move(folder / "export.kept", folder / "export")
+        review.show_groundtruth, review.heatmap, review.import_cameras = True, True, True
+    refined = RefinedSequence.load(folder / "sequence.npz")
+    obj = bpy.data.objects["reconstruction"]
+    level = Template.load(addon.commands.capture_dir(settings) / "template.npz").level(refined.level_mm)
+    uv = np.empty(len(obj.data.loops) * 2, np.float32)
+    obj.data.uv_layers["UVMap"].data.foreach_get("uv", uv)
+    np.testing.assert_allclose(uv.reshape(-1, 3, 2), level.uv[level.faces], atol=1e-6)
+    for t, frame in enumerate(refined.frames):
+        np.testing.assert_allclose(evaluated_positions(obj, int(frame)), refined.positions[t], atol=1e-5)

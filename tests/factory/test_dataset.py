@@ -169,3 +169,48 @@ def test_a_capture_frames_the_garment_in_every_camera_and_its_files_agree(tmp_pa
             np.testing.assert_array_equal(saved.marker_id, again.marker_id[kept])
             np.testing.assert_allclose(saved.points_px, again.points_px[kept], atol=1e-4)
     assert (out / "contact_sheet.png").is_file()
+
+
+def _finished_simulation(folder: Path, config) -> Path:
+    """A simulation folder as `factory.simulate` records one (only what reuse reads: its meta)."""
+    from dataclasses import asdict
+
+    from assets.fileio import save_npz
+
+    meta = {"key": config.key(), "config": json.loads(json.dumps(asdict(config), default=str))}
+    save_npz(folder / "sequence.npz", {"positions": np.zeros((1, 3, 3), np.float32), "meta": np.array(json.dumps(meta))})
+    return folder
+
+
+def test_reusing_a_simulation_made_with_other_options_is_refused_naming_them(tmp_path, capsys):
+    from factory.dataset import main, reuse_simulation, simulation_config
+
+    made = _finished_simulation(tmp_path, simulation_config("skirt", "walk", frames=3))
+    reuse_simulation(made, tmp_path / "same" / "sim", simulation_config("skirt", "walk", frames=200))
+    assert (tmp_path / "same" / "sim" / "sequence.npz").is_file()  # longer: the simulation continues it
+
+    argv = ["capture", "--garment", "skirt", "--motion", "walk", "--level", "4", "--speed", "1.5",
+            "--reuse-simulation", str(made), "--out", str(tmp_path / "cap")]
+    assert main(argv) == 1
+    error = capsys.readouterr().err
+    assert "dressing.level_mm: 12, not 4" in error and "motion_speed: 1.0, not 1.5" in error and "seed:" not in error
+    assert not (tmp_path / "cap").exists()  # refused before anything was made
+    argv = ["build", "--garment", "skirt", "--motions", "walk", "--seed", "2", "--reuse-simulation", f"walk={made}",
+            "--out", str(tmp_path / "ds")]
+    assert main(argv) == 1
+    assert "seed: 0, not 2" in capsys.readouterr().err
+    assert not (tmp_path / "ds" / "sim").exists()
+
+
+def test_a_dataset_folder_made_before_the_simulation_options_is_still_taken_up(tmp_path):
+    from factory.dataset import _check_config
+
+    config = _config()
+    _check_config(tmp_path, config)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    assert (saved["level_mm"], saved["motion_speed"]) == (12, 1.0)
+    del saved["level_mm"], saved["motion_speed"]
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    _check_config(tmp_path, config)  # their defaults
+    with pytest.raises(ValueError, match="level_mm"):
+        _check_config(tmp_path, _config(level_mm=4))
