@@ -40,6 +40,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/body.py
 	$(BIN)/python benchmarks/simulate.py
 	$(BIN)/python benchmarks/render.py
+	$(BIN)/python benchmarks/reconstruction.py --refine-frames 12:120,4:6,2:3
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

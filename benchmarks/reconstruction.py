@@ -6,10 +6,11 @@
    ground truth (projected crosspoints, visibility from the render's depth), so the images are rendered
    with Workbench (`--engine`): the depth, hence the ground truth, is the same geometry as Cycles'.
 2. Per template level L of `--levels` (12, 4, 2 mm), its own reconstruction folder: detections from the
-   ground truth with `--noise` px Gaussian noise, triangulation of every frame onto level L, then the
-   Newton VBD post-processing with the hierarchy down to L (12; 12 -> 4; 12 -> 4 -> 2) on the first
-   `--refine-frames` frames of the capture (refine costs minutes per frame at the fine levels on this
-   CPU), starting from the capture's dressed garment; then `reconstruction evaluate`.
+   ground truth with `--noise` px Gaussian noise, triangulation onto level L, then the Newton VBD
+   post-processing with the hierarchy down to L (12; 12 -> 4; 12 -> 4 -> 2), starting from the
+   capture's dressed garment, then `reconstruction evaluate`; all on the first `--refine-frames`
+   frames of the capture for that level (refine costs minutes per frame at the fine levels on this
+   CPU; by default every frame).
 3. Prints per level the seconds per frame of each stage and the accuracy beside the targets (captured
    points median < 1 mm, filled regions < 5 mm, zero intersecting pairs after post-processing), with the
    capture alone (triangulated points snapped onto the start, no physics) as the baseline for the
@@ -42,6 +43,7 @@ from assets.fileio import load_json, save_json  # noqa: E402
 from assets.garments import load_template  # noqa: E402
 from factory.dataset import RenderSettings, capture  # noqa: E402
 from reconstruction import pipeline  # noqa: E402
+from reconstruction.groundtruth import GroundTruthCapture  # noqa: E402
 from reconstruction.refine import RefineConfig, RefinedSequence  # noqa: E402
 
 HIERARCHY = (12, 4, 2)  # the reference's levels coarser than full resolution, mm
@@ -89,9 +91,9 @@ def reconstruct(folder: Path, captured: Path, template: Path, mm: int, noise: fl
         save_json(times_path, seconds)
         return result
 
-    frames = stage("detect", lambda: pipeline.detect(folder, captured, progress=progress))
+    window = GroundTruthCapture(captured).frames[:refine_frames]  # only these are detected and triangulated
+    frames = stage("detect", lambda: pipeline.detect(folder, captured, frames=window, progress=progress))
     stage("triangulate", lambda: pipeline.triangulate(folder, loaded, progress=progress))
-    window = frames[:refine_frames]
     config = RefineConfig(levels_mm=hierarchy_to(mm))
     stage("refine", lambda: pipeline.refine(folder, loaded, config, progress=progress, frames=window))
     evaluation = pipeline.evaluate(folder, captured)
