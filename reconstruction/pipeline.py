@@ -239,16 +239,14 @@ def export(out: str | Path, template: Template | None = None, texture: str | Pat
            fps: float = DEFAULT_FPS, progress: bool = True) -> Path:
     """``export/`` from ``sequence.npz``: the sequence npz, OBJ (with the template's UVs and `texture`)
     and PLY per frame, a PC2 point cache and the review .blend with the cameras."""
-    from reconstruction.export import GarmentSequence, export_sequence
+    from reconstruction.export import export_sequence, from_refined
     from reconstruction.refine import RefinedSequence
 
     out = Path(out)
     if not (out / "sequence.npz").is_file():
         raise ValueError(f"{out}: no sequence.npz (run the refine stage first)")
     refined = RefinedSequence.load(out / "sequence.npz")
-    level = (template or load_template(settings_of(out).template)).level(refined.level_mm)
-    sequence = GarmentSequence(refined.positions, refined.faces, level.uv[level.faces], refined.captured,
-                               refined.frames, fps, refined.source, refined.level_mm)
+    sequence = from_refined(refined, template or load_template(settings_of(out).template), fps)
     export_sequence(out / "export", sequence, texture=texture, cameras=stage_cameras(out), progress=progress)
     return out / "export"
 
