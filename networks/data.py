@@ -6,7 +6,8 @@ Items are dicts of torch tensors without a batch dimension, so the default colla
   localizer:   {"image": uint8 (3, H, W), "cells": float32 (H/8, W/8, 11)}
   recognizer:  {"crop": uint8 (3, 96, 96), "marker_id": int64 ()}
   crosspoints: {"crop": uint8 (3, 112, 112), "reference": uint8 (3, 112, 112),
-                "xy": float32 (25, 25, 2) crop pixels, NaN off the fabric, "visible": bool (25, 25)}
+                "xy": float32 (25, 25, 2) crop pixels, NaN off the fabric, "visible": bool (25, 25)
+                seen in the image and inside the crop (every visible xy is in [0, 112])}
 
 `cells`, crops, `xy` and `visible` are exactly `assets.pattern.observation`'s targets; `reference` is the
 marker's canonical crop (`reference_textures` of its codebook row).  Every random choice (which

@@ -43,6 +43,7 @@ from assets.pattern import (
     reference_textures,
     unwarp,
 )
+from assets.pattern.observation import is_convex_layout
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.decode import decode_localizer
 from networks.detections import Detections
@@ -51,7 +52,6 @@ from networks.homography import (
     crop_to_image,
     estimate_from_neighbours,
     inside_image,
-    is_convex_layout,
     layout_residual,
 )
 from networks.models import CELL, normalize

@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from assets.fileio import load_npz, save_json
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
-from assets.pattern.observation import ImageGroundTruth
+from assets.pattern.observation import ImageGroundTruth, crosspoint_markers
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
 from networks.data import _manifest as read_manifest
@@ -85,15 +85,15 @@ def split_entries(root: str | Path, split: str) -> list[dict]:
     return chosen
 
 
-def _crop_points(gt: ImageGroundTruth, marker_id: np.ndarray, source: Path) -> tuple[np.ndarray, np.ndarray]:
+def _crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: np.ndarray, source: Path
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Five image points and image crosspoints of each crosspoint crop, picked as
-    `assets.pattern.observation.crosspoint_crops` picks them."""
-    with np.errstate(invalid="ignore"):
-        usable = np.isfinite(gt.points_px).all(axis=(1, 2)) & (gt.points_depth > 0).all(axis=1)
-    pick = np.flatnonzero((gt.status > 0) & usable)
+    `assets.pattern.observation.crosspoint_crops` picks them (`crosspoint_markers`)."""
+    pick, _ = crosspoint_markers(gt, spec)
     if not np.array_equal(gt.marker_id[pick], marker_id):
         raise ValueError(f"{source}: its markers do not match the crosspoint crops of the sample "
-                         f"({len(pick)} usable markers, {len(marker_id)} crops)")
+                         f"({len(pick)} usable markers, {len(marker_id)} crops); build samples/ again with "
+                         "assets.pattern.observation.training_samples")
     return gt.points_px[pick], gt.crosspoints_px[pick]
 
 
@@ -131,7 +131,7 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                       "xy": samples["crosspoint_xy"].astype(np.float32),
                       "visible": samples["crosspoint_visible"].astype(bool)}
             if gt is not None:
-                arrays["points_px"], arrays["gt_xy_image"] = _crop_points(gt, samples["crosspoint_ids"], gt_path)
+                arrays["points_px"], arrays["gt_xy_image"] = _crop_points(gt, spec, samples["crosspoint_ids"], gt_path)
         for start in range(0, len(arrays["crop"]), batch_size):
             part = {k: v[start:start + batch_size] for k, v in arrays.items()}
             batch = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in part.items()}

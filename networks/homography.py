@@ -65,18 +65,6 @@ def layout_residual(spec: PatternSpec, points_px: np.ndarray) -> np.ndarray:
     return out
 
 
-def is_convex_layout(points_px: np.ndarray) -> np.ndarray:
-    """(N,) bool: the corners TL, TR, BR, BL form a strictly convex quadrilateral turning as the
-    printed marker does (seen from the front; a mirrored or folded-over quad is False)."""
-    points_px = np.asarray(points_px, dtype=np.float64)
-    ring = points_px[:, [1, 2, 4, 3]]  # TL, TR, BR, BL
-    edge = np.roll(ring, -1, axis=1) - ring
-    following = np.roll(edge, -1, axis=1)
-    cross = edge[..., 0] * following[..., 1] - edge[..., 1] * following[..., 0]
-    with np.errstate(invalid="ignore"):
-        return (cross > 0).all(axis=1)
-
-
 def inside_image(points_px: np.ndarray, width: int, height: int) -> np.ndarray:
     """(...,) bool: points (..., 2) lie in the image [0, width] x [0, height] (False for NaN)."""
     points_px = np.asarray(points_px, dtype=np.float64)

@@ -37,8 +37,22 @@ import numpy as np
 from assets.arrays import check_fields
 from assets.fileio import load_npz, save_npz
 from assets.geometry import apply_homography
-from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, CropSpec, crop_homography, unwarp
+from assets.pattern.crops import (
+    CROSSPOINT_CROP,
+    RECOGNIZER_CROP,
+    CropSpec,
+    crop_homography,
+    crop_localization_px,
+    unwarp,
+)
 from assets.pattern.spec import PatternSpec
+
+#: a marker gets a crosspoint crop only when the homography fitted to its five localization points
+#: puts each of them within this many cells (a quarter of the 24 per marker edge) of its place in the
+#: crop.  Fully visible markers of the rendered shirt (curved cloth) fit within 4.7 cells, 3.1 at the
+#: 99th percentile, synthetic ones within 7.9 (6.8 at the 99.9th); partial markers folded over or seen
+#: edge-on miss by tens to thousands of cells.
+MAX_CROP_FIT_CELLS = 6.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,28 +150,80 @@ def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec)
 def crosspoint_crops(
     image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Crosspoint localizer samples for every marker with status > 0 whose five localization points
-    are on the fabric and in front of the camera (the crop follows their projections even where
-    they are occluded).
+    """Crosspoint localizer samples for the markers of `crosspoint_markers`.
 
     Returns crops (N, 112, 112, C) of the image's dtype (`CROSSPOINT_CROP`), marker IDs (N,) int32,
     xy (N, K, K, 2) float32 crosspoint positions in crop pixels (the crop's homography applied to
-    the projected crosspoints; NaN off the fabric) and visible (N, K, K) bool."""
+    the projected crosspoints; NaN off the fabric) and visible (N, K, K) bool: the crosspoint is
+    visible in the image and its xy lies in the crop, [0, 112] x [0, 112] (a visible crosspoint of
+    a curved marker can fall outside; the network cannot see it there)."""
     image = _image(image, gt)
     if gt.crosspoints_px.shape[1] != spec.crosspoints_per_side:
         raise ValueError(f"spec has {spec.crosspoints_per_side} crosspoints per side, the ground truth "
                          f"{gt.crosspoints_px.shape[1]}")
+    pick, homography = crosspoint_markers(gt, spec)
+    crops = _unwarp(image, spec, CROSSPOINT_CROP, gt.points_px[pick])
+    k = spec.crosspoints_per_side
+    projected = gt.crosspoints_px[pick].astype(np.float64).reshape(len(pick), k * k, 2)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        xy = apply_homography(homography, projected).reshape(-1, k, k, 2)
+        inside = ((xy >= 0) & (xy <= CROSSPOINT_CROP.size_px)).all(axis=-1)
+    return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick] & inside
+
+
+def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: float = MAX_CROP_FIT_CELLS
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The markers that get a crosspoint crop: (indices (N,) int64 into `gt`, their crop homographies
+    (N, 3, 3) float64 image -> `CROSSPOINT_CROP` pixels, `crop_homography` of their five points).
+
+    A marker qualifies when its status is > 0, its five localization points are on the fabric and in
+    front of the camera (the crop follows their projections even where they are occluded) and their
+    homography is sane (`sane_crop_homography`): a partial marker folded over or seen edge-on gives
+    a degenerate fit that maps its visible crosspoints anywhere, up to millions of pixels away."""
     with np.errstate(invalid="ignore"):
         usable = np.isfinite(gt.points_px).all(axis=(1, 2)) & (gt.points_depth > 0).all(axis=1)
     pick = np.flatnonzero((gt.status > 0) & usable)
-    crops = _unwarp(image, spec, CROSSPOINT_CROP, gt.points_px[pick])
-    k = spec.crosspoints_per_side
-    if len(pick):
-        homography = crop_homography(spec, CROSSPOINT_CROP, gt.points_px[pick].astype(np.float64))
-        xy = apply_homography(homography, gt.crosspoints_px[pick].reshape(len(pick), -1, 2)).reshape(-1, k, k, 2)
-    else:
-        xy = np.zeros((0, k, k, 2))
-    return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick]
+    if len(pick) == 0:
+        return pick, np.zeros((0, 3, 3))
+    points = gt.points_px[pick].astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        homography = crop_homography(spec, CROSSPOINT_CROP, points)
+    sane = sane_crop_homography(spec, CROSSPOINT_CROP, points, homography, max_fit_cells)
+    return pick[sane], homography[sane]
+
+
+def sane_crop_homography(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, homography: np.ndarray,
+                         max_fit_cells: float = MAX_CROP_FIT_CELLS) -> np.ndarray:
+    """(N,) bool: crop homographies (N, 3, 3) image -> `crop` pixels, fitted to five points (N, 5, 2)
+    image pixels, that describe a marker: its corners are a convex quad turning as printed
+    (`is_convex_layout`: not folded over or mirrored), each of the five points maps within
+    `max_fit_cells` cells of its canonical crop position, and the whole crop square shows a bounded
+    part of the image (the homography's vanishing line misses it: no crop wrapped through infinity)."""
+    points_px = np.asarray(points_px, dtype=np.float64)
+    homography = np.asarray(homography, dtype=np.float64)
+    size = crop.size_px
+    square = np.array([[0.0, 0.0, 1.0], [size, 0.0, 1.0], [0.0, size, 1.0], [size, size, 1.0]])
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        fit = np.linalg.norm(apply_homography(homography, points_px) - crop_localization_px(spec, crop), axis=-1)
+        fitted = fit.max(axis=-1) <= max_fit_cells * crop.px_per_cell(spec)
+        # the third row of the inverse up to scale (the adjugate's, so a singular fit is no error):
+        # the image depth of the crop's corners, of one sign where the crop is bounded
+        depth = square @ np.cross(homography[:, :, 0], homography[:, :, 1])[..., None]
+        bounded = (depth > 0).all(axis=(1, 2)) | (depth < 0).all(axis=(1, 2))
+    return is_convex_layout(points_px) & fitted & bounded
+
+
+def is_convex_layout(points_px: np.ndarray) -> np.ndarray:
+    """(N,) bool: the corners TL, TR, BR, BL of five points (N, 5, 2) form a strictly convex
+    quadrilateral turning as the printed marker does (seen from the front; a mirrored or folded-over
+    quad is False)."""
+    points_px = np.asarray(points_px, dtype=np.float64)
+    ring = points_px[:, [1, 2, 4, 3]]  # TL, TR, BR, BL
+    edge = np.roll(ring, -1, axis=1) - ring
+    following = np.roll(edge, -1, axis=1)
+    cross = edge[..., 0] * following[..., 1] - edge[..., 1] * following[..., 0]
+    with np.errstate(invalid="ignore"):
+        return (cross > 0).all(axis=1)
 
 
 def _image(image: np.ndarray, gt: ImageGroundTruth) -> np.ndarray:

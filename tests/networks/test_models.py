@@ -150,6 +150,21 @@ def test_crosspoint_loss_by_hand():
         crosspoint_loss(output, xy[:, :24], visible)
 
 
+def test_crosspoint_loss_ignores_visible_crosspoints_without_a_target():
+    k = 25
+    output = torch.zeros(1, 3, k, k, requires_grad=True)
+    xy = torch.full((1, k, k, 2), 10.0)
+    xy[0, 0, 0, 1] = float("nan")  # one coordinate of a visible crosspoint: only the other counts
+    xy[0, 1, 1] = float("nan")
+    visible = torch.zeros(1, k, k, dtype=torch.bool)
+    visible[0, :2, :2] = True
+    loss, parts = crosspoint_loss(output, xy, visible)
+    # 4 visible crosspoints, 8 coordinates, 3 of them NaN: the mean over the 5 others, each (0 - 10)^2
+    assert parts["xy"].item() == pytest.approx(100.0)
+    loss.backward()
+    assert torch.isfinite(output.grad).all() and torch.count_nonzero(output.grad[0, 1:, 1, 1]) == 0
+
+
 def _train(model, inputs, loss_fn, steps, lr=1e-4):
     """Adam steps on one fixed batch (batch-norm in training mode); returns the loss before and after."""
     torch.manual_seed(0)

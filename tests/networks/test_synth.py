@@ -7,6 +7,7 @@ import pytest
 from assets.pattern import (CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, generate_codebook,
                             reference_textures, unwarp)
 from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from networks.data import synth_crops
 from networks.synth import PatternSynthesizer, SynthConfig
 
 #: plain appearance: the pattern's own colours on a plain background, nothing in front, no blur, seen square
@@ -174,6 +175,18 @@ def test_occluded_points_are_not_visible(spec, codebook):
         assert np.median(np.abs(_gray_at(b.image, kept) - _gray_at(a.image, kept))) == 0
         assert np.all(b.gt.status[ib][hidden.any(axis=(1, 2))] < 2)
     assert hidden_total > 0
+
+
+def test_visible_crosspoint_targets_of_deformed_markers_lie_in_their_crops(spec, codebook):
+    # samples whose strongly deformed markers bend visible crosspoints out of the crop (before, they
+    # stayed visible there, up to 16 px outside)
+    synth = PatternSynthesizer(spec, SynthConfig(image_size=(128, 128), centred=True, deformation=0.8), codebook)
+    for index in (7, 10, 29):
+        image, gt = synth.sample(index)
+        _, ids, xy, visible = synth_crops("crosspoints", image, gt, spec)
+        assert len(ids) > 0 and visible.mean() > 0.5
+        assert np.isfinite(xy[visible]).all()
+        assert ((xy[visible] >= 0) & (xy[visible] <= CROSSPOINT_CROP.size_px)).all(), index
 
 
 def test_invalid_configs_are_refused(spec):
