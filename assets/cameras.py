@@ -34,7 +34,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from assets.fileio import load_json, save_json
+from assets.fileio import check_json_object, load_json, save_json
 
 #: Blender's local camera axes expressed in OpenCV's: x stays, y and z flip.
 _CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
@@ -242,11 +242,7 @@ class Camera:
     @classmethod
     def from_dict(cls, data: Any, source: str = "camera") -> "Camera":
         """Read `to_dict`'s output; dist and name may be left out.  Errors name `source` and the field."""
-        if not isinstance(data, dict):
-            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
-        unknown = sorted(set(data) - {"name", "width", "height", "K", "dist", "R", "t"})
-        if unknown:
-            raise ValueError(f"{source}: unknown field(s) {', '.join(unknown)}")
+        check_json_object(data, ("name", "width", "height", "K", "dist", "R", "t"), source)
         name = data.get("name", "")
         if not isinstance(name, str):
             raise ValueError(f"{source}: field 'name' must be a string, got {name!r}")

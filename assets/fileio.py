@@ -15,7 +15,7 @@ import os
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import Iterator, Mapping
+from typing import Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -94,3 +94,14 @@ def load_json(path: str | os.PathLike) -> object:
         raise ValueError(f"{path}: cannot read ({exc})") from exc
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
+
+
+def check_json_object(data: object, fields: Iterable[str], source: str) -> dict:
+    """`data` as read from JSON for a record with these `fields`: a ValueError naming `source` unless it
+    is an object whose keys are all among them (missing ones are the reader's business)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ValueError(f"{source}: unknown field(s) {', '.join(map(str, unknown))}")
+    return data

@@ -13,7 +13,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from assets.fileio import load_json, save_json
+from assets.fileio import check_json_object, load_json, save_json
 
 #: The three networks, by the name used in checkpoints, datasets and the CLIs.
 TASKS = ("localizer", "recognizer", "crosspoints")
@@ -117,13 +117,9 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: object, source: str = "TrainConfig") -> "TrainConfig":
         """Build from a dict (as `to_dict` writes); unknown fields and bad values name `source`."""
-        if not isinstance(data, dict):
-            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
+        check_json_object(data, (f.name for f in dataclasses.fields(cls)), source)
         if "task" not in data:
             raise ValueError(f"{source}: missing field 'task' (one of {', '.join(TASKS)})")
-        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise ValueError(f"{source}: unknown field(s) {', '.join(unknown)}")
         try:
             return cls(**data)
         except (TypeError, ValueError) as exc:

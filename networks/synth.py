@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from assets.fileio import check_json_object
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.observation import ImageGroundTruth
@@ -152,11 +153,7 @@ class SynthConfig:
     @classmethod
     def from_dict(cls, data: object, source: str = "SynthConfig") -> "SynthConfig":
         """From a dict as `to_dict` writes (missing fields take the defaults); errors name `source`."""
-        if not isinstance(data, dict):
-            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
-        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise ValueError(f"{source}: unknown SynthConfig field(s) {', '.join(unknown)}")
+        check_json_object(data, (f.name for f in dataclasses.fields(cls)), source)
         try:
             return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
         except (TypeError, ValueError) as exc:

@@ -52,7 +52,7 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from assets.cli import run_cli
-from assets.fileio import load_json
+from assets.fileio import check_json_object, load_json
 from assets.garments.sewing import (
     Curve,
     Edge,
@@ -140,11 +140,7 @@ class BodyMeasurements:
     @classmethod
     def from_dict(cls, data: object, source: str = "BodyMeasurements") -> "BodyMeasurements":
         """Measurements from a JSON object of field -> metres; missing fields keep their defaults."""
-        if not isinstance(data, dict):
-            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
-        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise ValueError(f"{source}: unknown field(s) {', '.join(unknown)}")
+        check_json_object(data, (f.name for f in dataclasses.fields(cls)), source)
         wrong = [name for name, value in data.items() if isinstance(value, bool) or not isinstance(value, (int, float))]
         if wrong:
             raise ValueError(f"{source}: field(s) {', '.join(wrong)} must be numbers")

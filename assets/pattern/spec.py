@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from assets.fileio import load_json, save_json
+from assets.fileio import check_json_object, load_json, save_json
 
 RGB = tuple[int, int, int]
 
@@ -157,12 +157,7 @@ class PatternSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, object], source: str = "PatternSpec") -> "PatternSpec":
-        if not isinstance(data, dict):
-            raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - set(fields))
-        if unknown:
-            raise ValueError(f"{source}: unknown field(s) {', '.join(unknown)}")
+        check_json_object(data, (f.name for f in dataclasses.fields(cls)), source)
         kwargs = {}
         for name, value in data.items():
             default = getattr(cls, name)
