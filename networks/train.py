@@ -23,6 +23,11 @@ Batches follow a fixed order (`StepOrder`): step s takes positions s*B .. (s+1)*
 epochs, each an order of the training set seeded by (seed, epoch), and every item is itself seeded by
 (seed, epoch, index) (`networks.data`), so a resumed run sees exactly the batches the uninterrupted
 run would have seen.  Mixed precision (bf16 autocast) on CUDA.
+
+Several GPUs (or CPU processes): ``torchrun --nproc-per-node N -m networks.train ...`` trains with
+DistributedDataParallel (`networks.distributed`): `batch_size` stays the global batch, each rank
+takes an equal share of every step's batch, BatchNorm uses the global batch's statistics, and only
+rank 0 writes the run folder, logs and shows the progress bar.
 """
 
 from __future__ import annotations
@@ -37,13 +42,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import BatchSampler, DataLoader, Dataset, Subset
+from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
 from assets.pattern import PatternSpec
 from networks.augment import Augment
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
+from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
 from networks.data import MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids
 from networks.evaluate import evaluate_model, resolve_device
 from networks.tasks import autocast, build_model, forward
@@ -241,7 +247,7 @@ def _check_resume(saved: dict, config: TrainConfig, path: Path) -> None:
 def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | torch.device | None = None,
           resume: bool = False, spec: PatternSpec | None = None, until_step: int | None = None,
           time_limit_s: float | None = None, progress: bool = True, shards: str | Path | None = None,
-          garment: str | Path | None = None) -> dict:
+          garment: str | Path | None = None, ranks: Ranks | None = None) -> dict:
     """Train `config.task` on `data` (a factory dataset folder or "synth") into the run folder `out`.
 
     shards: a shard folder of `config.task` (`networks.shards`) to draw the synthesized training
@@ -253,9 +259,27 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     re-raises.  Returns {"step", "finished", "best_val_loss", "last", "best", "val"} (the last
     validation metrics, or None).  With config.num_workers > 0 the data-loading workers are spawned
     interpreters (`data_loader`): a script that calls `train` needs the usual
-    ``if __name__ == "__main__":`` guard."""
-    out = Path(out)
-    device = resolve_device(device)
+    ``if __name__ == "__main__":`` guard.
+
+    ranks: this process's place among several training processes (default: from torchrun's
+    environment, `networks.distributed.Ranks.from_environment`; one process without it): the
+    process group is joined here and left at the end, rank r trains on its share of every global
+    batch (on cuda:LOCAL_RANK with CUDA), and only rank 0 writes the run folder and shows progress."""
+    ranks = Ranks.from_environment() if ranks is None else ranks
+    device = rank_device(ranks, resolve_device(device))
+    ranks.share(config.batch_size)  # a batch the ranks cannot share equally is refused before any work
+    joined = join(ranks, device)
+    try:
+        return _train(config, data, Path(out), device, resume, spec, until_step, time_limit_s,
+                      progress and ranks.main, shards, garment, ranks)
+    finally:
+        if joined:
+            leave()
+
+
+def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.device, resume: bool,
+           spec: PatternSpec | None, until_step: int | None, time_limit_s: float | None, progress: bool,
+           shards: str | Path | None, garment: str | Path | None, ranks: Ranks) -> dict:
     last_path, best_path, log_path = out / "last.pt", out / "best.pt", out / "log.jsonl"
     saved = None
     if last_path.exists():
@@ -300,8 +324,9 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
         if device.type == "cuda" and saved["rng"]["cuda"]:
             torch.cuda.set_rng_state_all([s.cpu() for s in saved["rng"]["cuda"]])
         log.info("resuming %s at step %d of %d", last_path, step, config.steps)
-    out.mkdir(parents=True, exist_ok=True)
-    config.save(out / "config.json")
+    if ranks.main:
+        out.mkdir(parents=True, exist_ok=True)
+        config.save(out / "config.json")
     if device.type == "cuda":
         torch.backends.cudnn.benchmark = True
 
@@ -309,7 +334,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     sequence = StepOrder(train_set, config.steps * config.batch_size, config.seed,
                          shuffle=isinstance(train_set, (RenderedDataset, ShardDataset)),
                          chunk=32 if isinstance(train_set, RenderedDataset) and config.task != "localizer" else 1)
-    batches = BatchSampler(range(step * config.batch_size, stop * config.batch_size), config.batch_size, False)
+    batches = RankBatches(step, stop, config.batch_size, ranks)
     # own generators: creating a loader draws a seed, which must not disturb the global random state
     loader = data_loader(sequence, config.num_workers, batch_sampler=batches, pin_memory=device.type == "cuda",
                          generator=torch.Generator().manual_seed(config.seed + step))
@@ -319,15 +344,21 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
                              generator=torch.Generator().manual_seed(config.seed))
     val_metrics = None
 
+    trained = parallel(model, ranks, device)  # `model` itself for one process
+
     def checkpoint(path: Path, with_optimizer: bool = True) -> None:
+        if not ranks.main:
+            return
         save_checkpoint(path, config.task, model, config, spec, optimizer if with_optimizer else None,
                         scheduler if with_optimizer else None, step, val_metrics or {},
                         extra={"best_val_loss": best_val, "data": str(data),
                                "shards": None if shards is None else str(shards),
                                "recognizer_ids": None if class_ids is None else class_ids.tolist()})
 
-    def validate() -> None:
+    def validate() -> None:  # rank 0 alone; the others wait for it at the next step's all-reduce
         nonlocal val_metrics, best_val
+        if not ranks.main:
+            return
         val_metrics = evaluate_model(config.task, model, val_loader, device, spec, config.mixed_precision)
         _append_log(log_path, {"step": step, "val": val_metrics})
         if val_metrics["loss"]["total"] < best_val:
@@ -342,31 +373,36 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
         with worker_environment():
             for batch in loader:
                 with autocast(device, config.mixed_precision):
-                    _, loss, parts = forward(config.task, model, batch, device)
-                if not torch.isfinite(loss):
-                    raise RuntimeError(f"{config.task} loss is {loss.item()} at step {step}; lower --lr")
+                    _, loss, parts = forward(config.task, trained, batch, device)
+                # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
+                reported = mean_over_ranks(torch.stack([loss.detach().float(), *(v.float() for v in parts.values())]),
+                                           ranks).tolist()
+                value = reported[0]
+                if not math.isfinite(value):
+                    raise RuntimeError(f"{config.task} loss is {value} at step {step}; lower --lr")
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
                 scheduler.step()
                 step += 1
-                value = loss.item()
                 running = value if running is None else 0.98 * running + 0.02 * value
                 bar.update(1)
                 bar.set_postfix(loss=f"{running:.4g}")
-                if step % config.log_every == 0 or step == stop:
-                    _append_log(log_path, {"step": step, "loss": value, **{k: float(v) for k, v in parts.items()},
+                if ranks.main and (step % config.log_every == 0 or step == stop):
+                    _append_log(log_path, {"step": step, "loss": value, **dict(zip(parts, reported[1:])),
                                            "lr": scheduler.get_last_lr()[0], "elapsed_s": time.monotonic() - started})
                 if step % config.val_every == 0 or step == config.steps:
                     validate()
                 if step % config.checkpoint_every == 0:
                     checkpoint(last_path)
-                if time_limit_s is not None and time.monotonic() - started > time_limit_s:
+                if time_limit_s is not None and any_rank(ranks.main and time.monotonic() - started > time_limit_s,
+                                                        ranks, device):
                     log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
                     break
     except KeyboardInterrupt:
         checkpoint(last_path)
-        log.warning("interrupted at step %d: %s written; continue with --resume", step, last_path)
+        if ranks.main:
+            log.warning("interrupted at step %d: %s written; continue with --resume", step, last_path)
         raise
     finally:
         bar.close()
@@ -431,10 +467,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def action() -> None:
+        ranks = Ranks.from_environment()
+        if not ranks.main:  # rank 0 speaks for all
+            logging.getLogger().setLevel(logging.WARNING)
         config = _config_from_args(args)
         spec = PatternSpec.load(args.pattern) if args.pattern is not None else None
         result = train(config, args.data, args.out, args.device, args.resume, spec, args.until_step,
-                       args.time_limit, progress=not args.quiet, shards=args.shards, garment=args.garment)
+                       args.time_limit, progress=not args.quiet, shards=args.shards, garment=args.garment,
+                       ranks=ranks)
+        if not ranks.main:
+            return
         state = "finished" if result["finished"] else "stopped (continue with --resume)"
         best = result["best_val_loss"]
         print(f"{config.task}: {state} at step {result['step']} of {config.steps}; "
