@@ -16,9 +16,9 @@ the CPU (torch's SyncBatchNorm refuses CPU tensors: "SyncBatchNorm expected inpu
 torch 2.11 and 2.13); both normalise with the global batch's statistics and keep the state-dict keys.
 Losses that are means over the batch (cross-entropy, the BCE terms) then give the single-process
 gradients up to floating-point reduction order.  The localizer's point MSE and the crosspoints' xy MSE
-are normalised by the number of valid targets of the batch; under DDP each rank divides by its own
-count and the gradients are averaged, which equals the single-process loss only when the ranks' counts
-are equal (`networks.models` would have to take the global count for an exact match).
+are normalised by the number of valid targets: under DDP by the mean over the ranks of their counts
+(`count_mean` of `networks.models.localizer_loss` / `crosspoint_loss`, passed by `networks.train`), so
+that the ranks' averaged gradients are those of the global batch's MSE.
 """
 
 from __future__ import annotations

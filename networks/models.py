@@ -81,7 +81,7 @@ class MarkerLocalizer(nn.Module):
 
 
 def localizer_loss(output: torch.Tensor, cells: torch.Tensor, presence_weight: float = 10.0,
-                   points_weight: float = 1.0 / NUM_POINTS) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+                   points_weight: float = 1.0 / NUM_POINTS, count_mean=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """presence_weight * BCE(presence) + points_weight * sum over the 5 points of MSE.
 
     output: (B, 11, h, w) `MarkerLocalizer` output.  cells: (B, h, w, 11) float32 targets
@@ -90,6 +90,8 @@ def localizer_loss(output: torch.Tensor, cells: torch.Tensor, presence_weight: f
     BCE is the mean over all cells.  The MSE of a point is the mean over both coordinates of the
     cells with a marker where that point is not NaN (0 where there is none).
     Returns (loss, {"presence": BCE, "points": sum of the point MSEs}), both unweighted parts detached.
+    count_mean: under DDP, the mean over the ranks of a count tensor (`networks.distributed`): the MSEs
+    are then divided by it, so the ranks' averaged gradients are those of the global batch's MSE.
     """
     b, c, h, w = output.shape
     if c != 1 + 2 * NUM_POINTS or tuple(cells.shape) != (b, h, w, c):
@@ -102,6 +104,8 @@ def localizer_loss(output: torch.Tensor, cells: torch.Tensor, presence_weight: f
     valid = (cells[..., 0] > 0.5)[..., None, None] & torch.isfinite(target)
     squared = torch.where(valid, points - torch.where(valid, target, 0.0), 0.0) ** 2
     count = valid.sum(dim=(0, 1, 2, 4))  # (5,) coordinates per point
+    if count_mean is not None:
+        count = count_mean(count.to(squared.dtype))
     point_mse = squared.sum(dim=(0, 1, 2, 4)) / count.clamp(min=1)
     points_sum = point_mse.sum()
     loss = presence_weight * presence + points_weight * points_sum
@@ -215,14 +219,15 @@ class CrosspointLocalizer(nn.Module):
         return torch.cat([out[:, :1], out[:, 1:] + self.canonical_px], dim=1)
 
 
-def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor, visibility_weight: float = 100.0
-                    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor, visibility_weight: float = 100.0,
+                    count_mean=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """visibility_weight * BCE(visibility) + MSE of (x, y) on visible crosspoints.
 
     output: (B, 3, K, K) `CrosspointLocalizer` output.  xy: (B, K, K, 2) float32 crop pixels, NaN off
     the fabric; visible: (B, K, K) bool.  BCE is the mean over all crosspoints; the MSE the mean over
     both coordinates of the visible crosspoints with finite xy (0 where there is none).
-    Returns (loss, {"visibility": BCE, "xy": MSE}), the unweighted parts detached.
+    Returns (loss, {"visibility": BCE, "xy": MSE}), the unweighted parts detached.  count_mean: as
+    for `localizer_loss`.
     """
     b, c, k, k2 = output.shape
     if c != 3 or k != k2 or tuple(xy.shape) != (b, k, k, 2) or tuple(visible.shape) != (b, k, k):
@@ -234,6 +239,7 @@ def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tenso
     target = xy.to(pred.dtype)
     valid = visible[..., None] & torch.isfinite(target)
     squared = torch.where(valid, pred - torch.where(valid, target, 0.0), 0.0) ** 2
-    mse = squared.sum() / valid.sum().clamp(min=1)
+    count = valid.sum() if count_mean is None else count_mean(valid.sum().to(squared.dtype))
+    mse = squared.sum() / count.clamp(min=1)
     loss = visibility_weight * visibility + mse
     return loss, {"visibility": visibility.detach(), "xy": mse.detach()}

@@ -58,9 +58,10 @@ def batch_length(batch: dict[str, torch.Tensor]) -> int:
     return len(next(iter(batch.values())))
 
 
-def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device
+def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device, count_mean=None
             ) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
-    """Run `model` on a batch: (raw output, loss scalar, {loss part: detached scalar}).
+    """Run `model` on a batch: (raw output, loss scalar, {loss part: detached scalar}); `count_mean`:
+    under DDP, the mean over the ranks of the losses' target counts (see `localizer_loss`).
 
     Images travel to the device as uint8 and are normalised there; the loss is computed in float32
     on the output (which may be bf16 under autocast)."""
@@ -70,12 +71,12 @@ def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device:
     get = {k: batch[k].to(device, non_blocking=True) for k in BATCH_KEYS[task]}
     if task == "localizer":
         output = model(normalize(get["image"]))
-        loss, parts = localizer_loss(output.float(), get["cells"])
+        loss, parts = localizer_loss(output.float(), get["cells"], count_mean=count_mean)
     elif task == "recognizer":
         output = model(normalize(get["crop"]))
         loss = recognizer_loss(output.float(), get["marker_id"])
         parts = {"cross_entropy": loss.detach()}
     else:
         output = model(normalize(get["crop"]), normalize(get["reference"]))
-        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"])
+        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"], count_mean=count_mean)
     return output, loss, parts

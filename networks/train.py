@@ -365,6 +365,9 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
             best_val = val_metrics["loss"]["total"]
             checkpoint(best_path, with_optimizer=False)
 
+    # under DDP the MSEs divide by the global batch's target count, so the ranks' averaged gradients
+    # are the single-process ones even when the ranks' counts differ
+    count_mean = (lambda count: mean_over_ranks(count, ranks)) if ranks.distributed else None
     started = time.monotonic()
     model.train()
     bar = tqdm(total=config.steps, initial=step, desc=f"train {config.task}", unit="step", disable=not progress)
@@ -373,7 +376,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
         with worker_environment():
             for batch in loader:
                 with autocast(device, config.mixed_precision):
-                    _, loss, parts = forward(config.task, trained, batch, device)
+                    _, loss, parts = forward(config.task, trained, batch, device, count_mean)
                 # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
                 reported = mean_over_ranks(torch.stack([loss.detach().float(), *(v.float() for v in parts.values())]),
                                            ranks).tolist()

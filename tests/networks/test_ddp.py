@@ -108,3 +108,38 @@ def test_torchrun_two_processes_match_one(tmp_path):
     saved = torch.load(tmp_path / "two" / "last.pt", weights_only=True)
     assert saved["step"] == 2 and set(saved["model"]) == set(torch.load(tmp_path / "one" / "last.pt",
                                                                           weights_only=True)["model"])
+
+
+@pytest.mark.parametrize("task", ["localizer", "crosspoints"])
+def test_mse_over_the_global_count_makes_rank_gradients_average_to_the_single_process_ones(task):
+    """Two ranks with different numbers of valid targets: each divides its squared error by the mean
+    of the ranks' counts (what `networks.train` passes under DDP), so the mean of their losses and
+    gradients, which DDP takes, is the whole batch's."""
+    from networks.models import crosspoint_loss, localizer_loss
+
+    torch.manual_seed(0)
+    if task == "localizer":
+        output = torch.randn(4, 11, 3, 5, requires_grad=True)
+        cells = torch.randn(4, 3, 5, 11)
+        cells[..., 0] = (torch.rand(4, 3, 5) < torch.tensor([0.9, 0.8, 0.2, 0.1])[:, None, None]).float()
+        cells[0, 0, 0, 3:5] = float("nan")  # a point off the fabric
+        loss_of = lambda out, rows, count_mean=None: localizer_loss(out, cells[rows], count_mean=count_mean)[0]  # noqa: E731
+    else:
+        output = torch.randn(4, 3, 25, 25, requires_grad=True)
+        xy = 112 * torch.rand(4, 25, 25, 2)
+        visible = torch.rand(4, 25, 25) < torch.tensor([0.9, 0.7, 0.3, 0.1])[:, None, None]
+        loss_of = lambda out, rows, count_mean=None: crosspoint_loss(out, xy[rows], visible[rows],  # noqa: E731
+                                                                     count_mean=count_mean)[0]
+    whole = loss_of(output, slice(0, 4))
+    (expected,) = torch.autograd.grad(whole, output)
+    # the ranks' counts, as the losses count them, and their mean (the all-reduce of `mean_over_ranks`)
+    counts = []
+    for rows in (slice(0, 2), slice(2, 4)):
+        loss_of(output[rows], rows, count_mean=lambda c: counts.append(c.clone()) or c)
+    mean = lambda c: (counts[0] + counts[1]) / 2  # noqa: E731
+    assert not torch.equal(counts[0], counts[1])  # the case a per-rank count would get wrong
+    shares = [loss_of(output[rows], rows, count_mean=mean) for rows in (slice(0, 2), slice(2, 4))]
+    averaged = (shares[0] + shares[1]) / 2
+    (gradient,) = torch.autograd.grad(averaged, output)
+    assert averaged.item() == pytest.approx(whole.item(), rel=1e-6)
+    torch.testing.assert_close(gradient, expected, rtol=1e-5, atol=1e-7)
