@@ -183,19 +183,19 @@ def fixed_camera(radius: float, settings: RenderSettings, fov_deg: float, fill: 
 
 # ---- rendering ---------------------------------------------------------------------------------
 
-def run_render_job(job: Path, out: Path, progress: bool = True):
+def run_render_job(job: Path, out: Path, progress: bool = True, threads: int = 0):
     """Render a job in this process when the bpy module imports (returns `factory.render.RenderReport`),
-    else with a Blender executable (returns None)."""
+    else with a Blender executable (returns None); `threads` render threads, 0 for every core."""
     if importlib.util.find_spec("bpy") is None:
         blender = shutil.which("blender")
         if blender is None:
             raise RuntimeError("rendering needs the bpy module (pip install bpy) or a Blender executable on PATH")
         subprocess.run([blender, "-b", "--factory-startup", "-P", str(PROJECT / "factory" / "render.py"), "--",
-                        "--job", str(job), "--out", str(out)], check=True)
+                        "--job", str(job), "--out", str(out), "--threads", str(threads)], check=True)
         return
     from factory.render import render_job
 
-    return render_job(job, out, progress=progress)
+    return render_job(job, out, progress=progress, threads=threads)
 
 
 def write_scene(path: Path, positions: np.ndarray, faces: np.ndarray, uv: np.ndarray, frames: np.ndarray,
@@ -433,8 +433,8 @@ def _crash_once() -> None:
     os._exit(70)
 
 
-def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: bool = False) -> dict:
-    """Render and annotate the shard's unfinished images.  Every file of an image is written
+def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: bool = False, threads: int = 0) -> dict:
+    """Render (with `threads` render threads, 0 for every core) and annotate the shard's unfinished images.  Every file of an image is written
     atomically; the images' records (``meta/<name>.json``, what the manifest is made of) are written
     last, only once every file of every image of the shard is there, so an interrupted shard leaves
     no record and a repeated one rewrites the same bytes.  Returns the timing of the work done:
@@ -447,7 +447,7 @@ def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: b
     job = out / "jobs" / f"{shard.name}.json"
     save_json(job, _job(config.render, Path("..") / "scenes" / f"{shard.motion}.npz", Path("..") / "texture.png",
                         [shard.images[k] for k in todo]))
-    report = run_render_job(job, out / "images", progress)
+    report = run_render_job(job, out / "images", progress, threads)
     if report is not None:
         timing["setup_s"] = report.setup_seconds
         timing["render_s"] = report.seconds - report.setup_seconds

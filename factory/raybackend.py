@@ -11,6 +11,7 @@ dataset folder, so on a cluster it must be shared storage at the same path on ev
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import uuid
@@ -30,14 +31,15 @@ def _import_ray():
     return ray
 
 
-def _shard_attempt(config: DatasetConfig, out: str, shard: Shard) -> dict:
-    """One attempt at a shard: `make_shard`'s timing plus ``retried``, the attempts before this one
-    that never finished (each attempt leaves a mark in ``jobs/<shard>.attempts/`` until one succeeds)."""
+def _shard_attempt(config: DatasetConfig, out: str, shard: Shard, threads: int = 0) -> dict:
+    """One attempt at a shard, rendering with `threads` threads: `make_shard`'s timing plus ``retried``,
+    the attempts before this one that never finished (each attempt leaves a mark in
+    ``jobs/<shard>.attempts/`` until one succeeds)."""
     attempts = Path(out) / "jobs" / f"{shard.name}.attempts"
     attempts.mkdir(parents=True, exist_ok=True)
     earlier = sum(1 for _ in attempts.iterdir())
     (attempts / f"{os.getpid()}-{uuid.uuid4().hex}").touch()
-    timing = make_shard(config, out, shard)
+    timing = make_shard(config, out, shard, threads=threads)
     shutil.rmtree(attempts, ignore_errors=True)
     return {**timing, "retried": earlier}
 
@@ -92,5 +94,7 @@ class RayBackend:
         cycles_on_gpu = (config.render.engine == "CYCLES" and config.render.device != "CPU"
                          and self.ray.cluster_resources().get("GPU", 0) >= 1)
         task = self._task(_shard_attempt, num_gpus=1 if cycles_on_gpu else 0)
-        results = self._gather({s.name: task.remote(config, str(out), s) for s in shards}, bar)
+        # Cycles on the CPU renders on every core: a task keeps to the CPUs it declared
+        threads = 0 if cycles_on_gpu else max(1, math.ceil(self.task_cpus))
+        results = self._gather({s.name: task.remote(config, str(out), s, threads) for s in shards}, bar)
         return [results[s.name] for s in shards]

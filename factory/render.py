@@ -242,7 +242,7 @@ def _principled(bpy, name: str):
 class BlenderScene:
     """The job's Blender scene, built once; `show(image)` sets it up for one image."""
 
-    def __init__(self, job: RenderJob):
+    def __init__(self, job: RenderJob, threads: int = 0):
         bpy = self.bpy = _import_bpy()
         from mathutils import Matrix
 
@@ -250,6 +250,8 @@ class BlenderScene:
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = self.scene = bpy.context.scene
         _set_engine(scene, job)
+        if threads > 0:  # a share of a machine (one Ray task's CPUs); 0: every core
+            scene.render.threads_mode, scene.render.threads = "FIXED", threads
         scene.render.film_transparent = False
         # no date, time or render time in the files' metadata: the same job gives the same bytes
         for name in dir(scene.render):
@@ -398,8 +400,9 @@ class RenderReport:
 
 
 def render_job(job_path: str | os.PathLike, out_dir: str | os.PathLike, progress: bool = True,
-               force: bool = False) -> RenderReport:
-    """Render every image of the job at `job_path` into `out_dir` (see the module docstring).
+               force: bool = False, threads: int = 0) -> RenderReport:
+    """Render every image of the job at `job_path` into `out_dir` (see the module docstring) with
+    `threads` render threads (0: every core).
 
     Images whose outputs all exist are skipped unless `force`.  Resets the Blender session to factory
     settings when anything is to be rendered."""
@@ -415,7 +418,7 @@ def render_job(job_path: str | os.PathLike, out_dir: str | os.PathLike, progress
     if not pending:
         elapsed = time.perf_counter() - start
         return RenderReport([], skipped, elapsed, elapsed)
-    scene = BlenderScene(job)
+    scene = BlenderScene(job, threads)
     environments = {image.name: _resolve_environment(job, image) for image in pending
                     if image.environment.kind == "hdri"}
     setup = time.perf_counter() - start
@@ -435,12 +438,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, help="output folder (created)")
     parser.add_argument("--force", action="store_true", help="render again images whose outputs exist")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--threads", type=int, default=0, help="render threads (default 0: every core)")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_cli(lambda: render_job(args.job, args.out, progress=not args.no_progress, force=args.force),
+    return run_cli(lambda: render_job(args.job, args.out, progress=not args.no_progress, force=args.force,
+                                      threads=args.threads),
                    failures=(RuntimeError,))
 
 

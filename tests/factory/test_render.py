@@ -170,3 +170,21 @@ def test_position_needs_cycles(scene_dir, tmp_path):
 def test_bundled_environments():
     names = bundled_environments()
     assert len(names) == 8 and names == sorted(names) and "forest.exr" in names
+
+
+@pytest.mark.slow
+def test_threads_cap_the_render_and_leave_the_images_unchanged(scene_dir, tmp_path):
+    """A Ray task renders with the CPUs it declared (`threads`); the pixels do not depend on it."""
+    import bpy
+
+    from factory.render import render_job
+
+    job = _job(scene_dir, "CYCLES", position=False)
+    render_job(job, tmp_path / "all", progress=False)
+    assert bpy.context.scene.render.threads_mode == "AUTO"
+    render_job(job, tmp_path / "one", progress=False, threads=1)
+    assert (bpy.context.scene.render.threads_mode, bpy.context.scene.render.threads) == ("FIXED", 1)
+    for name in ("f10", "f20"):
+        pixels = [cv2.imread(str(tmp_path / run / f"{name}.png"), cv2.IMREAD_UNCHANGED) for run in ("all", "one")]
+        np.testing.assert_array_equal(pixels[0], pixels[1])
+        np.testing.assert_array_equal(*(_exr(tmp_path / run / f"{name}_depth.exr")["Z"] for run in ("all", "one")))
