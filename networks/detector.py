@@ -3,8 +3,8 @@
 The three networks are chained through the pattern's one crop mapping (`assets.pattern.crop_homography`
 / `unwarp`, the same that made their training crops)::
 
-    1. Marker Localizer on the whole image (padded to a multiple of 8) -> `decode_localizer` ->
-       five points and a presence probability per marker.
+    1. Marker Localizer on the whole image (resized by `localizer_scale`, padded to a multiple of 8)
+       -> `decode_localizer` -> five points and a presence probability per marker.
     2. Each marker's 96 x 96 crop (`RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
        argmax (over the garment's IDs when `tables` are given) and
        ``confidence = presence probability x softmax probability of that ID``.
@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -62,7 +63,8 @@ class DetectorConfig:
     """Post-processing numbers of the Detector (ours: the reference gives none for these).
 
     presence_threshold: a localizer cell is a marker centre where sigmoid(presence) exceeds it.
-    nms_radius_px: markers whose centres are closer are merged (None: `decode_localizer`'s default).
+    nms_radius_px: markers whose centres are closer are merged (None: `decode_localizer`'s default), in
+      the localizer's pixels (after `localizer_scale`).
     max_layout_residual_cells: five points further than this (in cells of the marker, 24 per side)
       from the best homography of the canonical layout mark the marker as cut.
     consistency_cells: a cut marker's own point joins its neighbours' homography fit when within
@@ -70,6 +72,11 @@ class DetectorConfig:
     visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
     image_batch_size: images per localizer forward pass (padded to the largest of the batch).
     restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
+    localizer_scale: the localizer sees the image resized by this factor (area resampling), so that
+      markers fall in the size range it was trained on (the synthesizer's `marker_px`, 16 to 32 px
+      by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
+      to full-resolution pixels; the recognizer and crosspoint crops are always cut from the full
+      image, so only the localizer's input shrinks (and its cost, by the factor squared).
     """
 
     presence_threshold: float = 0.5
@@ -79,6 +86,7 @@ class DetectorConfig:
     visibility_threshold: float = 0.5
     image_batch_size: int = 4
     restrict_to_tables: bool = True
+    localizer_scale: float = 1.0
 
     def __post_init__(self) -> None:
         problems = []
@@ -90,6 +98,8 @@ class DetectorConfig:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         if self.nms_radius_px is not None and not self.nms_radius_px > 0:
             problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
+        if not 0 < self.localizer_scale <= 4:
+            problems.append(f"localizer_scale must be in (0, 4], got {self.localizer_scale}")
         if self.image_batch_size < 1:
             problems.append(f"image_batch_size must be >= 1, got {self.image_batch_size}")
         if problems:
@@ -120,6 +130,17 @@ def pad_images(images: Sequence[np.ndarray], cell: int = CELL) -> np.ndarray:
     for b, image in enumerate(images):
         batch[b, : image.shape[0], : image.shape[1]] = image
     return batch
+
+
+def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """(the image resized by `scale` (area resampling when shrinking), (2,) the per-axis factor from
+    its continuous pixels back to the image's: x_image = x_resized * factor)."""
+    if scale == 1.0:
+        return image, np.ones(2)
+    height, width = image.shape[:2]
+    size = (max(1, round(width * scale)), max(1, round(height * scale)))
+    resized = cv2.resize(image, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    return resized, np.array([width / size[0], height / size[1]])
 
 
 def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
@@ -239,11 +260,12 @@ class Detector:
         out = []
         with torch.inference_mode():
             for chunk in _batches(len(images), self.config.image_batch_size):
-                batch = self._to_device(pad_images(images[chunk]))
+                resized = [resize_for_localizer(image, self.config.localizer_scale) for image in images[chunk]]
+                batch = self._to_device(pad_images([r for r, _ in resized]))
                 decoded = decode_localizer(self.localizer(batch), threshold=self.config.presence_threshold,
                                            cell=CELL, **kwargs)
-                for image, (points, score) in zip(images[chunk], decoded):
-                    points = np.asarray(points, dtype=np.float32).reshape(-1, 5, 2)
+                for image, (_, factor), (points, score) in zip(images[chunk], resized, decoded):
+                    points = (np.asarray(points, dtype=np.float64).reshape(-1, 5, 2) * factor).astype(np.float32)
                     score = np.asarray(score, dtype=np.float32).reshape(-1)
                     keep = inside_image(points[:, 0], image.shape[1], image.shape[0])
                     out.append((points[keep], score[keep]))

@@ -25,7 +25,7 @@ file and in the sequence.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 from typing import Sequence
 
@@ -52,7 +52,9 @@ class RunSettings:
     noise_px, dropout, seed: the ground-truth mode's perturbation; checkpoints: the three networks'
     files (networks mode); initial_shape: a penetration-free garment shape npz the post-processing
     starts from (`reconstruction.refine.load_initial_shape`; a factory capture's ``sim/dressed.npz``),
-    or "" for the template's placement pose (a poor start: see `refine_sequence`)."""
+    or "" for the template's placement pose (a poor start: see `refine_sequence`); localizer_scale:
+    networks mode, `networks.DetectorConfig.localizer_scale` (0.5 when the views' markers are 32 to
+    64 px across)."""
 
     template: str
     level_mm: int = 12
@@ -62,6 +64,7 @@ class RunSettings:
     seed: int = 0
     checkpoints: tuple[str, ...] = ()
     initial_shape: str = ""
+    localizer_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -70,6 +73,8 @@ class RunSettings:
             raise ValueError("the networks mode needs three checkpoints: localizer, recognizer, crosspoints")
         if self.level_mm <= 0:
             raise ValueError(f"level_mm must be > 0, got {self.level_mm}")
+        if not 0 < self.localizer_scale <= 4:
+            raise ValueError(f"localizer_scale must be in (0, 4], got {self.localizer_scale}")
         if self.initial_shape and not Path(self.initial_shape).is_file():
             raise ValueError(f"initial shape {self.initial_shape}: no such file")
 
@@ -94,7 +99,9 @@ def start(out: str | Path, settings: RunSettings) -> Path:
     record = {**asdict(settings), "checkpoints": list(settings.checkpoints)}
     path = out / "run.json"
     if path.exists():
-        saved = load_json(path)
+        # a folder written before a setting existed holds that setting's default
+        saved = {**{f.name: f.default for f in fields(RunSettings) if f.default is not MISSING},
+                 **load_json(path), "checkpoints": list(load_json(path).get("checkpoints", ()))}
         if saved != record:
             differ = sorted(k for k in set(saved) | set(record) if saved.get(k) != record.get(k))
             raise ValueError(f"{path}: this folder was made with other settings ({', '.join(differ)}); "
@@ -143,7 +150,7 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
             for camera, found in zip(cameras, capture.detections(frame, config)):
                 found.save(_detection_path(out, camera, frame))
     else:
-        from networks import Detector
+        from networks import Detector, DetectorConfig
         from reconstruction.views import Views
 
         if cameras is None:
@@ -154,7 +161,10 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
         for frame in tqdm(chosen, desc="detect", unit="frame", disable=not progress):
             if all(_detection_path(out, c, frame).exists() for c in cameras):
                 continue
-            detector = detector or Detector.from_checkpoints(*settings.checkpoints, device=device)
+            if detector is None:  # the garment's tables: its IDs only, and cut markers from their neighbours
+                tables = load_template(settings.template).layout.tables()
+                detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables,
+                                                     config=DetectorConfig(localizer_scale=settings.localizer_scale))
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))
     save_json(out / "detections" / "cameras.json", {"cameras": [c.to_dict() for c in cameras]})

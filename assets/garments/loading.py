@@ -25,9 +25,10 @@ def load_pattern(name_or_path: str) -> SewingPattern:
     return SewingPattern.from_dict(data, str(path))
 
 
-def load_template(garment: str, dpi: float | None = None) -> Template:
-    """A default garment name, a pattern JSON (ours or GarmentCode) or a saved template `.npz`; its
-    sheet laid out at `dpi` (default: a saved template's own, else `Template.build`'s)."""
+def load_template(garment: str | Path, dpi: float | None = None) -> Template:
+    """A default garment name, a pattern JSON (ours or GarmentCode) or a saved template `.npz` (a str
+    or a Path); its sheet laid out at `dpi` (default: a saved template's own, else `Template.build`'s)."""
+    garment = str(garment)
     if garment.endswith(".npz"):
         template = Template.load(garment)
         return template if dpi is None else Template.build(template.pattern, template.layout.spec, dpi)

@@ -331,3 +331,21 @@ def test_detector_on_cuda_matches_cpu(detector, table, scene):
         assert np.array_equal(cpu.marker_id, gpu.marker_id) and np.array_equal(cpu.partial, gpu.partial)
         assert np.abs(cpu.points_px - gpu.points_px).max() < 1e-2
         assert np.abs(cpu.crosspoints_px - gpu.crosspoints_px).max() < 0.1
+
+
+def test_localizer_scale_maps_points_back_to_full_resolution(detector, scene):
+    """The localizer on an image at localizer_scale s gives the points it gives on the image resized
+    by s (the same network, area resampling), times the per-axis size ratio."""
+    image = np.ascontiguousarray(scene[0][150:347, 180:441])  # 261 x 197: the halves round, per axis
+    scaled = Detector(detector.localizer, detector.recognizer, detector.crosspoints, SPEC, codebook=detector.codebook,
+                      config=dataclasses.replace(detector.config, localizer_scale=0.5))
+    points, score = scaled.localize([image])[0]
+    small = cv2.resize(image, (130, 98), interpolation=cv2.INTER_AREA)
+    expected, expected_score = detector.localize([small])[0]
+    assert len(points) >= 1 and len(points) == len(expected)
+    assert np.allclose(score, expected_score)
+    assert np.allclose(points, expected * np.array([261 / 130, 197 / 98], np.float32), atol=1e-3)
+    centre = points[:, 0]
+    assert ((centre >= 0) & (centre <= [261, 197])).all()
+    with pytest.raises(ValueError, match="localizer_scale must be in"):
+        DetectorConfig(localizer_scale=0.0)

@@ -1,0 +1,56 @@
+"""`python -m reconstruction detect` in the networks mode on the session's tiny capture, with real
+(untrained, seeded) networks saved as checkpoints: the Detector gets the garment's marker tables and
+the localizer scale from the run's settings."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from assets.garments import load_template
+from networks.checkpoint import save_checkpoint
+from networks.config import TrainConfig
+from networks.detections import Detections
+from networks.models import CrosspointLocalizer, MarkerLocalizer, MarkerRecognizer
+from reconstruction.__main__ import main
+
+pytestmark = pytest.mark.slow  # the shared capture
+
+
+def _checkpoints(folder, spec):
+    """Untrained networks; the localizer's last layer is scaled down and biased so that every cell
+    holds a 40 px marker, and the Detector has work downstream."""
+    torch.manual_seed(0)
+    localizer = MarkerLocalizer()
+    with torch.no_grad():
+        localizer.head.out.weight.mul_(0.01)
+        layout = torch.tensor([[4, 4], [-16, -16], [24, -16], [-16, 24], [24, 24]], dtype=torch.float32)
+        localizer.head.out.bias.copy_(torch.cat([torch.tensor([3.0]), layout.reshape(-1)]))
+    models = {"localizer": localizer, "recognizer": MarkerRecognizer(spec.num_ids),
+              "crosspoints": CrosspointLocalizer(crosspoints_per_side=spec.crosspoints_per_side)}
+    return [str(save_checkpoint(folder / f"{task}.pt", task, model, TrainConfig(task=task), spec))
+            for task, model in models.items()]
+
+
+def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capture_folder, tmp_path):
+    template = load_template(capture_folder / "template.npz")
+    garment_ids = np.concatenate([t.marker_ids for t in template.layout.tables()])
+    out = tmp_path / "rec"
+    argv = ["detect", "--views", str(capture_folder), "--cameras", str(capture_folder / "cameras.json"),
+            "--template", str(capture_folder / "template.npz"), "--out", str(out), "--device", "cpu",
+            "--checkpoints", *_checkpoints(tmp_path, template.layout.spec), "--localizer-scale", "0.25", "--quiet"]
+    assert main(argv) == 0
+    assert json.loads((out / "run.json").read_text())["localizer_scale"] == 0.25
+    cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
+    found = []
+    for camera in cameras:
+        paths = sorted((out / "detections" / camera).iterdir())
+        assert [p.name for p in paths] == ["f000003.npz", "f000004.npz"]
+        found += [Detections.load(p) for p in paths]
+    # 96 x 64 views at scale 0.25: the localizer sees 24 x 16 pixels, 3 x 2 cells, so at most 6 markers
+    assert all(1 <= len(d) <= 6 for d in found)
+    ids = np.concatenate([d.marker_id for d in found])
+    assert np.isin(ids, garment_ids).all()  # the recognizer's answer is restricted to the garment's IDs
+    k = template.layout.spec.crosspoints_per_side
+    assert all(d.crosspoints_px.shape[1:] == (k, k, 2) for d in found)
