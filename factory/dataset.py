@@ -1,4 +1,4 @@
-"""Datasets: simulation -> Blender renders -> ground truth, sharded and resumable.
+"""Datasets: simulation -> Blender renders -> ground truth: the plan, the capture and the CLI.
 
     python -m factory.dataset build --garment shirt --motions walk,run --frames 8 --variations 5 --out out/ds
     python -m factory.dataset build ... --shard 0/4          # a deterministic quarter of the images
@@ -27,34 +27,32 @@ Layout of a dataset folder:
   meta/<name>.json             one finished image (written last: an image is done when this exists)
   manifest.jsonl, splits.json  every finished image with its files, split, motion, frame, variation
 
-Sharding and resume: the images are ordered by (motion, frame, variation) and `--shard i/n` takes
-every n-th from the i-th; an image whose `meta/<name>.json` exists is not redone, so a killed run
-resumes where it stopped, and several processes (or machines sharing the folder) can work on the
-shards of one dataset at once.  Each shard rewrites `manifest.jsonl` from `meta/` when it finishes.
-The work is tasks: one simulation per motion, then render + ground truth per `--shard-frames`
-frames (a `Shard`, whose records in `meta/` are written together once all its files are there);
-`--backend ray` runs them on a Ray cluster (`factory.raybackend`), the default in this process.
+The build itself (`factory.build`; `build --help`): one simulation task per motion, then render +
+ground-truth tasks of `--shard-frames` frames; `--shard i/n` takes every n-th image from the i-th, a
+killed run resumes where it stopped, several processes or machines sharing the folder can work on one
+dataset at once, and `--backend ray` runs the tasks on a Ray cluster (`factory.raybackend`).
 
 Capture (`capture`): a calibrated ring of cameras around the subject renders every frame of a
 sequence: `cameras.json` (`assets.cameras`), images per camera (``cam00/f000012.png``...), ground
 truth per image, and `garment.npz` (the ground-truth garment sequence: positions, faces, template):
 the synthetic capture reconstruction is tested and measured on.
+
+This module holds the settings (`RenderSettings`, `DatasetConfig`), the plan (splits, per-image
+variations, the fixed camera), what the build and the capture share (the simulation settings, render
+jobs, scenes, ground truth of a rendered image), the capture, the contact sheet and the CLI.
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
 import hashlib
 import importlib.util
 import json
-import logging
-import os
 import shutil
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -71,8 +69,6 @@ from factory.groundtruth import image_ground_truth
 from assets.garments.loading import load_template
 from factory.dressing import DressingParams
 from factory.simulate import SimulationConfig, simulate
-
-log = logging.getLogger(__name__)
 
 PROJECT = Path(__file__).resolve().parents[1]
 #: the reference's train : validation : test ratio, by simulation frame
@@ -254,7 +250,19 @@ def ground_truth_for(surface: MarkerSurface, positions: np.ndarray, image_path: 
     return gt, training_samples(image, gt, surface.spec)
 
 
-# ---- build -------------------------------------------------------------------------------------
+def render_job_spec(settings: RenderSettings, scene: Path, texture: Path, images: list[dict],
+                    position: bool = False) -> dict:
+    """The render job (`factory.renderjob`'s format) of `images` in `settings`, depth pass always,
+    position pass when asked; `scene` and `texture` relative to the job file's folder."""
+    return {
+        "version": 1, "scene": str(scene), "texture": str(texture), "resolution": list(settings.resolution),
+        "engine": {"name": settings.engine, "samples": settings.samples, "denoise": settings.denoise,
+                   "device": settings.device},
+        "passes": {"depth": True, "position": position}, "images": images,
+    }
+
+
+# ---- simulations -------------------------------------------------------------------------------
 
 def simulation_config(garment: str, motion: str, body: str = "default", frames: int = 1, seed: int = 0,
                       level_mm: int = DressingParams.level_mm, motion_speed: float = 1.0) -> SimulationConfig:
@@ -281,319 +289,6 @@ def reuse_simulation(source: str | Path, target: Path, config: SimulationConfig)
     for name in ("sequence.npz", "dressed.npz"):
         if (source / name).is_file() and not (target / name).exists():
             shutil.copyfile(source / name, target / name)
-
-
-def _simulation_of(config: DatasetConfig, motion: str, frames: int = 1) -> SimulationConfig:
-    return simulation_config(config.garment, motion, config.body, frames, config.seed, config.level_mm,
-                             config.motion_speed)
-
-
-def _frames_of(config: DatasetConfig, transition_frames: int) -> list[int]:
-    if config.frame_list:
-        return sorted(set(int(f) for f in config.frame_list))
-    return [transition_frames + k * config.frame_step for k in range(1, config.frames + 1)]
-
-
-def _check_config(out: Path, config: DatasetConfig) -> None:
-    path = out / "config.json"
-    current = json.loads(json.dumps(asdict(config)))
-    if path.exists():
-        # a setting added since the folder was made has its default there
-        defaults = json.loads(json.dumps(asdict(DatasetConfig(garment="", motions=()))))
-        saved = {**defaults, **load_json(path)}
-        if saved != current:
-            raise ValueError(f"{path}: this folder holds a dataset built with other settings; use a new --out "
-                             f"(differences: {sorted(k for k in current if saved.get(k) != current[k])})")
-    else:
-        save_json(path, current)
-
-
-@dataclass(frozen=True)
-class Shard:
-    """One render + ground-truth task: the images of a few frames of one motion, rendered as
-    ``jobs/<name>.json`` from ``scenes/<motion>.npz``.  `images` are render-job image specs
-    (`factory.renderjob`); `splits` and `variations` run along them."""
-
-    name: str
-    motion: str
-    level_mm: int
-    images: tuple[dict, ...]
-    splits: tuple[str, ...]
-    variations: tuple[int, ...]
-
-
-def prepare(config: DatasetConfig, out: Path, shard: tuple[int, int],
-            simulations: dict[str, str | Path] | None = None) -> None:
-    """Check the arguments and the folder's settings; take up reused simulations; write the template
-    and its texture.  Everything the tasks read that is not per motion is on disk after this."""
-    index, count = shard
-    if not 0 <= index < count:
-        raise ValueError(f"shard must be i/n with 0 <= i < n, got {index}/{count}")
-    if config.variations < 1:
-        raise ValueError(f"variations must be >= 1, got {config.variations}")
-    out.mkdir(parents=True, exist_ok=True)
-    _check_config(out, config)
-    for motion, folder in (simulations or {}).items():
-        reuse_simulation(folder, out / "sim" / motion, _simulation_of(config, motion))
-    template = render_template(config.garment, config.render.texture_dpi, out)
-    if not (out / "template.npz").exists():
-        template.save(out / "template.npz", levels=(config.level_mm,))
-
-
-def dataset_frames(config: DatasetConfig) -> list[int]:
-    """The simulation frames every motion of the dataset renders."""
-    return _frames_of(config, int(round(SimulationConfig(config.garment, "").transition_seconds * 120)))
-
-
-def simulate_motion(config: DatasetConfig, out: str | Path, motion: str, progress: bool = False) -> Path:
-    """Simulate (or take up) `motion` far enough for the dataset's frames; the ``sequence.npz`` path."""
-    return simulate(_simulation_of(config, motion, max(dataset_frames(config)) + 1), Path(out) / "sim" / motion,
-                    progress)
-
-
-def plan_shards(config: DatasetConfig, out: Path, sequences: dict[str, Path], shard: tuple[int, int] = (0, 1),
-                shard_frames: int = 1) -> list[Shard]:
-    """The fixed camera, the splits (``splits.json``) and the scenes (``scenes/<motion>.npz``) of the
-    simulated motions; returns this `shard`'s unfinished images grouped `shard_frames` frames of one
-    motion per `Shard`."""
-    if shard_frames < 1:
-        raise ValueError(f"shard_frames must be >= 1, got {shard_frames}")
-    index, count = shard
-    frames = dataset_frames(config)
-    template = load_template(config.garment, config.render.texture_dpi)
-    plans = [(motion, load_npz(sequences[motion], required=("positions", "faces", "body_poses", "body_trans",
-                                                             "body_betas", "meta"))) for motion in config.motions]
-    level_mm = int(json.loads(str(plans[0][1]["meta"])).get("level_mm", 12))
-    if not np.array_equal(template.level(level_mm).sewn_faces, plans[0][1]["faces"]):
-        raise ValueError(f"{out}: the simulated mesh does not match the template's {level_mm} mm level")
-
-    # one fixed camera for the whole dataset, fitted to the largest garment
-    radius = 0.0
-    for _, sequence in plans:
-        for f in frames:
-            x = sequence["positions"][f]
-            radius = max(radius, float(np.linalg.norm(x - 0.5 * (x.min(0) + x.max(0)), axis=1).max()))
-    camera = fixed_camera(radius + config.max_shift, config.render, config.fov_deg, config.fill).to_dict()
-    splits = split_of_frames([(motion, f) for motion in config.motions for f in frames], config.seed)
-    save_json(out / "splits.json", {s: [f"{m}/{f}" for (m, f), name in splits.items() if name == s] for s in SPLITS})
-
-    from factory.render import bundled_environments
-
-    envs = environments(bundled_environments())
-    body = load_body(config.body)
-    names = [(motion, f, v) for motion in config.motions for f in frames for v in range(config.variations)]
-    pending = [n for k, n in enumerate(names)
-               if k % count == index and not (out / "meta" / f"{_name(*n)}.json").exists()]
-    log.info("shard %d/%d: %d images to do", index, count, len(pending))
-    shards = []
-    for motion, sequence in plans:
-        mine = [n for n in pending if n[0] == motion]
-        if not mine:
-            continue
-        scene = out / "scenes" / f"{motion}.npz"
-        if not scene.exists():
-            body_vertices = body.pose(sequence["body_poses"][frames], sequence["body_trans"][frames],
-                                      sequence["body_betas"]).vertices
-            write_scene(scene, sequence["positions"][frames], sequence["faces"], corner_uv(template, level_mm),
-                        np.asarray(frames), body_vertices, body.faces)
-        groups: dict[int, list[tuple[str, int, int]]] = {}
-        for n in mine:
-            groups.setdefault(frames.index(n[1]) // shard_frames, []).append(n)
-        for chunk, group in groups.items():
-            images = []
-            for m, f, v in group:
-                x = sequence["positions"][f]
-                choice = variation(config, m, f, v, 0.5 * (x.min(0) + x.max(0)), envs)
-                images.append({"name": _name(m, f, v), "frame": int(f), "camera": camera, **choice})
-            shards.append(Shard(name=f"{motion}-{index}of{count}-{chunk:04d}", motion=motion, level_mm=level_mm, images=tuple(images),
-                                splits=tuple(splits[(m, f)] for m, f, _ in group),
-                                variations=tuple(v for _, _, v in group)))
-    return shards
-
-
-@functools.lru_cache(maxsize=4)
-def _marker_surface(garment: str, dpi: float, level_mm: int) -> MarkerSurface:
-    # a few seconds to build; a worker process making many shards builds it once
-    return MarkerSurface.build(load_template(garment, dpi), level_mm)
-
-
-#: fault injection for the fault-tolerance tests: a file path; the first shard task that finds it
-#: missing creates it and ends its process abruptly in mid-shard, as a killed worker would
-CRASH_ONCE_ENV = "FACTORY_CRASH_ONCE"
-
-
-def _crash_once() -> None:
-    marker = os.environ.get(CRASH_ONCE_ENV)
-    if not marker:
-        return
-    try:
-        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
-    except FileExistsError:
-        return
-    os._exit(70)
-
-
-def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: bool = False, threads: int = 0) -> dict:
-    """Render (with `threads` render threads, 0 for every core) and annotate the shard's unfinished images.  Every file of an image is written
-    atomically; the images' records (``meta/<name>.json``, what the manifest is made of) are written
-    last, only once every file of every image of the shard is there, so an interrupted shard leaves
-    no record and a repeated one rewrites the same bytes.  Returns the timing of the work done:
-    images, setup_s, render_s, groundtruth_s."""
-    out = Path(out)
-    todo = [k for k, image in enumerate(shard.images) if not (out / "meta" / f"{image['name']}.json").exists()]
-    timing = {"images": len(todo), "setup_s": 0.0, "render_s": 0.0, "groundtruth_s": 0.0}
-    if not todo:
-        return timing
-    job = out / "jobs" / f"{shard.name}.json"
-    save_json(job, _job(config.render, Path("..") / "scenes" / f"{shard.motion}.npz", Path("..") / "texture.png",
-                        [shard.images[k] for k in todo]))
-    report = run_render_job(job, out / "images", progress, threads)
-    if report is not None:
-        timing["setup_s"] = report.setup_seconds
-        timing["render_s"] = report.seconds - report.setup_seconds
-    started = time.perf_counter()
-    surface = _marker_surface(config.garment, config.render.texture_dpi, shard.level_mm)
-    scene = load_npz(out / "scenes" / f"{shard.motion}.npz", only=("garment_positions", "frames"))
-    row = {int(f): k for k, f in enumerate(scene["frames"])}
-    records = []
-    for k in todo:
-        entry = shard.images[k]
-        name = entry["name"]
-        camera = Camera.from_dict(entry["camera"])
-        transform = np.asarray(entry["transform"])
-        x = scene["garment_positions"][row[entry["frame"]]].astype(np.float64) @ transform[:3, :3].T + transform[:3, 3]
-        gt, samples = ground_truth_for(surface, x, out / "images" / f"{name}.png",
-                                       out / "images" / f"{name}_depth.exr", camera)
-        gt.save(out / "gt" / f"{name}.npz")
-        save_npz(out / "samples" / f"{name}.npz", samples)
-        _crash_once()
-        records.append({
-            "name": name, "split": shard.splits[k], "motion": shard.motion, "frame": entry["frame"],
-            "variation": shard.variations[k], "image": f"images/{name}.png", "depth": f"images/{name}_depth.exr",
-            "camera": f"images/{name}_camera.json", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
-            "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum()),
-            "environment": entry["environment"], "transform": entry["transform"], "seed": entry["seed"],
-        })
-    for record in records:
-        save_json(out / "meta" / f"{record['name']}.json", record)
-    timing["groundtruth_s"] = time.perf_counter() - started
-    return timing
-
-
-class BuildProgress:
-    """One bar for a whole build: tasks (simulations, shards) done of those known, images per hour."""
-
-    def __init__(self, enabled: bool):
-        self.started = time.perf_counter()
-        self.images = 0
-        self.retried = 0
-        self.bar = tqdm(total=0, desc="dataset", unit="task", disable=not enabled)
-
-    def add(self, tasks: int) -> None:
-        self.bar.total += tasks
-        self.bar.refresh()
-
-    def done(self, images: int = 0, retried: int = 0) -> None:
-        self.images += images
-        self.retried += retried
-        hours = (time.perf_counter() - self.started) / 3600
-        self.bar.set_postfix(images=self.images, per_hour=f"{self.images / max(hours, 1e-9):.0f}", refresh=False)
-        self.bar.update(1)
-
-    def close(self) -> None:
-        self.bar.close()
-
-
-class LocalBackend:
-    """Every task in this process, one after the other (`--shard i/n` spreads a build over processes)."""
-
-    def __enter__(self) -> "LocalBackend":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        return None
-
-    def simulate(self, config: DatasetConfig, out: Path, bar: BuildProgress) -> dict[str, Path]:
-        sequences = {}
-        for motion in config.motions:
-            sequences[motion] = simulate_motion(config, out, motion)
-            bar.done()
-        return sequences
-
-    def make_shards(self, config: DatasetConfig, out: Path, shards: list[Shard], bar: BuildProgress) -> list[dict]:
-        timings = []
-        for shard in shards:
-            timings.append(make_shard(config, out, shard))
-            bar.done(timings[-1]["images"])
-        return timings
-
-
-BACKENDS = ("local", "ray")
-
-
-def build(config: DatasetConfig, out: str | Path, shard: tuple[int, int] = (0, 1), progress: bool = True,
-          simulations: dict[str, str | Path] | None = None, backend: str = "local", address: str | None = None,
-          num_cpus: int | None = None, shard_frames: int = 1) -> Path:
-    """Build (or resume) shard `shard` = (i, n) of the dataset in `out`; returns the manifest path.
-    `simulations`: motion -> a finished simulation folder to reuse.  `backend`: "local" (this
-    process) or "ray" (`factory.raybackend`: tasks on the Ray cluster at `address`, or on a local Ray
-    instance of `num_cpus` CPUs); both run the same tasks: one simulation per motion, then one
-    render + ground-truth `Shard` per `shard_frames` frames.  ``timing.json`` gets the images made,
-    the failed task attempts retried and the times (wall, scene set-up, render, ground truth).  Ends
-    with ``contact_sheet.png`` of a few finished images with their ground truth."""
-    out = Path(out)
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
-    prepare(config, out, shard, simulations)
-    if backend == "ray":
-        from factory.raybackend import RayBackend
-
-        runner = RayBackend(address, num_cpus)
-    else:
-        runner = LocalBackend()
-    bar = BuildProgress(progress)
-    try:
-        with runner:
-            bar.add(len(config.motions))
-            sequences = runner.simulate(config, out, bar)
-            shards = plan_shards(config, out, sequences, shard, shard_frames)
-            bar.add(len(shards))
-            timings = runner.make_shards(config, out, shards, bar)
-    finally:
-        bar.close()
-    timing = {key: sum(t[key] for t in timings) for key in ("images", "setup_s", "render_s", "groundtruth_s")}
-    timing.update(retried=bar.retried, wall_s=time.perf_counter() - bar.started)
-    save_json(out / "timing.json", timing)
-    log.info("%d images made, %d failed task attempts retried, %.0f s", timing["images"], timing["retried"],
-             timing["wall_s"])
-    manifest = write_manifest(out)
-    if manifest.read_text().strip():
-        preview(out, out / "contact_sheet.png")
-    return manifest
-
-
-def _name(motion: str, frame: int, v: int) -> str:
-    return f"{motion}_f{frame:06d}_v{v}"
-
-
-def _job(settings: RenderSettings, scene: Path, texture: Path, images: list[dict], position: bool = False) -> dict:
-    return {
-        "version": 1, "scene": str(scene), "texture": str(texture), "resolution": list(settings.resolution),
-        "engine": {"name": settings.engine, "samples": settings.samples, "denoise": settings.denoise,
-                   "device": settings.device},
-        "passes": {"depth": True, "position": position}, "images": images,
-    }
-
-
-def write_manifest(out: Path) -> Path:
-    """`manifest.jsonl` from every finished image in `meta/`, sorted by name, atomically."""
-    from assets.fileio import atomic_path
-
-    lines = [json.dumps(load_json(p), sort_keys=True) for p in sorted((out / "meta").glob("*.json"))]
-    path = out / "manifest.jsonl"
-    with atomic_path(path) as tmp:
-        tmp.write_text("".join(line + "\n" for line in lines))
-    return path
 
 
 # ---- multi-view capture ------------------------------------------------------------------------
@@ -677,7 +372,7 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
                    "cloth": {"roughness": 0.8, "sheen": 0.5}, "skin": {"rgb": [0.85, 0.64, 0.52]},
                    "seed": seed} for f in pending]
         job = out / "jobs" / f"{cam.name}.json"
-        save_json(job, _job(render, Path("..") / "scene.npz", Path("..") / "texture.png", images))
+        save_json(job, render_job_spec(render, Path("..") / "scene.npz", Path("..") / "texture.png", images))
         run_render_job(job, folder, progress)
         for f in tqdm(pending, desc=f"ground truth {cam.name}", unit="image", disable=not progress):
             gt = image_ground_truth(surface, positions[picked.index(f)].astype(np.float64), cam,
@@ -805,12 +500,14 @@ def _render_settings(args: argparse.Namespace) -> RenderSettings:
 
 
 def main(argv: list[str] | None = None) -> int:
+    import factory.build  # it imports this module: imported when the CLI runs, not at import time
     from assets.cli import run_cli
 
     parser = argparse.ArgumentParser(prog="python -m factory.dataset", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
-    b = sub.add_parser("build", help="simulate, render and annotate a training dataset")
+    b = sub.add_parser("build", help="simulate, render and annotate a training dataset",
+                       description=factory.build.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     b.add_argument("--garment", required=True)
     b.add_argument("--motions", required=True, help="comma-separated motion names or files")
     b.add_argument("--body", default="default")
@@ -821,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--seed", type=int, default=0)
     _add_simulation_args(b)
     b.add_argument("--shard", type=_shard, default=(0, 1), help="i/n: this process's share of the images")
-    b.add_argument("--backend", choices=BACKENDS, default="local",
+    b.add_argument("--backend", choices=factory.build.BACKENDS, default="local",
                    help="local: every task in this process; ray: Ray tasks (pip install '.[ray]')")
     b.add_argument("--address", help="ray: the cluster to join (e.g. HEAD_IP:6379 or auto); default: start a "
                    "local Ray instance")
@@ -865,8 +562,9 @@ def main(argv: list[str] | None = None) -> int:
             reuse = dict(item.split("=", 1) for item in args.reuse_simulation if "=" in item)
             if len(reuse) != len(args.reuse_simulation):
                 raise ValueError(f"--reuse-simulation takes MOTION=DIR, got {args.reuse_simulation}")
-            manifest = build(config, args.out, args.shard, simulations=reuse, backend=args.backend,
-                             address=args.address, num_cpus=args.num_cpus, shard_frames=args.shard_frames)
+            manifest = factory.build.build(config, args.out, args.shard, simulations=reuse, backend=args.backend,
+                                           address=args.address, num_cpus=args.num_cpus,
+                                           shard_frames=args.shard_frames)
             entries = manifest.read_text().splitlines()
             timing = load_json(args.out / "timing.json")
             print(f"{len(entries)} images in {manifest} ({timing['images']} made now, {timing['retried']} failed "

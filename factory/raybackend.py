@@ -1,10 +1,10 @@
 """The dataset build as Ray tasks (`python -m factory.dataset build ... --backend ray`).
 
-The same tasks as the local backend (`factory.dataset`): one simulation per motion of the dataset's
+The same tasks as the local backend (`factory.build`): one simulation per motion of the dataset's
 (garment, body), then one render + ground-truth task per `Shard`, each declaring what it needs (a
 CPU; a GPU for Cycles when the cluster has one).  Ray retries a task whose worker dies or which
 raises (`max_retries`); a shard commits its images' records only when all of its files are written
-(`factory.dataset.make_shard`), so a retried or repeated task adds no duplicate and no partial
+(`factory.build.make_shard`), so a retried or repeated task adds no duplicate and no partial
 record, and a restarted build plans only the unfinished images.  Every node reads and writes the
 dataset folder, so on a cluster it must be shared storage at the same path on every node.
 """
@@ -17,7 +17,8 @@ import shutil
 import uuid
 from pathlib import Path
 
-from factory.dataset import BuildProgress, DatasetConfig, Shard, make_shard, simulate_motion
+from factory.build import BuildProgress, Shard, make_shard, simulate_motion
+from factory.dataset import DatasetConfig
 
 #: attempts of a task after the first (a killed worker, an exception)
 MAX_RETRIES = 3

@@ -1,5 +1,6 @@
-"""The dataset builder on the session's short shirt walk: real Blender renders (small), real ground
-truth; the simulation is the shared fixture's, copied into each dataset folder."""
+"""The dataset build (`factory.build`) and the capture (`factory.dataset`) on the session's short shirt
+walk: real Blender renders (small), real ground truth; the simulation is the shared fixture's, copied
+into each dataset folder."""
 
 import json
 import shutil
@@ -13,7 +14,8 @@ import numpy as np
 import pytest
 
 from assets.cameras import Camera
-from factory.dataset import DatasetConfig, RenderSettings, build, split_of_frames, write_scene, _job, corner_uv
+from factory.build import build
+from factory.dataset import DatasetConfig, RenderSettings, corner_uv, render_job_spec, split_of_frames, write_scene
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 
@@ -111,8 +113,8 @@ def test_projected_crosspoints_agree_with_blenders_position_pass(tmp_path, shirt
              "environment": {"type": "sky", "sun_elevation_deg": 40.0, "sun_rotation_deg": 30.0, "strength": 0.5},
              "cloth": {"roughness": 0.8, "sheen": 0.5}, "skin": {"rgb": [0.8, 0.6, 0.5]}, "seed": 1}
     settings = RenderSettings(resolution=(160, 160), samples=4, denoise=False)
-    (tmp_path / "job.json").write_text(json.dumps(_job(settings, Path("scene.npz"), Path("texture.png"), [image],
-                                                       position=True)))
+    job = render_job_spec(settings, Path("scene.npz"), Path("texture.png"), [image], position=True)
+    (tmp_path / "job.json").write_text(json.dumps(job))
     render_job(tmp_path / "job.json", tmp_path / "out", progress=False)
     surface = MarkerSurface.build(template, 12)
     gt = image_ground_truth(surface, positions, camera, read_depth(tmp_path / "out" / "pos_depth.exr"))
@@ -203,7 +205,7 @@ def test_reusing_a_simulation_made_with_other_options_is_refused_naming_them(tmp
 
 
 def test_a_dataset_folder_made_before_the_simulation_options_is_still_taken_up(tmp_path):
-    from factory.dataset import _check_config
+    from factory.build import _check_config
 
     config = _config()
     _check_config(tmp_path, config)

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from factory.dataset import CRASH_ONCE_ENV, DatasetConfig, RenderSettings, build
+from factory.build import CRASH_ONCE_ENV, build
+from factory.dataset import DatasetConfig, RenderSettings
 from tests.factory.test_dataset import _seeded
 
 pytest.importorskip("ray")

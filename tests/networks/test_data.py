@@ -18,7 +18,7 @@ from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_s
 from networks.synth import PatternSynthesizer, SynthConfig
 
 SPEC = PatternSpec(rows=8, cols=8, num_ids=512)
-#: (motion, frame) -> split, three variations each, as `factory.dataset.build` names and splits them
+#: (motion, frame) -> split, three variations each, as `factory.build.build` names and splits them
 FRAMES = {("walk", 2): "train", ("walk", 4): "train", ("walk", 5): "val", ("walk", 7): "test"}
 VARIATIONS = 2
 
@@ -30,7 +30,7 @@ def codebook():
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory, codebook) -> Path:
-    """A dataset folder in the layout `factory.dataset.build` writes, with synthetic images."""
+    """A dataset folder in the layout `factory.build.build` writes, with synthetic images."""
     garments = pytest.importorskip("assets.garments")  # the real template file (needs triangle)
     from assets.garments.defaults import default_pattern
 

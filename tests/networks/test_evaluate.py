@@ -34,7 +34,7 @@ SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
 
 def write_factory_dataset(root: Path, spec: PatternSpec, splits: dict[str, int], size: int = 128, seed: int = 0,
                           keep=lambda recognizer_crops, crosspoint_crops: recognizer_crops >= 1) -> Path:
-    """A dataset folder with the files `factory.dataset.build` writes that the networks read:
+    """A dataset folder with the files `factory.build.build` writes that the networks read:
     manifest.jsonl, splits.json, config.json, images/<name>.png, gt/<name>.npz, samples/<name>.npz.
     Images come from the synthesizer; `splits` gives the image count per split; synthetic samples are
     taken in order when keep(number of recognizer crops, number of crosspoint crops) holds (default:
