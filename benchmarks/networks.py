@@ -5,21 +5,29 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    images, recognizer and crosspoint crops, drawing the garment's marker IDs.  Written once (capped
    at --shard-minutes per call; an unfinished folder is continued by the next call and used as far
    as it goes), shared by all runs and calls.
-2. Train, all runs at once on the one GPU, each resuming from its last.pt (`networks.train`):
+2. Train, all runs at once, each resuming from its last.pt (`networks.train`), spread over the GPUs
+   (`placement`: one GPU per main run while there are GPUs, spare GPUs join the heaviest main runs as
+   DistributedDataParallel ranks through torchrun, the comparison runs share GPUs):
    the main runs, localizer_mix (rendered train split + shards, synth weight 0.5), recognizer and
    crosspoints (shards + rendered crops, synth weight 0.75), train until the budget's end; the
    data-mix comparison runs localizer_synth (shards only) and localizer_rendered (rendered only)
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps) without taking
-   the GPU from the main run for longer.  Data workers are sized to the cores.
+   the GPU from the main run for longer.  Data workers are sized to the cores.  The schedule's
+   planned steps are long (the learning rate stays near its peak); `--final` re-plans each main run
+   to end within this call at the rate it trained at in the last call, so its cosine decay completes
+   (`steps` is a setting a resumed run may change).
 3. Evaluate each run's last.pt on the rendered dataset's validation and test images (`--rendered`, a
    factory dataset folder of Blender renders, read through a view in --out whose `samples/` are
    built there from the images and saved ground truth when the folder has none, so only images, gt,
    the manifest and template.npz need to travel and the folder itself is left as it is).
-4. Inference throughput of `networks.Detector` (the three main runs chained) on synthesized images
-   framed as the renders (markers scaled with the image side), on the GPU and on the CPU.
+4. Inference throughput of `networks.Detector` (the three main runs chained, float32) on synthesized
+   images framed as the renders (markers scaled with the image side; the localizer sees them at the
+   scale it was trained on, `DetectorConfig.localizer_scale` = 512 / side), on the GPU and on the CPU,
+   which run the same first image (the number of markers found there must agree).
 
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
+    python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn --final   # the last call
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
@@ -57,8 +65,9 @@ from networks.evaluate import evaluate  # noqa: E402
 from networks.shards import write_shards  # noqa: E402
 from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 
-#: per task: (planned steps over all calls, batch size); Adam at LR with WARMUP steps, cosine decay
-SCHEDULE = {"localizer": (8000, 32), "recognizer": (8000, 256), "crosspoints": (4000, 64)}
+#: per task: (planned steps over all calls, batch size); Adam at LR with WARMUP steps, cosine decay to
+#: the planned step (re-planned by --final to what the last call reaches)
+SCHEDULE = {"localizer": (40000, 32), "recognizer": (30000, 256), "crosspoints": (20000, 64)}
 LR, WARMUP = 3e-4, 300
 #: side of the localizer's training images (rendered ones are cut to it), pixels
 IMAGE_SIZE = 256
@@ -75,7 +84,9 @@ RUNS = {
 }
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints": "crosspoints"}
 #: synthetic images per shard folder (the crop tasks keep up to 32 crops of each)
-SHARD_IMAGES = {"localizer": 9600, "recognizer": 4800, "crosspoints": 2400}
+SHARD_IMAGES = {"localizer": 19200, "recognizer": 9600, "crosspoints": 4800}
+#: the main runs that take spare GPUs as extra DDP ranks, heaviest first
+HEAVIEST = ("crosspoints", "recognizer", "localizer")
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
 RESERVE_S, START_S = 100.0, 45.0
 
@@ -148,13 +159,30 @@ def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: 
     return results
 
 
-def worker_counts(active: list[str], cores: int, smoke: bool) -> dict[str, int]:
-    """Data workers per active run: the cores left to the runs' own processes, by their shares."""
+def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
+    """The GPUs of each active run: the main runs first, one GPU each while there are GPUs, the other
+    runs round-robin over the same GPUs; GPUs left over join the heaviest main runs (`HEAVIEST`) as
+    further DDP ranks.  No GPUs (the CPU): every run gets [] (one process)."""
+    if gpus < 1:
+        return {name: [] for name in active}
+    order = [n for n in active if n in MAIN.values()] + [n for n in active if n not in MAIN.values()]
+    placed = {name: [i % gpus] for i, name in enumerate(order)}
+    spare = list(range(len(order), gpus))
+    heavy = [MAIN[t] for t in HEAVIEST if MAIN[t] in placed]
+    for k, gpu in enumerate(spare if heavy else []):
+        placed[heavy[k % len(heavy)]].append(gpu)
+    return placed
+
+
+def worker_counts(active: list[str], ranks: dict[str, int], cores: int, smoke: bool) -> dict[str, int]:
+    """Data workers per rank of each active run: the cores left to the runs' own processes (one per
+    rank), by the runs' shares, split among a run's ranks."""
     if smoke:
         return {name: 0 for name in active}
-    spare = max(len(active), cores - len(active))
+    processes = sum(ranks[name] for name in active)
+    spare = max(processes, cores - processes)
     total = sum(RUNS[name][3] for name in active)
-    return {name: max(1, int(RUNS[name][3] * spare / total + 0.5)) for name in active}
+    return {name: max(1, int(RUNS[name][3] * spare / total / ranks[name] + 0.5)) for name in active}
 
 
 def run_config(name: str, workers: int, max_steps: int | None) -> TrainConfig:
@@ -167,15 +195,35 @@ def run_config(name: str, workers: int, max_steps: int | None) -> TrainConfig:
                        checkpoint_every=500, log_every=50, synth_weight=synth_weight)
 
 
-def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None
-              ) -> dict[str, dict]:
-    """Start (or continue) every unfinished run, all at once on a GPU (one after another on the CPU),
-    each for at most `seconds`; returns per run its steps, wall time and logged losses."""
+def replan(out: Path, names: list[str], before: dict[str, int], seconds: float) -> dict[str, int]:
+    """--final: the step each main run in `names` reaches in `seconds` at the rate (steps/s) it trained
+    at in this folder's last call (results.json), a little short so that the decay completes; runs
+    without a rate are left out."""
+    path = out / "results.json"
+    last = json.loads(path.read_text()).get("training", {}) if path.exists() else {}
+    planned = {}
+    for name in names:
+        rate = last.get(name, {}).get("steps_per_s")
+        if rate and name in MAIN.values():
+            planned[name] = before[name] + max(1, int(rate * seconds * 0.95))
+    return planned
+
+
+def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
+              names: list[str], final: bool = False) -> dict[str, dict]:
+    """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
+    after another on the CPU), each for at most `seconds`; `final`: re-plan the main runs' schedules
+    to end within this call (`replan`).  Returns per run its steps, wall time and logged losses."""
     smoke = max_steps is not None
-    targets = {name: min(RUNS[name][2] or SCHEDULE[RUNS[name][0]][0], max_steps or 10**9) for name in RUNS}
-    before = {name: run_step(out / name / "run") for name in RUNS}
-    active = [name for name in RUNS if before[name] < targets[name]]
-    workers = worker_counts(active, cores, smoke)
+    targets = {name: min(RUNS[name][2] or SCHEDULE[RUNS[name][0]][0], max_steps or 10**9) for name in names}
+    before = {name: run_step(out / name / "run") for name in names}
+    planned = replan(out, [n for n in names if before[n] < targets[n]], before, seconds) if final else {}
+    for name, step in planned.items():
+        targets[name] = min(targets[name], step)
+    active = [name for name in names if before[name] < targets[name]]
+    gpus = placement(active, torch.cuda.device_count() if device.startswith("cuda") and not smoke else 0)
+    ranks = {name: max(1, len(gpus[name])) for name in active}
+    workers = worker_counts(active, ranks, cores, smoke)
     deadline = time.monotonic() + seconds + START_S
     results, processes = {}, {}
 
@@ -184,15 +232,22 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
         run_config(name, workers[name], max_steps).save(folder / "config.in.json")
-        command = [sys.executable, "-m", "networks.train", task, "--data", str(rendered), "--out", str(folder / "run"),
+        launcher = [sys.executable]
+        if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
+            launcher += ["-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(ranks[name])]
+        command = [*launcher, "-m", "networks.train", task, "--data", str(rendered), "--out", str(folder / "run"),
                    "--config", str(folder / "config.in.json"), "--device", device, "--resume", "--quiet",
                    "--num-workers", str(workers[name]), "--until-step", str(targets[name]),
                    "--time-limit", str(max(1.0, deadline - START_S - time.monotonic()))]
+        if name in planned:
+            command += ["--steps", str(planned[name])]
         if RUNS[name][1] > 0:
             command += ["--shards", str(out / "shards" / task)]
         log = open(folder / "train.log", "a")
         # on a GPU the runs' own processes only feed it: two OpenMP threads each, the cores go to the workers
         env = dict(os.environ, **({} if smoke else {"OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "2"}))
+        if gpus[name]:
+            env["CUDA_VISIBLE_DEVICES"] = ",".join(map(str, gpus[name]))
         processes[name] = (subprocess.Popen(command, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env),
                            time.perf_counter(), log)
 
@@ -209,7 +264,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
             results[name] = {"error": f"exit status {status}: {text[-2000:]}"}
             return
         results[name] = {"seconds": time.perf_counter() - started, "summary": text.strip().splitlines()[-1],
-                         "workers": workers[name]}
+                         "workers": workers[name], "gpus": gpus[name], "planned_steps": planned.get(name)}
 
     for name in active:
         launch(name)
@@ -217,7 +272,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
             collect(name)
     for name in list(processes):
         collect(name)
-    for name in RUNS:
+    for name in names:
         records = _log(out / name / "run")
         losses = [r for r in records if "loss" in r]
         step = run_step(out / name / "run")
@@ -262,20 +317,25 @@ def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
 
 
 def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False) -> list[dict]:
-    """Detector images per second on synthesized images of each size, framed as the renders (marker
-    size grows with the image side), after a warm-up call on a 256 px corner of one.  Smoke runs take
-    only the surest guesses of their untrained localizer (hundreds of crops through the crosspoint
-    network take minutes on a CPU)."""
+    """Detector images per second on `repeats` synthesized images of each size, framed as the renders
+    (marker size grows with the image side; the localizer sees the image at 512 / side, the scale it
+    was trained on), after a warm-up call on a 256 px corner of one; with the markers found on the
+    first image (the same on every device) and the markers the images show.  Smoke runs take only the
+    surest guesses of their untrained localizer (hundreds of crops through the crosspoint network
+    take minutes on a CPU)."""
     from networks import Detector, DetectorConfig
 
     paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
-    config = DetectorConfig(presence_threshold=0.9) if smoke else DetectorConfig()
-    detector = Detector.from_checkpoints(*paths, device=device, config=config)
     rows = []
     for size in sizes:
+        scale = min(1.0, 512 / size)
+        config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, localizer_scale=scale)
+        detector = Detector.from_checkpoints(*paths, device=device, config=config)
         marker = tuple(v * size / 512 for v in SynthConfig().marker_px)
         synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), marker_px=marker, seed=7))
-        images = [synth.sample(i)[0] for i in range(repeats)]
+        samples = [synth.sample(i) for i in range(repeats)]
+        images = [image for image, *_ in samples]
+        shown = [int((gt.status > 0).sum()) for _, gt, *_ in samples]
         detector([np.ascontiguousarray(images[0][:256, :256])])
         if device.startswith("cuda"):
             torch.cuda.synchronize()
@@ -284,8 +344,10 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smo
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         seconds = time.perf_counter() - start
-        rows.append({"device": device, "size": size, "images": repeats, "seconds": seconds,
-                     "images_per_s": repeats / seconds, "markers_per_image": float(np.mean(found))})
+        rows.append({"device": device, "precision": "float32", "size": size, "localizer_scale": scale,
+                     "images": repeats, "seconds": seconds, "images_per_s": repeats / seconds,
+                     "markers_per_image": float(np.mean(found)), "shown_per_image": float(np.mean(shown)),
+                     "found_first_image": found[0], "shown_first_image": shown[0]})
     return rows
 
 
@@ -304,11 +366,18 @@ def main() -> None:
     parser.add_argument("--sizes", default="1024,2048", help="image sides for the GPU throughput")
     parser.add_argument("--cpu-sizes", default="1024", help="image sides for the CPU throughput ('' for none)")
     parser.add_argument("--codebook-hash", help="the rendering machine's codebook hash; stop if this one differs")
+    parser.add_argument("--runs", default=",".join(RUNS), help=f"runs to train this call (of {', '.join(RUNS)})")
+    parser.add_argument("--final", action="store_true", help="the last call: each main run's schedule is "
+                        "re-planned to end within this call, at the rate of the last call")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         sys.exit("benchmarks/networks.py trains on a CUDA GPU; none is visible")
     smoke = args.max_steps is not None
+    names = [n for n in args.runs.split(",") if n]
+    unknown = sorted(set(names) - set(RUNS))
+    if unknown:
+        sys.exit(f"--runs: unknown run(s) {', '.join(unknown)}; the runs are {', '.join(RUNS)}")
     deadline = started + args.budget_minutes * 60
     args.out.mkdir(parents=True, exist_ok=True)
     spec = dataset_spec(args.rendered)
@@ -322,7 +391,7 @@ def main() -> None:
                          min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke)
     t0 = time.perf_counter()
     training = train_all(args.out, rendered, args.device, args.cores,
-                         deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps)
+                         deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final)
     train_s = time.perf_counter() - t0
     metrics = evaluate_runs(args.out, test, args.device)
     mixes = compare_mixes(args.out)
@@ -333,7 +402,7 @@ def main() -> None:
         cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
         if args.device.startswith("cuda") and cpu_sizes and deadline - time.monotonic() > 45:
             speed += throughput(args.out, "cpu", tuple(cpu_sizes), 1)
-    gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else "no GPU"
+    gpu = f"{torch.cuda.device_count()} x {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
               "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP}
@@ -368,15 +437,17 @@ def _print_tables(result: dict) -> None:
     for task, r in result["shards"].items():
         print(f"| {task} | {r['parts']} | {r['items']} | {r['written_images']} | {r['seconds']:.0f} | "
               f"{r['images_per_s']:.1f} | {r['images_per_s_per_worker']:.1f} |")
-    print("\n| run | synth weight | workers | step / target | this call: steps, s, steps/s | loss first -> last |")
-    print("|---|---|---|---|---|---|")
+    print("\n| run | synth weight | GPUs | workers per rank | step / target | this call: steps, s, steps/s "
+          "| loss first -> last |")
+    print("|---|---|---|---|---|---|---|")
     for name, r in result["training"].items():
         weight = RUNS[name][1]
         if "error" in r:
-            print(f"| {name} | {weight} | | failed: {r['error'][-300:]!r} | | |")
+            print(f"| {name} | {weight} | | | failed: {r['error'][-300:]!r} | | |")
             continue
         loss = "-" if r["first_loss"] is None else f"{r['first_loss']:.4g} -> {r['last_loss']:.4g}"
-        print(f"| {name} | {weight} | {r.get('workers', '-')} | {r['step']} / {r['target']} | "
+        gpus = ",".join(map(str, r.get("gpus") or [])) or "-"
+        print(f"| {name} | {weight} | {gpus} | {r.get('workers', '-')} | {r['step']} / {r['target']} | "
               f"{r['steps_this_call']}, {r['seconds']:.0f}, {r.get('steps_per_s', 0):.2f} | {loss} |")
     if result["mixes"]:
         print("\n| localizer data (rendered val split, same step) | step | loss | precision | recall | F1 "
@@ -391,9 +462,12 @@ def _print_tables(result: dict) -> None:
         for key, value in _flatten(m):
             if isinstance(value, float) and not key.endswith("step"):
                 print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
-    print("\n| device | image | images/s | markers/image |\n|---|---|---|---|")
+    print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
+          "| first image: found / shown |\n|---|---|---|---|---|---|")
     for r in result["throughput"]:
-        print(f"| {r['device']} | {r['size']} x {r['size']} | {r['images_per_s']:.3g} | {r['markers_per_image']:.0f} |")
+        print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
+              f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
+              f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} |")
 
 
 def _flatten(d: dict, prefix: str = "") -> list[tuple[str, object]]:

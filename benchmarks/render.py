@@ -24,7 +24,8 @@ from common import run_fresh
 ENGINE = """
     import json, time
     from pathlib import Path
-    from factory.dataset import DatasetConfig, RenderSettings, build
+    from factory.build import build
+    from factory.dataset import DatasetConfig, RenderSettings
     config = DatasetConfig(garment="shirt", motions=("walk",), frames={frames}, variations={variations},
                            render=RenderSettings(engine="{engine}", samples={samples}))
     out = Path("{out}") / "{engine}"
