@@ -210,7 +210,7 @@ def replan(out: Path, names: list[str], before: dict[str, int], seconds: float) 
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
-              names: list[str], final: bool = False) -> dict[str, dict]:
+              names: list[str], final: bool = False, ddp: bool = True) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: re-plan the main runs' schedules
     to end within this call (`replan`).  Returns per run its steps, wall time and logged losses."""
@@ -222,6 +222,8 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         targets[name] = min(targets[name], step)
     active = [name for name in names if before[name] < targets[name]]
     gpus = placement(active, torch.cuda.device_count() if device.startswith("cuda") and not smoke else 0)
+    if not ddp:  # one GPU per run, spare GPUs idle
+        gpus = {name: g[:1] for name, g in gpus.items()}
     ranks = {name: max(1, len(gpus[name])) for name in active}
     workers = worker_counts(active, ranks, cores, smoke)
     deadline = time.monotonic() + seconds + START_S
@@ -369,6 +371,7 @@ def main() -> None:
     parser.add_argument("--runs", default=",".join(RUNS), help=f"runs to train this call (of {', '.join(RUNS)})")
     parser.add_argument("--final", action="store_true", help="the last call: each main run's schedule is "
                         "re-planned to end within this call, at the rate of the last call")
+    parser.add_argument("--no-ddp", action="store_true", help="one GPU per run: spare GPUs are left idle")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
@@ -391,7 +394,8 @@ def main() -> None:
                          min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke)
     t0 = time.perf_counter()
     training = train_all(args.out, rendered, args.device, args.cores,
-                         deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final)
+                         deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
+                         not args.no_ddp)
     train_s = time.perf_counter() - t0
     metrics = evaluate_runs(args.out, test, args.device)
     mixes = compare_mixes(args.out)
