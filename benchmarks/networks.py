@@ -14,9 +14,10 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps) without taking
    the GPU from the main run for longer.  Data workers are sized to the cores.  The schedule's
-   planned steps are long (the learning rate stays near its peak); `--final` re-plans each main run
-   to end within this call at the rate it trained at in the last call, so its cosine decay completes
-   (`steps` is a setting a resumed run may change).
+   planned steps are long (the learning rate stays near its peak); `--final` has each main run fit
+   its schedule to end within this call (`networks.train --fit-time-limit`: the step rate measured
+   early in the call), so its cosine decay completes; one `--final` call on a fresh folder is a whole
+   benchmark.
 3. Evaluate each run's last.pt on the rendered dataset's validation and test images (`--rendered`, a
    factory dataset folder of Blender renders, read through a view in --out whose `samples/` are
    built there from the images and saved ground truth when the folder has none, so only images, gt,
@@ -66,8 +67,8 @@ from networks.shards import write_shards  # noqa: E402
 from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 
 #: per task: (planned steps over all calls, batch size); Adam at LR with WARMUP steps, cosine decay to
-#: the planned step (re-planned by --final to what the last call reaches)
-SCHEDULE = {"localizer": (40000, 32), "recognizer": (30000, 256), "crosspoints": (20000, 64)}
+#: the planned step (shortened by --final to what the last call reaches: more than any call reaches)
+SCHEDULE = {"localizer": (200_000, 32), "recognizer": (200_000, 256), "crosspoints": (200_000, 64)}
 LR, WARMUP = 3e-4, 300
 #: side of the localizer's training images (rendered ones are cut to it), pixels
 IMAGE_SIZE = 256
@@ -87,6 +88,8 @@ MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints":
 SHARD_IMAGES = {"localizer": 19200, "recognizer": 9600, "crosspoints": 4800}
 #: the main runs that take spare GPUs as extra DDP ranks, heaviest first
 HEAVIEST = ("crosspoints", "recognizer", "localizer")
+#: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
+CHECKPOINT_EVERY = 2000
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
 RESERVE_S, START_S = 100.0, 45.0
 
@@ -185,42 +188,40 @@ def worker_counts(active: list[str], ranks: dict[str, int], cores: int, smoke: b
     return {name: max(1, int(RUNS[name][3] * spare / total / ranks[name] + 0.5)) for name in active}
 
 
-def run_config(name: str, workers: int, max_steps: int | None) -> TrainConfig:
+def pretrained_weights(folder: Path | None) -> dict[str, str]:
+    """Per task, a torchvision ImageNet ResNet file in `folder` (torchvision's cache names it
+    resnet18-<hash>.pth and resnet50-<hash>.pth): ResNet-18 for the localizer, ResNet-50 for the others;
+    tasks without one are left out."""
+    if folder is None or not folder.is_dir():
+        return {}
+    found = {depth: sorted(folder.glob(f"resnet{depth}-*.pth")) for depth in (18, 50)}
+    return {task: str(found[depth][0].resolve()) for task, depth in
+            (("localizer", 18), ("recognizer", 50), ("crosspoints", 50)) if found[depth]}
+
+
+def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str]) -> TrainConfig:
     task, synth_weight, _, _ = RUNS[name]
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
     return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR, warmup_steps=WARMUP,
+                       pretrained=pretrained.get(task),
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
-                       checkpoint_every=500, log_every=50, synth_weight=synth_weight)
-
-
-def replan(out: Path, names: list[str], before: dict[str, int], seconds: float) -> dict[str, int]:
-    """--final: the step each main run in `names` reaches in `seconds` at the rate (steps/s) it trained
-    at in this folder's last call (results.json), a little short so that the decay completes; runs
-    without a rate are left out."""
-    path = out / "results.json"
-    last = json.loads(path.read_text()).get("training", {}) if path.exists() else {}
-    planned = {}
-    for name in names:
-        rate = last.get(name, {}).get("steps_per_s")
-        if rate and name in MAIN.values():
-            planned[name] = before[name] + max(1, int(rate * seconds * 0.95))
-    return planned
+                       checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight)
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
-              names: list[str], final: bool = False, ddp: bool = True) -> dict[str, dict]:
+              names: list[str], final: bool = False, ddp: bool = True, pretrained: dict[str, str] | None = None
+              ) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
-    after another on the CPU), each for at most `seconds`; `final`: re-plan the main runs' schedules
-    to end within this call (`replan`).  Returns per run its steps, wall time and logged losses."""
+    after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
+    to end within this call (`--fit-time-limit`).  Returns per run its steps, planned steps, wall time
+    and logged losses."""
     smoke = max_steps is not None
     targets = {name: min(RUNS[name][2] or SCHEDULE[RUNS[name][0]][0], max_steps or 10**9) for name in names}
     before = {name: run_step(out / name / "run") for name in names}
-    planned = replan(out, [n for n in names if before[n] < targets[n]], before, seconds) if final else {}
-    for name, step in planned.items():
-        targets[name] = min(targets[name], step)
     active = [name for name in names if before[name] < targets[name]]
+    fitted = {name for name in active if final and name in MAIN.values()}
     gpus = placement(active, torch.cuda.device_count() if device.startswith("cuda") and not smoke else 0)
     if not ddp:  # one GPU per run, spare GPUs idle
         gpus = {name: g[:1] for name, g in gpus.items()}
@@ -233,7 +234,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         task = RUNS[name][0]
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        run_config(name, workers[name], max_steps).save(folder / "config.in.json")
+        run_config(name, workers[name], max_steps, pretrained or {}).save(folder / "config.in.json")
         launcher = [sys.executable]
         if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
             launcher += ["-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(ranks[name])]
@@ -241,8 +242,8 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
                    "--config", str(folder / "config.in.json"), "--device", device, "--resume", "--quiet",
                    "--num-workers", str(workers[name]), "--until-step", str(targets[name]),
                    "--time-limit", str(max(1.0, deadline - START_S - time.monotonic()))]
-        if name in planned:
-            command += ["--steps", str(planned[name])]
+        if name in fitted:
+            command += ["--fit-time-limit"]
         if RUNS[name][1] > 0:
             command += ["--shards", str(out / "shards" / task)]
         log = open(folder / "train.log", "a")
@@ -266,7 +267,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
             results[name] = {"error": f"exit status {status}: {text[-2000:]}"}
             return
         results[name] = {"seconds": time.perf_counter() - started, "summary": text.strip().splitlines()[-1],
-                         "workers": workers[name], "gpus": gpus[name], "planned_steps": planned.get(name)}
+                         "workers": workers[name], "gpus": gpus[name], "fitted": name in fitted}
 
     for name in active:
         launch(name)
@@ -279,7 +280,10 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         losses = [r for r in records if "loss" in r]
         step = run_step(out / name / "run")
         entry = results.setdefault(name, {"seconds": 0.0, "summary": "already at its last step"})
-        entry.update(step=step, target=targets[name], steps_this_call=step - before[name],
+        config = out / name / "run" / "config.json"
+        planned = json.loads(config.read_text())["steps"] if config.exists() else None
+        entry.update(step=step, target=min(targets[name], planned or targets[name]), planned_steps=planned,
+                     steps_this_call=step - before[name],
                      first_loss=losses[0]["loss"] if losses else None, last_loss=losses[-1]["loss"] if losses else None)
         if entry.get("seconds"):
             entry["steps_per_s"] = entry["steps_this_call"] / entry["seconds"]
@@ -369,9 +373,11 @@ def main() -> None:
     parser.add_argument("--cpu-sizes", default="1024", help="image sides for the CPU throughput ('' for none)")
     parser.add_argument("--codebook-hash", help="the rendering machine's codebook hash; stop if this one differs")
     parser.add_argument("--runs", default=",".join(RUNS), help=f"runs to train this call (of {', '.join(RUNS)})")
-    parser.add_argument("--final", action="store_true", help="the last call: each main run's schedule is "
-                        "re-planned to end within this call, at the rate of the last call")
+    parser.add_argument("--final", action="store_true", help="the last call: each main run fits its schedule "
+                        "to end within this call (at the step rate measured early in it)")
     parser.add_argument("--no-ddp", action="store_true", help="one GPU per run: spare GPUs are left idle")
+    parser.add_argument("--pretrained", type=Path, help="a folder of torchvision ImageNet ResNet files "
+                        "(resnet18-*.pth, resnet50-*.pth) to start new runs from; default: from scratch")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
@@ -393,9 +399,10 @@ def main() -> None:
     shards = make_shards(args.out, rendered, max(1, args.cores - 1) if not smoke else 1,
                          min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke)
     t0 = time.perf_counter()
+    pretrained = pretrained_weights(args.pretrained)
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
-                         not args.no_ddp)
+                         not args.no_ddp, pretrained)
     train_s = time.perf_counter() - t0
     metrics = evaluate_runs(args.out, test, args.device)
     mixes = compare_mixes(args.out)
@@ -412,6 +419,7 @@ def main() -> None:
               "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP}
                            for t, (s, b) in SCHEDULE.items()},
               "runs": {name: {"task": t, "synth_weight": w, "stop": s} for name, (t, w, s, _) in RUNS.items()},
+              "pretrained": pretrained,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "throughput": speed,
               "wall_s": time.monotonic() - started}

@@ -63,6 +63,10 @@ RESUMABLE_CHANGES = ("steps", "num_workers", "log_every", "val_every", "val_samp
 MASKED_LOGIT = -1e4
 #: the validation synthesizer's seed is the training seed plus this, so the two never share samples
 VAL_SEED_OFFSET = 1_000_003
+#: fit_to_time_limit: the step rate is measured from this many steps after the start (data workers and
+#: cuDNN's algorithm search are behind by then) over this share of the time limit, and the schedule
+#: is planned to end at this share of the time left (validations and checkpoints vary the pace)
+FIT_SKIP_STEPS, FIT_PROBE_SHARE, FIT_MARGIN = 10, 0.05, 0.93
 
 
 class StepOrder(Dataset):
@@ -247,7 +251,7 @@ def _check_resume(saved: dict, config: TrainConfig, path: Path) -> None:
 def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | torch.device | None = None,
           resume: bool = False, spec: PatternSpec | None = None, until_step: int | None = None,
           time_limit_s: float | None = None, progress: bool = True, shards: str | Path | None = None,
-          garment: str | Path | None = None, ranks: Ranks | None = None) -> dict:
+          garment: str | Path | None = None, ranks: Ranks | None = None, fit_to_time_limit: bool = False) -> dict:
     """Train `config.task` on `data` (a factory dataset folder or "synth") into the run folder `out`.
 
     shards: a shard folder of `config.task` (`networks.shards`) to draw the synthesized training
@@ -256,8 +260,11 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     spec: the pattern (default `training_spec(data)`).  resume: continue from `out/last.pt` (a fresh
     run refuses a folder that already holds one).  until_step / time_limit_s: stop early at that step
     or after that many seconds, writing `last.pt` (resume later).  Ctrl-C writes `last.pt` and
-    re-raises.  Returns {"step", "finished", "best_val_loss", "last", "best", "val"} (the last
-    validation metrics, or None).  With config.num_workers > 0 the data-loading workers are spawned
+    re-raises.  fit_to_time_limit: shorten the schedule (`config.steps`, so the cosine decay) to end
+    within time_limit_s at the step rate measured early in this call (`FIT_SKIP_STEPS`,
+    `FIT_PROBE_SHARE`, `FIT_MARGIN`), never lengthening it; the fitted steps are saved with the run's
+    config, so a resumed run keeps them.  Returns {"step", "finished", "best_val_loss", "last", "best",
+    "val", "steps"} (the last validation metrics, or None; the planned steps).  With config.num_workers > 0 the data-loading workers are spawned
     interpreters (`data_loader`): a script that calls `train` needs the usual
     ``if __name__ == "__main__":`` guard.
 
@@ -268,10 +275,12 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     ranks = Ranks.from_environment() if ranks is None else ranks
     device = rank_device(ranks, resolve_device(device))
     ranks.share(config.batch_size)  # a batch the ranks cannot share equally is refused before any work
+    if fit_to_time_limit and time_limit_s is None:
+        raise ValueError("fit_to_time_limit needs a time limit (--time-limit)")
     joined = join(ranks, device)
     try:
         return _train(config, data, Path(out), device, resume, spec, until_step, time_limit_s,
-                      progress and ranks.main, shards, garment, ranks)
+                      progress and ranks.main, shards, garment, ranks, fit_to_time_limit)
     finally:
         if joined:
             leave()
@@ -279,7 +288,8 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
 
 def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.device, resume: bool,
            spec: PatternSpec | None, until_step: int | None, time_limit_s: float | None, progress: bool,
-           shards: str | Path | None, garment: str | Path | None, ranks: Ranks) -> dict:
+           shards: str | Path | None, garment: str | Path | None, ranks: Ranks, fit_to_time_limit: bool = False
+           ) -> dict:
     last_path, best_path, log_path = out / "last.pt", out / "best.pt", out / "log.jsonl"
     saved = None
     if last_path.exists():
@@ -310,7 +320,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
         restrict_classes(model, class_ids)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
-    def schedule(step: int) -> float:
+    def schedule(step: int) -> float:  # reads `config` when called: a fitted schedule takes effect at once
         return lr_factor(step, config)
 
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
@@ -369,6 +379,27 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     # are the single-process ones even when the ranks' counts differ
     count_mean = (lambda count: mean_over_ranks(count, ranks)) if ranks.distributed else None
     started = time.monotonic()
+    probe = (step + FIT_SKIP_STEPS, None) if fit_to_time_limit else None  # (first step timed, its clock)
+
+    def fit_schedule() -> None:
+        """Plan `config.steps` to end within the time limit at the rate measured since the probe began
+        (the same number on every rank: their plans are averaged)."""
+        nonlocal config, stop, probe
+        first, clock = probe
+        now = time.monotonic()
+        rate = (step - first) / max(now - clock, 1e-9)
+        planned = step + rate * (time_limit_s - (now - started)) * FIT_MARGIN
+        planned = int(mean_over_ranks(torch.tensor([planned], dtype=torch.float64, device=device), ranks).item())
+        planned = max(step + 1, min(config.steps, planned))
+        log.info("%s: %.2f steps/s; the schedule is fitted to the time limit: %d steps (was %d)",
+                 config.task, rate, planned, config.steps)
+        config = config.replace(steps=planned)
+        stop = min(stop, planned)
+        bar.total = planned
+        probe = None
+        if ranks.main:
+            config.save(out / "config.json")
+
     model.train()
     bar = tqdm(total=config.steps, initial=step, desc=f"train {config.task}", unit="step", disable=not progress)
     running = None
@@ -402,6 +433,13 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
                                                         ranks, device):
                     log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
                     break
+                if probe is not None and probe[1] is None and step >= probe[0]:
+                    probe = (step, time.monotonic())
+                elif probe is not None and probe[1] is not None and any_rank(
+                        ranks.main and time.monotonic() - probe[1] >= FIT_PROBE_SHARE * time_limit_s, ranks, device):
+                    fit_schedule()
+                if step >= stop:
+                    break
     except KeyboardInterrupt:
         checkpoint(last_path)
         if ranks.main:
@@ -411,7 +449,8 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
         bar.close()
     checkpoint(last_path)
     return {"step": step, "finished": step >= config.steps, "best_val_loss": best_val if best_val < math.inf else None,
-            "last": str(last_path), "best": str(best_path) if best_path.exists() else None, "val": val_metrics}
+            "last": str(last_path), "best": str(best_path) if best_path.exists() else None, "val": val_metrics,
+            "steps": config.steps}
 
 
 def _config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -466,6 +505,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
     parser.add_argument("--until-step", type=int, help="stop at this step (writes last.pt; resume later)")
     parser.add_argument("--time-limit", type=float, help="stop after this many seconds (writes last.pt)")
+    parser.add_argument("--fit-time-limit", action="store_true", help="shorten --steps so that the learning-rate "
+                        "schedule ends within --time-limit, at the step rate measured early in the run")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
 
@@ -477,12 +518,12 @@ def main(argv: list[str] | None = None) -> int:
         spec = PatternSpec.load(args.pattern) if args.pattern is not None else None
         result = train(config, args.data, args.out, args.device, args.resume, spec, args.until_step,
                        args.time_limit, progress=not args.quiet, shards=args.shards, garment=args.garment,
-                       ranks=ranks)
+                       ranks=ranks, fit_to_time_limit=args.fit_time_limit)
         if not ranks.main:
             return
         state = "finished" if result["finished"] else "stopped (continue with --resume)"
         best = result["best_val_loss"]
-        print(f"{config.task}: {state} at step {result['step']} of {config.steps}; "
+        print(f"{config.task}: {state} at step {result['step']} of {result['steps']}; "
               f"best validation loss {'-' if best is None else f'{best:.4g}'}; {result['last']}")
 
     try:

@@ -222,3 +222,23 @@ def test_the_localizer_trains_on_shards_mixed_with_rendered_crops(dataset, tmp_p
     with pytest.raises(ValueError, match="image_size"):
         train(config.replace(image_size=96), dataset, tmp_path / "other", device="cpu", spec=SPEC, shards=shards,
               progress=False)
+
+
+def test_the_schedule_fits_the_time_limit(dataset, tmp_path):
+    """A run planned far too long, fitted to a few seconds: it finishes its (shortened) schedule inside
+    the limit with the learning rate decayed to its floor, and a resumed run keeps the fitted steps."""
+    config = _config("localizer", steps=1_000_000, batch_size=1, warmup_steps=2, min_lr_ratio=0.01, log_every=1)
+    out = tmp_path / "run"
+    started = time.monotonic()
+    result = train(config, dataset, out, device="cpu", spec=SPEC, progress=False, time_limit_s=8.0,
+                   fit_to_time_limit=True)
+    assert time.monotonic() - started < 8.0 + 5.0  # the limit, plus building the model and data
+    assert result["finished"] and 20 < result["steps"] < 1_000_000 and result["step"] == result["steps"]
+    records = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    last = [r for r in records if "lr" in r][-1]
+    assert last["step"] == result["steps"] and last["lr"] == pytest.approx(config.lr * 0.01, rel=0.05)
+    saved = read_checkpoint(out / "last.pt")
+    assert saved["config"]["steps"] == result["steps"]
+    assert json.loads((out / "config.json").read_text())["steps"] == result["steps"]
+    with pytest.raises(ValueError, match="needs a time limit"):
+        train(config, dataset, tmp_path / "other", device="cpu", spec=SPEC, progress=False, fit_to_time_limit=True)
