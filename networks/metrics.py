@@ -12,16 +12,24 @@ returns a dict of plain floats and ints (JSON-ready); a statistic over no values
 * Crosspoint Localizer (`crosspoint_metrics`): visibility precision and recall, and the median and
   95th percentile pixel error of the crosspoints visible in the ground truth, in crop pixels and,
   given their image positions, in image pixels.
+* The whole Detector (`match_detections` per image, `detector_metrics` pooled): its `Detections`
+  against an image's `ImageGroundTruth`: markers found, IDs, partial flags, five-point and crosspoint
+  errors, and the layout residual that decides which markers are cut.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from assets.pattern import LOCALIZATION_POINTS
+from assets.pattern import LOCALIZATION_POINTS, PatternSpec
+from networks.homography import layout_residual
+
+if TYPE_CHECKING:  # annotations only: the metrics import neither torch nor the observation module
+    from assets.pattern.observation import ImageGroundTruth
+    from networks.detections import Detections
 
 #: a predicted marker centre within this distance of a ground-truth centre is a match (pixels)
 MATCH_RADIUS_PX = 4.0
@@ -166,3 +174,137 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
         image_error = error_stats(np.linalg.norm(pred_image - gt_image, axis=-1)[gt_visible])
     return {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error),
             "image_error_px": image_error, "crops": int(len(gt_xy))}
+
+
+# ---- the whole Detector ---------------------------------------------------------------------------
+
+def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: PatternSpec,
+                     radius_px: float = MATCH_RADIUS_PX, localized_px: np.ndarray | None = None) -> dict:
+    """One image's Detector output against its ground truth, as raw arrays that `detector_metrics` pools.
+
+    The ground-truth markers are those present in the image (status > 0 and centre point visible); a
+    detection matches one whose centre is within `radius_px` of its own (`match_markers`).  "Full"
+    means status 2 (every crosspoint and all five points visible), "partly" status 1.
+    spec: the pattern (for `layout_residual`); localized_px: optionally the Marker Localizer's own
+    five points (L, 5, 2) of the image, before the Detector replaced cut markers' points by their
+    neighbours' estimate: matched to the present markers on their own, those matched to full ones
+    give the layout residual that the Detector's cut test saw (none when None).
+
+    Returns a dict: ints "detections" (N), "gt_markers" (M present), "gt_full" (of them status 2);
+    over the K matches (K,) bool "matched_full", "id_correct", "partial" (flagged by the Detector) and
+    "point_error_px" (K, 5) float64 (NaN where the truth is off the fabric); (R,) float64
+    "localizer_residual_cells" (localized points matched to full markers) and (F,) "gt_residual_cells"
+    (the ground-truth points of the full markers); for the matches with the right ID,
+    "crosspoint_counts" (3,) int64 visible true positives, false positives, false negatives (per
+    crosspoint) and "crosspoint_error_px" (P,) the image error of those visible in both.
+    """
+    k = detections.crosspoints_px.shape[1]
+    if gt.crosspoints_px.shape[1] != k:
+        raise ValueError(f"match_detections: the detections have {k} crosspoints per side, the ground truth "
+                         f"{gt.crosspoints_px.shape[1]}")
+    truth = gt.select((gt.status > 0) & gt.point_visible[:, 0])
+    full = truth.status == 2
+    d, g = match_markers(detections.points_px[:, 0], truth.points_px[:, 0], radius_px)
+    id_correct = detections.marker_id[d] == truth.marker_id[g]
+    point_error = np.linalg.norm(detections.points_px[d].astype(np.float64) - truth.points_px[g], axis=-1)
+
+    # crosspoints compare only where the ID, so the grid of crosspoints, is the true one
+    d_right, g_right = d[id_correct], g[id_correct]
+    pred_visible = detections.crosspoint_visible[d_right]
+    gt_visible = truth.crosspoint_visible[g_right]
+    both = pred_visible & gt_visible
+    crosspoint_error = np.linalg.norm(detections.crosspoints_px[d_right].astype(np.float64)
+                                      - truth.crosspoints_px[g_right], axis=-1)[both]
+
+    localizer_residual = np.zeros(0)
+    if localized_px is not None:
+        localized_px = np.asarray(localized_px, dtype=np.float64).reshape(-1, 5, 2)
+        raw, raw_truth = match_markers(localized_px[:, 0], truth.points_px[:, 0], radius_px)
+        localizer_residual = layout_residual(spec, localized_px[raw[full[raw_truth]]])
+    return {
+        "detections": len(detections),
+        "gt_markers": truth.num_markers,
+        "gt_full": int(full.sum()),
+        "matched_full": full[g],
+        "id_correct": id_correct,
+        "partial": detections.partial[d].astype(bool),
+        "point_error_px": point_error,
+        "localizer_residual_cells": localizer_residual,
+        "gt_residual_cells": layout_residual(spec, truth.points_px[full]),
+        "crosspoint_counts": np.array([both.sum(), (pred_visible & ~gt_visible).sum(),
+                                       (~pred_visible & gt_visible).sum()], dtype=np.int64),
+        "crosspoint_error_px": crosspoint_error,
+    }
+
+
+def _fraction(mask: np.ndarray, name: str) -> dict[str, float | int | None]:
+    """{name: the share of True in `mask` (None when empty), "count": its length}."""
+    mask = np.asarray(mask, dtype=bool)
+    return {name: float(mask.mean()) if len(mask) else None, "count": int(len(mask))}
+
+
+def residual_stats(residual: np.ndarray, threshold: float | None = None) -> dict[str, float | int | None]:
+    """{"median", "p90", "count"} of the finite layout residuals (cells), and "above_threshold": the
+    share of all of them (non-finite ones included) above `threshold` (None without one)."""
+    residual = np.asarray(residual, dtype=np.float64).ravel()
+    finite = residual[np.isfinite(residual)]
+    above = None
+    if threshold is not None and len(residual):
+        above = float((~(residual <= threshold)).mean())
+    if len(finite) == 0:
+        return {"median": None, "p90": None, "count": 0, "above_threshold": above}
+    return {"median": float(np.median(finite)), "p90": float(np.percentile(finite, 90)), "count": int(len(finite)),
+            "above_threshold": above}
+
+
+def detector_metrics(records: Sequence[dict], max_residual_cells: float | None = None) -> dict:
+    """Pool `match_detections` records of several images into the Detector's accuracy.
+
+    max_residual_cells: the Detector's `max_layout_residual_cells`, to report the share of residuals
+    above it.  Returns (JSON-ready)::
+
+      images, detections
+      markers        {"all": precision, recall, f1, counts over the present ground-truth markers,
+                      "full": recall, true_positive, false_negative over the fully visible ones}
+      id_accuracy    {"all", "full"}: {"accuracy": share of matched detections with the true ID, "count"}
+      partial        {"full", "partly"}: {"fraction": share of the matched fully / partly visible
+                      markers that the Detector flagged partial, "count"}
+      point_error_px {"all", "not_partial"}: {point name: {median, p95, count}} over the matched fully
+                      visible markers (all of them, or those not flagged partial)
+      crosspoints    {"visibility": precision, recall, f1, counts per crosspoint, "error_px": {median,
+                      p95, count} of those visible in both, "markers": matches with the true ID}
+      layout_residual_cells {"localizer", "ground_truth": `residual_stats`, "threshold"}
+    """
+    if not records:
+        raise ValueError("detector_metrics: no images to pool")
+    pooled: dict[str, object] = {}
+    for key, value in records[0].items():
+        values = [record[key] for record in records]
+        pooled[key] = sum(values) if isinstance(value, int) else np.concatenate(values)
+    full = pooled["matched_full"]
+    matched = len(full)
+    partial = pooled["partial"]
+    error = pooled["point_error_px"].reshape(-1, 5)
+    full_scores = detection_scores(full.sum(), 0, pooled["gt_full"] - full.sum())  # precision: not defined
+    by_point = {subset: {name: error_stats(error[rows, k]) for k, name in enumerate(LOCALIZATION_POINTS)}
+                for subset, rows in (("all", full), ("not_partial", full & ~partial))}
+    return {
+        "images": len(records),
+        "detections": int(pooled["detections"]),
+        "markers": {
+            "all": detection_scores(matched, pooled["detections"] - matched, pooled["gt_markers"] - matched),
+            "full": {key: full_scores[key] for key in ("recall", "true_positive", "false_negative")},
+        },
+        "id_accuracy": {"all": _fraction(pooled["id_correct"], "accuracy"),
+                        "full": _fraction(pooled["id_correct"][full], "accuracy")},
+        "partial": {"full": _fraction(partial[full], "fraction"), "partly": _fraction(partial[~full], "fraction")},
+        "point_error_px": by_point,
+        "crosspoints": {"visibility": detection_scores(*pooled["crosspoint_counts"].reshape(-1, 3).sum(axis=0)),
+                        "error_px": error_stats(pooled["crosspoint_error_px"]),
+                        "markers": int(pooled["id_correct"].sum())},
+        "layout_residual_cells": {
+            "localizer": residual_stats(pooled["localizer_residual_cells"], max_residual_cells),
+            "ground_truth": residual_stats(pooled["gt_residual_cells"], max_residual_cells),
+            "threshold": max_residual_cells,
+        },
+    }
