@@ -10,7 +10,8 @@ Reports (see `networks.metrics` for the definitions):
   recognizer   top-1 and top-5 accuracy;
   crosspoints  visibility precision / recall and the median and 95th-percentile error of the
                crosspoints visible in the ground truth, in crop pixels and in image pixels;
-and the mean loss of each.  Prints a table and writes the metrics as JSON.
+and the mean loss of each.  Prints a table and writes the metrics as JSON.  The three chained, as
+`networks.Detector` runs them on whole images: `python -m networks.evaluate_detector`.
 
 Ground truth comes from the dataset's own files, read directly (no augmentation): the cell targets,
 crops and crosspoint positions of `samples/<name>.npz`, and from `gt/<name>.npz`

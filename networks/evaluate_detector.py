@@ -1,0 +1,157 @@
+"""Evaluate the whole `networks.Detector` (the three networks chained) on a split of a factory dataset.
+
+    python -m networks.evaluate_detector --localizer runs/loc/best.pt --recognizer runs/rec/best.pt \\
+        --crosspoints runs/xp/best.pt --data out/ds --split test --json detector_test.json
+
+Where `networks.evaluate` scores each network alone on ground-truth crops, this runs the Detector on
+every image of the split, as reconstruction does, and compares its `Detections` with the image's
+`ImageGroundTruth` (`gt/<name>.npz`); see `networks.metrics.detector_metrics` for the definitions:
+  markers        precision / recall / F1 over the markers present in the image (status > 0, centre
+                 visible; a detection matches one whose centre is within --radius pixels), recall
+                 over the fully visible ones;
+  id_accuracy    matched detections with the true ID, over all and over fully visible markers;
+  partial        matched fully / partly visible markers that the Detector flagged partial (cut);
+  point_error_px median and 95th percentile error of each of the five points of the matched fully
+                 visible markers, over all of them and over those not flagged partial;
+  crosspoints    for matches with the true ID: visibility precision / recall per crosspoint and the
+                 image error of the crosspoints visible in the truth and in the detections;
+  layout_residual_cells  how far five points of a fully visible marker miss a homography of its
+                 layout (`networks.homography.layout_residual`), for the Marker Localizer's own
+                 points (before cut markers are re-estimated from neighbours) and for the ground
+                 truth's, against the Detector's `max_layout_residual_cells` (above it: "cut").
+When the dataset has template.npz, the Detector gets the garment's marker tables (IDs restricted to
+the garment, cut markers completed from their neighbours), as reconstruction's networks mode does.
+"seconds" is the time spent in the Detector (the extra localizer pass for the residuals excluded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from assets.fileio import save_json
+from assets.pattern import MarkerTable, PatternSpec
+from assets.pattern.observation import ImageGroundTruth
+from networks.data import _layout as read_layout
+from networks.data import _read_png as read_png
+from networks.detector import Detector, DetectorConfig
+from networks.evaluate import format_table, resolve_device, split_entries
+from networks.metrics import MATCH_RADIUS_PX, detector_metrics, match_detections
+
+
+def garment_tables(data: str | Path, codebook: np.ndarray) -> list[MarkerTable] | None:
+    """The garment's marker tables (one per panel) from a factory dataset folder's template.npz, built
+    with `codebook` as `assets.garments.SheetLayout.tables` builds them, but from layout_json alone
+    (without assets.garments and its mesh dependencies); None when the folder has no template.npz."""
+    path = Path(data) / "template.npz"
+    if not path.is_file():
+        return None
+    layout = read_layout(data)
+    try:
+        panels = [(PatternSpec.from_dict(p["spec"], source=f"{path}:layout_json.panels[{i}].spec"), int(p["first_id"]))
+                  for i, p in enumerate(layout["panels"])]
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: layout_json.panels lacks spec or first_id ({exc!r})") from exc
+    if not panels:
+        raise ValueError(f"{path}: layout_json has no panels")
+    return [MarkerTable.build(spec, codebook, first_id) for spec, first_id in panels]
+
+
+def load_detector(localizer: str | Path, recognizer: str | Path, crosspoints: str | Path, data: str | Path,
+                  device: str | torch.device | None = None, config: DetectorConfig = DetectorConfig(),
+                  batch_size: int = 64) -> Detector:
+    """The Detector of three checkpoints, with the tables of the dataset's garment when it has one."""
+    detector = Detector.from_checkpoints(localizer, recognizer, crosspoints, device=resolve_device(device),
+                                         batch_size=batch_size, config=config)
+    tables = garment_tables(data, detector.codebook)
+    if tables is None:
+        return detector
+    return Detector(detector.localizer, detector.recognizer, detector.crosspoints, detector.spec,
+                    device=detector.device, batch_size=batch_size, tables=tables, config=config,
+                    codebook=detector.codebook)
+
+
+def evaluate_detector(detector: Detector, data: str | Path, split: str = "test", progress: bool = True,
+                      limit: int | None = None, radius_px: float = MATCH_RADIUS_PX) -> dict:
+    """Run `detector` on the images of `split` of the factory dataset folder `data` (the first `limit`
+    only, when given), one image at a time, and pool `networks.metrics.match_detections` over them.
+
+    Returns the dict of `networks.metrics.detector_metrics` with "data", "split", "radius_px",
+    "tables" (whether the Detector knows the garment), "seconds" (in the Detector) and
+    "seconds_per_image" added."""
+    if limit is not None and limit < 1:
+        raise ValueError(f"limit must be >= 1 or None, got {limit}")
+    root = Path(data)
+    entries = split_entries(root, split)[:limit]
+    records, seconds = [], 0.0
+    for entry in tqdm(entries, desc="evaluate detector", unit="image", disable=not progress):
+        if "gt" not in entry:
+            raise ValueError(f"{root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' (ground truth) entry")
+        gt = ImageGroundTruth.load(root / entry["gt"])
+        image = read_png(root / entry["image"])
+        if image.shape[:2] != (gt.height, gt.width):
+            raise ValueError(f"{root / entry['image']}: {image.shape[1]} x {image.shape[0]} pixels, its ground "
+                             f"truth {root / entry['gt']} is {gt.width} x {gt.height}")
+        start = time.perf_counter()
+        detections = detector([image])[0]
+        seconds += time.perf_counter() - start
+        localized, _ = detector.localize([image])[0]  # the points the cut test saw
+        records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
+    metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
+    return {"data": str(root), "split": split, "radius_px": float(radius_px), "tables": detector.layout is not None,
+            **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m networks.evaluate_detector", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--localizer", type=Path, required=True, metavar="PT", help="Marker Localizer checkpoint (best.pt)")
+    parser.add_argument("--recognizer", type=Path, required=True, metavar="PT", help="Marker Recognizer checkpoint")
+    parser.add_argument("--crosspoints", type=Path, required=True, metavar="PT", help="Crosspoint Localizer checkpoint")
+    parser.add_argument("--data", type=Path, required=True, metavar="DIR", help="a factory dataset folder (manifest.jsonl, gt/)")
+    parser.add_argument("--split", default="test", help="train, val or test (default test)")
+    parser.add_argument("--limit", type=int, metavar="N", help="evaluate the first N images of the split only")
+    parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
+    parser.add_argument("--localizer-scale", type=float, default=1.0, metavar="S",
+                        help="the localizer sees the image resized by this factor, so markers fall in the "
+                             "size range it was trained on (0.5 for markers 32 to 64 px across; default 1)")
+    defaults = DetectorConfig()
+    parser.add_argument("--max-layout-residual", type=float, default=defaults.max_layout_residual_cells, metavar="CELLS",
+                        help="cells (24 per marker side) by which five points may miss a homography of the "
+                             "marker's layout before it counts as cut (default %(default)s)")
+    parser.add_argument("--nms-radius", type=float, metavar="PX",
+                        help="localizer pixels within which detected centres are merged (default: the decoder's)")
+    parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
+    parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX, metavar="PX",
+                        help="match radius between detected and true marker centres, pixels (default %(default)s)")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="also write the metrics to this JSON file")
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        if not args.radius > 0:
+            raise ValueError(f"--radius must be > 0, got {args.radius}")
+        split_entries(args.data, args.split)  # a bad folder or split fails before the checkpoints load
+        detector = load_detector(args.localizer, args.recognizer, args.crosspoints, args.data, args.device,
+                                 DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
+                                                max_layout_residual_cells=args.max_layout_residual), args.batch_size)
+        metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
+        metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),
+                                   "crosspoints": str(args.crosspoints)}, **metrics}
+        print(format_table(metrics))
+        if args.json is not None:
+            save_json(args.json, metrics)
+            print(f"metrics written to {args.json}")
+
+    return run_cli(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
