@@ -91,7 +91,7 @@ HEAVIEST = ("crosspoints", "recognizer", "localizer")
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
 CHECKPOINT_EVERY = 2000
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
-RESERVE_S, START_S = 100.0, 45.0
+RESERVE_S, START_S = 150.0, 45.0
 
 
 def prepare(root: Path, out: Path) -> tuple[Path, int]:
@@ -322,6 +322,22 @@ def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
     return metrics
 
 
+def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> dict[str, dict]:
+    """`networks.evaluate_detector` of the three main runs chained, on the held-out renders, with the
+    garment's tables: per cut threshold (`DetectorConfig.max_layout_residual_cells`), the default and
+    the 1 cell it was before (the baseline), keyed by the threshold."""
+    from networks.detector import DetectorConfig
+    from networks.evaluate_detector import evaluate_detector, load_detector
+
+    paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
+    results = {}
+    for cells in (DetectorConfig().max_layout_residual_cells, 1.0):
+        config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, max_layout_residual_cells=cells)
+        detector = load_detector(*paths, test, device=device, config=config)
+        results[f"{cells:g}"] = evaluate_detector(detector, test, split="heldout", progress=False)
+    return results
+
+
 def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False) -> list[dict]:
     """Detector images per second on `repeats` synthesized images of each size, framed as the renders
     (marker size grows with the image side; the localizer sees the image at 512 / side, the scale it
@@ -406,8 +422,9 @@ def main() -> None:
     train_s = time.perf_counter() - t0
     metrics = evaluate_runs(args.out, test, args.device)
     mixes = compare_mixes(args.out)
-    speed = []
+    speed, chain = [], {}
     if all(name in metrics for name in MAIN.values()):
+        chain = evaluate_chain(args.out, test, args.device, smoke)
         sizes = [int(v) for v in args.sizes.split(",") if v] if not smoke else [256]
         speed = throughput(args.out, args.device, tuple(sizes), 4 if args.device.startswith("cuda") else 1, smoke)
         cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
@@ -421,7 +438,8 @@ def main() -> None:
               "runs": {name: {"task": t, "synth_weight": w, "stop": s} for name, (t, w, s, _) in RUNS.items()},
               "pretrained": pretrained,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
-              "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "throughput": speed,
+              "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "detector": chain,
+              "throughput": speed,
               "wall_s": time.monotonic() - started}
     save_json(args.out / "results.json", result)
     if args.export is not None:
@@ -474,12 +492,31 @@ def _print_tables(result: dict) -> None:
         for key, value in _flatten(m):
             if isinstance(value, float) and not key.endswith("step"):
                 print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
+    if result["detector"]:
+        print(f"\n| Detector, three main runs chained ({result['heldout_images']} held-out renders), cut above "
+              "| markers P / R / F1 | recall, fully visible | ID accuracy all / full | cut share of fully visible "
+              "| median px centre, TL, TR, BL, BR (not cut) | crosspoints visibility P / R | crosspoint px median / p95 "
+              "| s/image |\n|---|---|---|---|---|---|---|---|---|")
+    for cells, d in result["detector"].items():
+        m, ids, xp = d["markers"], d["id_accuracy"], d["crosspoints"]
+        points = ", ".join(_number(d["point_error_px"]["not_partial"][k]["median"], ".2f")
+                           for k in ("centre", "TL", "TR", "BL", "BR"))
+        print(f"| {cells} cells | {m['all']['precision']:.3f} / {m['all']['recall']:.3f} / {m['all']['f1']:.3f} | "
+              f"{m['full']['recall']:.3f} | {_number(ids['all']['accuracy'], '.3f')} / "
+              f"{_number(ids['full']['accuracy'], '.3f')} | {_number(d['partial']['full']['fraction'], '.3f')} | "
+              f"{points} | {xp['visibility']['precision']:.3f} / {xp['visibility']['recall']:.3f} | "
+              f"{_number(xp['error_px']['median'], '.3f')} / {_number(xp['error_px']['p95'], '.3f')} | "
+              f"{d['seconds_per_image']:.3f} |")
     print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
           "| first image: found / shown |\n|---|---|---|---|---|---|")
     for r in result["throughput"]:
         print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
               f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
               f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} |")
+
+
+def _number(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
 
 
 def _flatten(d: dict, prefix: str = "") -> list[tuple[str, object]]:

@@ -295,7 +295,7 @@ def test_detector_completes_cut_markers_of_each_image(detector, table, scene):
     _, points, _ = scene
     ids = table.marker_ids.astype(np.int64)
     detected = points.copy()
-    detected[4, [3, 4]] += [[-30.0, 25.0], [20.0, 30.0]]  # BL and BR of marker 11 lost
+    detected[4, [3, 4]] += [[40.0, -60.0], [-40.0, -60.0]]  # marker 11 cut: BL, BR guessed on its visible part
     image = np.zeros((IMAGE_SIZE[1], IMAGE_SIZE[0], 3), np.uint8)
     # two images: in the second, marker 11 is alone, so it keeps its own points
     image_index = np.array([0] * 6 + [1])
