@@ -77,11 +77,11 @@ COMPARE_STEPS = 1500
 VAL_EVERY = {"localizer": 500, "recognizer": 1000, "crosspoints": 1000}
 #: name -> (task, synth weight, stop at step (None: the schedule), share of the data workers)
 RUNS = {
-    "localizer_mix": ("localizer", 0.5, None, 4),
+    "localizer_mix": ("localizer", 0.5, None, 3),
     "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2),
     "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2),
-    "recognizer": ("recognizer", 0.75, None, 3),
-    "crosspoints": ("crosspoints", 0.75, None, 2),
+    "recognizer": ("recognizer", 0.75, None, 6),
+    "crosspoints": ("crosspoints", 0.75, None, 3),
 }
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints": "crosspoints"}
 #: synthetic images per shard folder (the crop tasks keep up to 32 crops of each)
