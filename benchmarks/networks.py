@@ -74,7 +74,7 @@ LR, WARMUP = 3e-4, 300
 IMAGE_SIZE = 256
 #: the data-mix comparison: the localizer runs compared at this step
 COMPARE_STEPS = 1500
-VAL_EVERY = {"localizer": 500, "recognizer": 1000, "crosspoints": 1000}
+VAL_EVERY = {"localizer": 1000, "recognizer": 2000, "crosspoints": 2000}
 #: name -> (task, synth weight, stop at step (None: the schedule), share of the data workers)
 RUNS = {
     "localizer_mix": ("localizer", 0.5, None, 3),
