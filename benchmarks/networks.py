@@ -386,7 +386,7 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int, help="cap every run's steps (smoke runs)")
     parser.add_argument("--eval-images", type=int, help="evaluate on the first N rendered images only (smoke runs)")
     parser.add_argument("--sizes", default="1024,2048", help="image sides for the GPU throughput")
-    parser.add_argument("--cpu-sizes", default="1024", help="image sides for the CPU throughput ('' for none)")
+    parser.add_argument("--cpu-sizes", default="1024,2048", help="image sides for the CPU throughput ('' for none)")
     parser.add_argument("--codebook-hash", help="the rendering machine's codebook hash; stop if this one differs")
     parser.add_argument("--runs", default=",".join(RUNS), help=f"runs to train this call (of {', '.join(RUNS)})")
     parser.add_argument("--final", action="store_true", help="the last call: each main run fits its schedule "
