@@ -266,8 +266,9 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     within time_limit_s at the step rate measured early in this call (`FIT_SKIP_STEPS`,
     `FIT_PROBE_SHARE`, `FIT_MARGIN`), never lengthening it; the fitted steps are saved with the run's
     config, so a resumed run keeps them.  Returns {"step", "finished", "best_val_loss", "last", "best",
-    "val", "steps"} (the last validation metrics, or None; the planned steps).  With config.num_workers > 0 the data-loading workers are spawned
-    interpreters (`data_loader`): a script that calls `train` needs the usual
+    "val", "steps"} (the last validation metrics, or None; the planned steps).  With
+    config.num_workers > 0 the data-loading workers are spawned interpreters (`data_loader`): a
+    script that calls `train` needs the usual
     ``if __name__ == "__main__":`` guard.
 
     ranks: this process's place among several training processes (default: from torchrun's
@@ -290,8 +291,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
 
 def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.device, resume: bool,
            spec: PatternSpec | None, until_step: int | None, time_limit_s: float | None, progress: bool,
-           shards: str | Path | None, garment: str | Path | None, ranks: Ranks, fit_to_time_limit: bool = False
-           ) -> dict:
+           shards: str | Path | None, garment: str | Path | None, ranks: Ranks, fit_to_time_limit: bool) -> dict:
     last_path, best_path, log_path = out / "last.pt", out / "best.pt", out / "log.jsonl"
     saved = None
     if last_path.exists():
@@ -435,11 +435,12 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
                                                         ranks, device):
                     log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
                     break
-                if probe is not None and probe[1] is None and step >= probe[0]:
-                    probe = (step, time.monotonic())
-                elif probe is not None and probe[1] is not None and any_rank(
-                        ranks.main and time.monotonic() - probe[1] >= FIT_PROBE_SHARE * time_limit_s, ranks, device):
-                    fit_schedule()
+                if probe is not None:  # fit_to_time_limit: time the steps from probe[0], then fit once
+                    if probe[1] is None:
+                        probe = (step, time.monotonic()) if step >= probe[0] else probe
+                    elif any_rank(ranks.main and time.monotonic() - probe[1] >= FIT_PROBE_SHARE * time_limit_s,
+                                  ranks, device):
+                        fit_schedule()
                 if step >= stop:
                     break
     except KeyboardInterrupt:
