@@ -61,6 +61,8 @@ _CROP_KEYS = {
 }
 #: synthetic samples tried for one crop item before giving up (a sample may show no usable marker)
 _ATTEMPTS = 32
+#: the stream of a synthetic sample's crop jitter (`synth_crops`), apart from the synthesizer's own
+_JITTER = 7
 #: shard folders: the format name in shards.json, and the arrays of a part per task (first axis: item)
 SHARD_FORMAT = "clothcapture-synth-shards"
 SHARD_META = "shards.json"
@@ -327,7 +329,8 @@ class SynthDataset(_Items, Dataset):
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         for attempt in range(_ATTEMPTS):
-            made = synth_crops(self.task, *self.synthesizer.sample(base + attempt), self.spec)
+            made = synth_crops(self.task, *self.synthesizer.sample(base + attempt), self.spec,
+                               self.synthesizer.config, base + attempt)
             if len(made[0]):
                 crops = list(zip(*made))
                 self._last = (key, crops)
@@ -336,10 +339,14 @@ class SynthDataset(_Items, Dataset):
                            f"check SynthConfig.marker_px against image_size ({self.synthesizer.config})")
 
 
-def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec) -> tuple[np.ndarray, ...]:
+def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: SynthConfig | None = None,
+                index: int = 0) -> tuple[np.ndarray, ...]:
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
-    see them (the localizer finds those)."""
+    see them (the localizer finds those).  config.crop_jitter_px > 0: cut from jittered points
+    (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
+    if config is not None and config.crop_jitter_px > 0:
+        gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
         return recognizer_crops(image, gt, spec)
     made = crosspoint_crops(image, gt, spec)

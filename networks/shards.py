@@ -73,7 +73,7 @@ def _write_part(root: str, number: int) -> tuple[int, int, float]:
             columns["image"].append(image[None])
             columns["cells"].append(localizer_targets(gt)[None])
             continue
-        made = synth_crops(task, image, gt, spec)
+        made = synth_crops(task, image, gt, spec, synth.config, index)
         rng = np.random.default_rng([synth.config.seed, index, _SUBSET])
         keep = np.sort(rng.permutation(len(made[0]))[:_worker["crops_per_image"]])
         for name, array in zip(SHARD_ARRAYS[task], made):

@@ -83,7 +83,10 @@ class SynthConfig:
     lies within 1/6 marker of the image centre (crop tasks: a whole marker in most samples, whatever
     its size); depth_m: the plane's depth at the image centre; blur_px: (min, max) standard deviation
     of the final Gaussian blur, uniform; supersample: rendering resolution factor before area
-    averaging; node_px: spacing of the nodes where F^-1 is solved.
+    averaging; node_px: spacing of the nodes where F^-1 is solved.  crop_jitter_px: crop tasks cut
+    their crops from five points moved by Gaussian noise of this standard deviation
+    (`ImageGroundTruth.jittered`), as the Detector cuts them from the localizer's points (0: exact
+    points, the reference's crops).
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -113,10 +116,13 @@ class SynthConfig:
     supersample: int = 2
     node_px: int = 8
     seed: int = 0
+    crop_jitter_px: float = 0.0
 
     def __post_init__(self) -> None:
         w, h = self.image_size
         problems = []
+        if not self.crop_jitter_px >= 0:
+            problems.append(f"crop_jitter_px must be >= 0, got {self.crop_jitter_px}")
         if w < 8 or h < 8 or w % 8 or h % 8:
             problems.append(f"image_size must be multiples of 8, got {self.image_size}")
         if not 0 < self.marker_px[0] <= self.marker_px[1]:

@@ -29,7 +29,7 @@ Saved files keep only markers with status > 0.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +93,19 @@ class ImageGroundTruth:
         """The ground truth of the markers at `index` (integer indices or a boolean mask)."""
         arrays = {f.name: getattr(self, f.name)[index] for f in fields(self) if f.name not in ("width", "height")}
         return ImageGroundTruth(self.width, self.height, **arrays)
+
+    def jittered(self, sigma_px: float, rng: np.random.Generator) -> "ImageGroundTruth":
+        """A copy whose five localization points are moved by independent Gaussian noise of standard
+        deviation `sigma_px` pixels, where a Marker Localizer's errors put them; crosspoints,
+        visibility and status stay the truth.  Crops cut from the copy (`recognizer_crops`,
+        `crosspoint_crops`) are the slightly misaligned crops the Detector cuts, and crosspoint
+        targets follow the moved crop.  sigma_px 0: self."""
+        if not sigma_px >= 0:
+            raise ValueError(f"jittered: sigma_px must be >= 0, got {sigma_px}")
+        if sigma_px == 0:
+            return self
+        noise = rng.normal(0.0, sigma_px, self.points_px.shape).astype(np.float32)
+        return replace(self, points_px=self.points_px + noise)
 
     def save(self, path: str | Path) -> None:
         """Write the markers with status > 0 and the image size to an npz, atomically."""

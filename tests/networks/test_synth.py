@@ -6,7 +6,8 @@ import pytest
 
 from assets.pattern import (CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, generate_codebook,
                             reference_textures, unwarp)
-from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from assets.geometry import apply_homography
+from assets.pattern.observation import crosspoint_crops, crosspoint_markers, localizer_targets, recognizer_crops
 from networks.data import synth_crops
 from networks.synth import PatternSynthesizer, SynthConfig
 
@@ -233,3 +234,29 @@ def test_marker_ids_are_drawn_from_the_given_set_and_repeat_when_the_view_needs_
         assert np.all(np.diff(position) % len(ids) == 1)
     with pytest.raises(ValueError, match="marker_ids"):
         PatternSynthesizer(spec, config, codebook, marker_ids=np.array([0, len(codebook)]))
+
+
+def test_jittered_crops_are_cut_where_the_points_moved_and_their_targets_follow(spec, codebook):
+    """crop_jitter_px: crops come from moved five points (as the Detector's are), and the crosspoint
+    targets are the true crosspoints seen through the moved crop; the same sample jitters the same way."""
+    config = SynthConfig(image_size=(128, 128), centred=True, crop_jitter_px=1.5)
+    synth = PatternSynthesizer(spec, config, codebook)
+    image, gt = synth.sample(3)
+    exact = synth_crops("crosspoints", image, gt, spec)
+    moved = synth_crops("crosspoints", image, gt, spec, config, 3)
+    assert np.array_equal(moved[0], synth_crops("crosspoints", image, gt, spec, config, 3)[0])
+    assert len(moved[1]) > 0 and not np.array_equal(moved[0], exact[0])
+    jittered = gt.jittered(1.5, np.random.default_rng([config.seed, 3, 7]))
+    step = np.linalg.norm(jittered.points_px - gt.points_px, axis=-1)
+    assert 0.5 < np.nanmedian(step) < 3.0 and np.array_equal(jittered.crosspoints_px, gt.crosspoints_px, equal_nan=True)
+    pick, homography = crosspoint_markers(jittered, spec)
+    centre = spec.crosspoints_per_side // 2
+    pick = pick[gt.crosspoint_visible[pick, centre, centre]]  # synth_crops keeps the markers whose centre is seen
+    homography = homography[np.isin(crosspoint_markers(jittered, spec)[0], pick)]
+    back = apply_homography(np.linalg.inv(homography), moved[2].reshape(len(pick), -1, 2).astype(np.float64))
+    truth = gt.crosspoints_px[pick].reshape(len(pick), -1, 2)
+    seen = moved[3].reshape(len(pick), -1)
+    assert np.abs(back - truth)[seen].max() < 1e-2
+    assert gt.jittered(0.0, np.random.default_rng(0)) is gt
+    with pytest.raises(ValueError, match="crop_jitter_px"):
+        SynthConfig(crop_jitter_px=-1.0)
