@@ -9,7 +9,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    (`placement`: one GPU per main run while there are GPUs, spare GPUs join the heaviest main runs as
    DistributedDataParallel ranks through torchrun, the comparison runs share GPUs):
    the main runs, localizer_mix (rendered train split + shards, synth weight 0.5), recognizer and
-   crosspoints (shards + rendered crops, synth weight 0.75), train until the budget's end; the
+   crosspoints (shards + rendered crops, synth weight 0.75), and recognizer_jitter (the recognizer
+   on shards whose crops are cut from jittered points, `CROP_JITTER_PX`, as the Detector cuts them)
+   train until the budget's end; the
    data-mix comparison runs localizer_synth (shards only) and localizer_rendered (rendered only)
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps) without taking
@@ -75,17 +77,23 @@ IMAGE_SIZE = 256
 #: the data-mix comparison: the localizer runs compared at this step
 COMPARE_STEPS = 1500
 VAL_EVERY = {"localizer": 1000, "recognizer": 2000, "crosspoints": 2000}
-#: name -> (task, synth weight, stop at step (None: the schedule), share of the data workers)
+#: name -> (task, synth weight, stop at step (None: the schedule), share of the data workers, shard folder)
 RUNS = {
-    "localizer_mix": ("localizer", 0.5, None, 3),
-    "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2),
-    "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2),
-    "recognizer": ("recognizer", 0.75, None, 6),
-    "crosspoints": ("crosspoints", 0.75, None, 3),
+    "localizer_mix": ("localizer", 0.5, None, 3, "localizer"),
+    "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2, "localizer"),
+    "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2, "localizer"),
+    "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
+    "recognizer_jitter": ("recognizer", 0.75, None, 6, "recognizer_jitter"),
+    "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
 }
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints": "crosspoints"}
-#: synthetic images per shard folder (the crop tasks keep up to 32 crops of each)
-SHARD_IMAGES = {"localizer": 19200, "recognizer": 9600, "crosspoints": 4800}
+#: the recognizer_jitter run's synthesized crops are cut from five points jittered by this (pixels,
+#: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
+#: the median, 1.18 sigma for a 2D Gaussian
+CROP_JITTER_PX = 1.0
+#: shard folder -> (task, synthetic images (the crop tasks keep up to 32 crops of each), crop jitter px)
+SHARDS = {"localizer": ("localizer", 19200, 0.0), "recognizer": ("recognizer", 9600, 0.0),
+          "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX), "crosspoints": ("crosspoints", 4800, 0.0)}
 #: the main runs that take spare GPUs as extra DDP ranks, heaviest first
 HEAVIEST = ("crosspoints", "recognizer", "localizer")
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
@@ -147,18 +155,21 @@ def run_step(folder: Path) -> int:
     return int(read_checkpoint(last)["step"]) if last.exists() else 0
 
 
-def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: bool) -> dict[str, dict]:
-    """Write (or continue) the shard folder of every task within `seconds` in all, each task getting a
-    share of the time left by its image count, so every run has shards to start from."""
+def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: bool, names: list[str]
+                ) -> dict[str, dict]:
+    """Write (or continue) the shard folders that the runs `names` train on within `seconds` in all,
+    each getting a share of the time left by its image count, so every run has shards to start from."""
     spec, ids = dataset_spec(rendered), garment_marker_ids(rendered)
-    config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE))
+    folders = [f for f in SHARDS if any(RUNS[name][4] == f and RUNS[name][1] > 0 for name in names)]
+    counts = [SHARDS[f][1] for f in folders]
     started, results = time.perf_counter(), {}
-    for k, (task, count) in enumerate(SHARD_IMAGES.items()):
+    for k, folder in enumerate(folders):
+        task, count, jitter = SHARDS[folder]
         left = seconds - (time.perf_counter() - started)
-        share = count / sum(list(SHARD_IMAGES.values())[k:])
-        results[task] = write_shards(out / "shards" / task, task, spec, 4 if smoke else count, config, ids,
-                                     workers, images_per_part=4 if smoke else 64, time_limit_s=max(left * share, 0.0),
-                                     progress=False)
+        config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter)
+        results[folder] = write_shards(out / "shards" / folder, task, spec, 4 if smoke else count, config, ids,
+                                       workers, images_per_part=4 if smoke else 64,
+                                       time_limit_s=max(left * count / sum(counts[k:]), 0.0), progress=False)
     return results
 
 
@@ -200,7 +211,7 @@ def pretrained_weights(folder: Path | None) -> dict[str, str]:
 
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str]) -> TrainConfig:
-    task, synth_weight, _, _ = RUNS[name]
+    task, synth_weight, *_ = RUNS[name]
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
@@ -221,7 +232,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
     targets = {name: min(RUNS[name][2] or SCHEDULE[RUNS[name][0]][0], max_steps or 10**9) for name in names}
     before = {name: run_step(out / name / "run") for name in names}
     active = [name for name in names if before[name] < targets[name]]
-    fitted = {name for name in active if final and name in MAIN.values()}
+    fitted = {name for name in active if final and RUNS[name][2] is None}  # the runs without a fixed stop
     gpus = placement(active, torch.cuda.device_count() if device.startswith("cuda") and not smoke else 0)
     if not ddp:  # one GPU per run, spare GPUs idle
         gpus = {name: g[:1] for name, g in gpus.items()}
@@ -245,7 +256,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         if name in fitted:
             command += ["--fit-time-limit"]
         if RUNS[name][1] > 0:
-            command += ["--shards", str(out / "shards" / task)]
+            command += ["--shards", str(out / "shards" / RUNS[name][4])]
         log = open(folder / "train.log", "a")
         # on a GPU the runs' own processes only feed it: two OpenMP threads each, the cores go to the workers
         env = dict(os.environ, **({} if smoke else {"OMP_NUM_THREADS": "2", "MKL_NUM_THREADS": "2"}))
@@ -325,16 +336,22 @@ def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
 def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> dict[str, dict]:
     """`networks.evaluate_detector` of the three main runs chained, on the held-out renders, with the
     garment's tables: per cut threshold (`DetectorConfig.max_layout_residual_cells`), the default and
-    the 1 cell it was before (the baseline), keyed by the threshold."""
+    the 1 cell it was before (the baseline), and, where the recognizer_jitter run exists, with its
+    recognizer at the default threshold; keyed by a label of the variant."""
     from networks.detector import DetectorConfig
     from networks.evaluate_detector import evaluate_detector, load_detector
 
     paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
+    default = DetectorConfig().max_layout_residual_cells
+    variants = {f"cut above {default:g} cells": (paths, default), "cut above 1 cell": (paths, 1.0)}
+    jittered = out / "recognizer_jitter" / "run" / "last.pt"
+    if jittered.exists():
+        variants[f"cut above {default:g} cells, recognizer_jitter"] = ([paths[0], jittered, paths[2]], default)
     results = {}
-    for cells in (DetectorConfig().max_layout_residual_cells, 1.0):
+    for label, (checkpoints, cells) in variants.items():
         config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, max_layout_residual_cells=cells)
-        detector = load_detector(*paths, test, device=device, config=config)
-        results[f"{cells:g}"] = evaluate_detector(detector, test, split="heldout", progress=False)
+        detector = load_detector(*checkpoints, test, device=device, config=config)
+        results[label] = evaluate_detector(detector, test, split="heldout", progress=False)
     return results
 
 
@@ -413,7 +430,8 @@ def main() -> None:
     rendered, rebuilt = prepare(args.rendered, args.out)
     test = heldout(rendered, args.out, args.eval_images, markers=8 if smoke else None)
     shards = make_shards(args.out, rendered, max(1, args.cores - 1) if not smoke else 1,
-                         min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke)
+                         min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke,
+                         names)
     t0 = time.perf_counter()
     pretrained = pretrained_weights(args.pretrained)
     training = train_all(args.out, rendered, args.device, args.cores,
@@ -435,7 +453,8 @@ def main() -> None:
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
               "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP}
                            for t, (s, b) in SCHEDULE.items()},
-              "runs": {name: {"task": t, "synth_weight": w, "stop": s} for name, (t, w, s, _) in RUNS.items()},
+              "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2]}
+                       for name, (t, w, s, _, f) in RUNS.items()},
               "pretrained": pretrained,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "detector": chain,
@@ -493,15 +512,15 @@ def _print_tables(result: dict) -> None:
             if isinstance(value, float) and not key.endswith("step"):
                 print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
     if result["detector"]:
-        print(f"\n| Detector, three main runs chained ({result['heldout_images']} held-out renders), cut above "
+        print(f"\n| Detector, three runs chained ({result['heldout_images']} held-out renders) "
               "| markers P / R / F1 | recall, fully visible | ID accuracy all / full | cut share of fully visible "
               "| median px centre, TL, TR, BL, BR (not cut) | crosspoints visibility P / R | crosspoint px median / p95 "
               "| s/image |\n|---|---|---|---|---|---|---|---|---|")
-    for cells, d in result["detector"].items():
+    for label, d in result["detector"].items():
         m, ids, xp = d["markers"], d["id_accuracy"], d["crosspoints"]
         points = ", ".join(_number(d["point_error_px"]["not_partial"][k]["median"], ".2f")
                            for k in ("centre", "TL", "TR", "BL", "BR"))
-        print(f"| {cells} cells | {m['all']['precision']:.3f} / {m['all']['recall']:.3f} / {m['all']['f1']:.3f} | "
+        print(f"| {label} | {m['all']['precision']:.3f} / {m['all']['recall']:.3f} / {m['all']['f1']:.3f} | "
               f"{m['full']['recall']:.3f} | {_number(ids['all']['accuracy'], '.3f')} / "
               f"{_number(ids['full']['accuracy'], '.3f')} | {_number(d['partial']['full']['fraction'], '.3f')} | "
               f"{points} | {xp['visibility']['precision']:.3f} / {xp['visibility']['recall']:.3f} | "
