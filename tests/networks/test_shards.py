@@ -8,7 +8,7 @@ import torch
 
 from assets.pattern import PatternSpec
 from assets.pattern.observation import localizer_targets
-from networks.data import ShardDataset, synth_crops
+from networks.data import ShardDataset, read_shard_meta, synth_crops
 from networks.shards import main, write_shards
 from networks.synth import PatternSynthesizer, SynthConfig
 
@@ -75,3 +75,25 @@ def test_cli_writes_a_shard_folder(tmp_path, capsys):
     assert main(["write", "--out", str(out), "--task", "localizer", "--count", "2", "--pattern", str(pattern),
                  "--image-size", "32", "--images-per-part", "2", "--quiet"]) == 2
     assert "other settings" in capsys.readouterr().err
+
+
+def test_cli_writes_jittered_crops(tmp_path, capsys):
+    """--crop-jitter: the shard folder records it, and its crops are those synth_crops cuts with it."""
+    pattern = tmp_path / "pattern.json"
+    SPEC.save(pattern)
+    out = tmp_path / "jittered"
+    assert main(["write", "--out", str(out), "--task", "recognizer", "--count", "2", "--pattern", str(pattern),
+                 "--image-size", "128", "--images-per-part", "2", "--crop-jitter", "1.5", "--quiet"]) == 0
+    meta = read_shard_meta(out)
+    assert meta["synth"]["crop_jitter_px"] == 1.5
+    config = SynthConfig.from_dict(meta["synth"])
+    image, gt = PatternSynthesizer(SPEC, config).sample(0)
+    jittered, _ = synth_crops("recognizer", image, gt, SPEC, config, 0)
+    exact, _ = synth_crops("recognizer", image, gt, SPEC)
+    stored = ShardDataset(out, "recognizer")
+    got = np.stack([stored[i]["crop"].permute(1, 2, 0).numpy() for i in range(min(len(jittered), 32))])
+
+    def among(a, b):
+        return (a.reshape(len(a), 1, -1) == b.reshape(1, len(b), -1)).all(axis=-1).any(axis=1)
+
+    assert len(got) > 0 and among(got, jittered).all() and not among(got, exact).any()
