@@ -99,7 +99,7 @@ HEAVIEST = ("crosspoints", "recognizer", "localizer")
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
 CHECKPOINT_EVERY = 2000
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
-RESERVE_S, START_S = 150.0, 45.0
+RESERVE_S, START_S = 210.0, 45.0
 
 
 def prepare(root: Path, out: Path) -> tuple[Path, int]:
@@ -335,21 +335,23 @@ def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
 
 def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> dict[str, dict]:
     """`networks.evaluate_detector` of the three main runs chained, on the held-out renders, with the
-    garment's tables: per cut threshold (`DetectorConfig.max_layout_residual_cells`), the default and
-    the 1 cell it was before (the baseline), and, where the recognizer_jitter run exists, with its
-    recognizer at the default threshold; keyed by a label of the variant."""
+    garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
+    baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
+    before; and, where the recognizer_jitter run exists, with its recognizer, with and without votes;
+    keyed by a label of the variant."""
     from networks.detector import DetectorConfig
     from networks.evaluate_detector import evaluate_detector, load_detector
 
     paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
-    default = DetectorConfig().max_layout_residual_cells
-    variants = {f"cut above {default:g} cells": (paths, default), "cut above 1 cell": (paths, 1.0)}
+    variants = {"defaults": (paths, {}), "no ID votes": (paths, {"vote_ids": False}),
+                "cut above 1 cell": (paths, {"max_layout_residual_cells": 1.0})}
     jittered = out / "recognizer_jitter" / "run" / "last.pt"
     if jittered.exists():
-        variants[f"cut above {default:g} cells, recognizer_jitter"] = ([paths[0], jittered, paths[2]], default)
+        variants["recognizer_jitter"] = ([paths[0], jittered, paths[2]], {})
+        variants["recognizer_jitter, no ID votes"] = ([paths[0], jittered, paths[2]], {"vote_ids": False})
     results = {}
-    for label, (checkpoints, cells) in variants.items():
-        config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, max_layout_residual_cells=cells)
+    for label, (checkpoints, overrides) in variants.items():
+        config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, **overrides)
         detector = load_detector(*checkpoints, test, device=device, config=config)
         results[label] = evaluate_detector(detector, test, split="heldout", progress=False)
     return results
@@ -358,7 +360,8 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> d
 def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False) -> list[dict]:
     """Detector images per second on `repeats` synthesized images of each size, framed as the renders
     (marker size grows with the image side; the localizer sees the image at 512 / side, the scale it
-    was trained on), after a warm-up call on a 256 px corner of one; with the markers found on the
+    was trained on), after a warm-up call on the first and with every ID's reference texture rendered;
+    with the stage times (`Detector.stage_seconds`) and the markers found on the
     first image (the same on every device) and the markers the images show.  Smoke runs take only the
     surest guesses of their untrained localizer (hundreds of crops through the crosspoint network
     take minutes on a CPU)."""
@@ -375,7 +378,11 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smo
         samples = [synth.sample(i) for i in range(repeats)]
         images = [image for image, *_ in samples]
         shown = [int((gt.status > 0).sum()) for _, gt, *_ in samples]
-        detector([np.ascontiguousarray(images[0][:256, :256])])
+        # every ID's reference texture once (a garment's Detector renders its IDs when built), and a
+        # warm-up call (CUDA kernels, cuDNN's algorithm choice: the first image on a GPU, a corner on a CPU)
+        detector.references(np.arange(len(detector.codebook)))
+        detector([images[0] if device.startswith("cuda") else np.ascontiguousarray(images[0][:256, :256])])
+        stages_before = dict(detector.stage_seconds)
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         start = time.perf_counter()
@@ -386,6 +393,7 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smo
         rows.append({"device": device, "precision": "float32", "size": size, "localizer_scale": scale,
                      "images": repeats, "seconds": seconds, "images_per_s": repeats / seconds,
                      "markers_per_image": float(np.mean(found)), "shown_per_image": float(np.mean(shown)),
+                     "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()},
                      "found_first_image": found[0], "shown_first_image": shown[0]})
     return rows
 
@@ -515,7 +523,8 @@ def _print_tables(result: dict) -> None:
         print(f"\n| Detector, three runs chained ({result['heldout_images']} held-out renders) "
               "| markers P / R / F1 | recall, fully visible | ID accuracy all / full | cut share of fully visible "
               "| median px centre, TL, TR, BL, BR (not cut) | crosspoints visibility P / R | crosspoint px median / p95 "
-              "| s/image |\n|---|---|---|---|---|---|---|---|---|")
+              "| s/image | stages s/image: localize, recognize, vote, complete, crosspoints "
+              "|\n|---|---|---|---|---|---|---|---|---|---|")
     for label, d in result["detector"].items():
         m, ids, xp = d["markers"], d["id_accuracy"], d["crosspoints"]
         points = ", ".join(_number(d["point_error_px"]["not_partial"][k]["median"], ".2f")
@@ -525,13 +534,19 @@ def _print_tables(result: dict) -> None:
               f"{_number(ids['full']['accuracy'], '.3f')} | {_number(d['partial']['full']['fraction'], '.3f')} | "
               f"{points} | {xp['visibility']['precision']:.3f} / {xp['visibility']['recall']:.3f} | "
               f"{_number(xp['error_px']['median'], '.3f')} / {_number(xp['error_px']['p95'], '.3f')} | "
-              f"{d['seconds_per_image']:.3f} |")
+              f"{d['seconds_per_image']:.3f} | {_stages(d, d['seconds'] / d['seconds_per_image'])} |")
     print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
-          "| first image: found / shown |\n|---|---|---|---|---|---|")
+          "| first image: found / shown | stages s/image: localize, recognize, vote, complete, crosspoints "
+          "|\n|---|---|---|---|---|---|---|")
     for r in result["throughput"]:
         print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
               f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
-              f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} |")
+              f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} | {_stages(r, r['images'])} |")
+
+
+def _stages(record: dict, images: float) -> str:
+    stages = record.get("stage_seconds") or {}
+    return ", ".join(f"{seconds / images:.3f}" for seconds in stages.values()) or "-"
 
 
 def _number(value: float | None, spec: str) -> str:

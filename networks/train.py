@@ -318,6 +318,8 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     torch.manual_seed(config.seed)
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained).to(device)
+    if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
+        model = model.to(memory_format=torch.channels_last)
     if class_ids is not None:
         restrict_classes(model, class_ids)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)

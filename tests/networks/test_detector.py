@@ -30,6 +30,7 @@ from networks.homography import (
     estimate_from_neighbours,
     fit_homography_masked,
     layout_residual,
+    vote_ids,
 )
 from networks.models import CrosspointLocalizer, MarkerLocalizer, MarkerRecognizer
 
@@ -177,6 +178,63 @@ def test_cut_marker_is_recovered_from_its_neighbours(table, scene):
     assert not estimated.any()
 
 
+def test_vote_ids_restores_ids_that_the_neighbours_contradict(table, scene):
+    _, points, _ = scene
+    layout = MarkerLayout.from_tables([table], SPEC.num_ids)
+    ids = table.marker_ids.astype(np.int64)  # 2 x 3 from 7: 7 8 9 / 10 11 12
+    full = np.ones(len(ids), bool)
+    voted, support = vote_ids(layout, SPEC, ids, points, full)
+    assert np.array_equal(voted, ids)  # true IDs stay: each has all its neighbours' votes
+    assert support.tolist() == [3, 5, 3, 3, 5, 3]
+    wrong = ids.copy()
+    wrong[4] = 9  # marker 11 (middle of the bottom row) read as 9, 8 read as an ID off the garment
+    wrong[1] = 40
+    voted, support = vote_ids(layout, SPEC, wrong, points, full)
+    assert np.array_equal(voted, ids)
+    assert support.tolist() == [3, 5, 3, 3, 5, 3]  # counted again with the corrected voters
+    # cut markers (not voters) need min_votes_partial votes: with 7 and 11 cut, 11 gets 4 (8, 9, 10,
+    # 12) and 7 gets 2 (8, 10)
+    cut = full.copy()
+    cut[[0, 4]] = False
+    wrong = ids.copy()
+    wrong[[0, 4]] = [12, 8]
+    voted, _ = vote_ids(layout, SPEC, wrong, points, cut)
+    assert voted.tolist() == [12] + ids[1:].tolist()
+    voted, _ = vote_ids(layout, SPEC, wrong, points, cut, min_votes_partial=2)
+    assert np.array_equal(voted, ids)
+    # a neighbour further than `tolerance` marker sides from its slot is not found
+    moved = points.copy()
+    moved[4] += 0.4 * np.linalg.norm(points[4, 2] - points[4, 1])
+    wrong = ids.copy()
+    wrong[4] = 9
+    assert vote_ids(layout, SPEC, wrong, moved, full)[0][4] == 9
+    # one marker alone, or no voter: nothing to go by
+    assert vote_ids(layout, SPEC, wrong[4:5], points[4:5], full[4:5])[0].tolist() == [9]
+    assert np.array_equal(vote_ids(layout, SPEC, wrong, points, np.zeros(6, bool))[0], wrong)
+
+
+def test_detector_votes_per_image_and_scores_a_voted_id_by_its_probability(detector, table, scene):
+    image, points, _ = scene
+    ids = table.marker_ids.astype(np.int64)
+    wrong = ids.copy()
+    wrong[4] = 9
+    index = np.array([0] * 6 + [1])  # image 1 shows marker 11 alone, with the same wrong ID
+    voted = detector.vote([image, image], index, np.concatenate([points, points[4:5]]), np.append(wrong, 9))
+    assert np.array_equal(voted[:6], ids) and voted[6] == 9
+    off = dataclasses.replace(detector.config, vote_ids=False)
+    plain = Detector(detector.localizer, detector.recognizer, detector.crosspoints, SPEC, tables=[table],
+                     codebook=detector.codebook, config=off)
+    assert np.array_equal(plain.vote([image], index[:6], points, wrong), wrong)
+    # the probability of a given ID is the softmax entry the argmax path reports for its own pick
+    best, probability = detector.recognize([image], np.zeros(6, np.int64), points)
+    again = detector.recognize([image], np.zeros(6, np.int64), points, best)[1]
+    assert np.allclose(again, probability, atol=1e-6)
+    other = detector.recognize([image], np.zeros(6, np.int64), points, ids)[1]
+    assert ((other <= probability + 1e-6) & (other > 0)).all()
+    with pytest.raises(ValueError, match="vote_tolerance"):
+        DetectorConfig(vote_tolerance=0.6)
+
+
 def test_pad_images():
     a = np.full((5, 9, 3), 7, np.uint8)
     b = np.full((17, 3, 3), 9, np.uint8)
@@ -228,7 +286,7 @@ def _check(detections, image):
     assert ((seen >= 0) & (seen <= [width, height])).all()
 
 
-def test_detector_end_to_end_on_cpu(detector, scene):
+def test_detector_end_to_end_on_cpu(detector, table, scene):
     rng = np.random.default_rng(0)
     small = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
     wide = np.ascontiguousarray(scene[0][200:296, 200:328])  # 96 x 128 of the fabric
@@ -241,7 +299,8 @@ def test_detector_end_to_end_on_cpu(detector, scene):
         centre = detections.points_px[:, 0].astype(np.float64)
         gaps = np.linalg.norm(centre[:, None] - centre[None], axis=-1) + np.eye(len(centre)) * 1e9
         assert gaps.min() > 40.0
-    assert set(detector._references) == set(np.concatenate([d.marker_id for d in result]).tolist())
+    assert set(detector._references) == set(table.marker_ids.tolist())  # the garment's, rendered at construction
+    assert all(seconds > 0 for seconds in detector.stage_seconds.values()), detector.stage_seconds
     alone = detector([wide])[0]  # batching does not change the answer
     assert np.array_equal(alone.marker_id, result[1].marker_id)
     assert np.allclose(alone.crosspoints_px, result[1].crosspoints_px, atol=1e-3)

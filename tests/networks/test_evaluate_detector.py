@@ -169,8 +169,10 @@ def test_evaluate_detector_counts_add_up(dataset, checkpoints):
     result = evaluate_detector(detector, dataset, "test", progress=False, radius_px=32.0)
     assert set(result) == {"data", "split", "radius_px", "tables", "images", "detections", "markers", "id_accuracy",
                            "partial", "point_error_px", "crosspoints", "layout_residual_cells", "seconds",
-                           "seconds_per_image"}
+                           "seconds_per_image", "stage_seconds"}
     assert result["images"] == 2 and result["tables"] is True and result["seconds"] > 0
+    assert set(result["stage_seconds"]) == set(detector.stage_seconds)
+    assert 0 < sum(result["stage_seconds"].values()) <= result["seconds"]
     gt = [ImageGroundTruth.load(p) for p in sorted((dataset / "gt").glob("*.npz"))]
     present = sum(int(((g.status > 0) & g.point_visible[:, 0]).sum()) for g in gt)
     markers = result["markers"]["all"]
