@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from assets.geometry import apply_homography, fit_homography
+from assets.geometry import apply_homography, fit_homography, invert_3x3
 from assets.pattern import (RECOGNIZER_CROP, CropSpec, MarkerTable, PatternSpec, crop_homography, crop_localization_px,
                             localization_rc)
 
@@ -39,7 +39,7 @@ def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop
     n = len(points_px)
     if n == 0:
         return np.zeros(crop_xy.shape)
-    to_image = np.linalg.inv(crop_homography(spec, crop, points_px))
+    to_image = invert_3x3(crop_homography(spec, crop, points_px))
     return apply_homography(to_image, crop_xy.reshape(n, -1, 2)).reshape(crop_xy.shape)
 
 
@@ -98,7 +98,7 @@ def fit_homography_masked(src: np.ndarray, dst: np.ndarray, mask: np.ndarray) ->
     rows_v = np.stack([zero, zero, zero, -x, -y, -one, v * x, v * y, v], axis=-1) * weight[..., None]
     a = np.concatenate([rows_u, rows_v], axis=1)  # (N, 2P, 9); masked-out rows are zero
     hn = np.linalg.svd(a)[2][:, -1].reshape(-1, 3, 3)
-    h = np.linalg.inv(td) @ hn @ ts
+    h = invert_3x3(td) @ hn @ ts
     with np.errstate(invalid="ignore", divide="ignore"):
         h = h / h[:, 2:3, 2:3]
     h[count < 4] = np.nan
@@ -283,7 +283,7 @@ def vote_ids(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, poi
     side = spec.cells_per_side * crop.px_per_cell(spec)
     slots = centre + side * _NEIGHBOUR_OFFSETS[:, ::-1]  # (8, 2) crop (x, y) = (col, row)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        to_image = np.linalg.inv(crop_homography(spec, crop, points_px[voters]))
+        to_image = invert_3x3(crop_homography(spec, crop, points_px[voters]))
         predicted = apply_homography(to_image, slots[None])  # (V, 8, 2)
     corners = points_px[voters][:, [1, 2, 4, 3, 1]]
     side_px = np.linalg.norm(np.diff(corners, axis=1), axis=-1).mean(axis=1)
