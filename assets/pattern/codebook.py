@@ -13,6 +13,7 @@ of a batch against all accepted codes is one matrix product.
 
 from __future__ import annotations
 
+import functools
 import logging
 
 import numpy as np
@@ -55,7 +56,15 @@ def self_rotation_distance(grids: np.ndarray) -> np.ndarray:
 
 
 def generate_codebook(spec: PatternSpec) -> np.ndarray:
-    """(spec.num_ids, n, n) uint8 module grids; row k is marker ID k.  Deterministic in `spec.seed`."""
+    """(spec.num_ids, n, n) uint8 module grids; row k is marker ID k.  Deterministic in `spec.seed`.
+
+    Generated once per spec in a process (about 1.4 s for 4,096 IDs) and cached; each call returns
+    its own copy."""
+    return _cached_codebook(spec).copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_codebook(spec: PatternSpec) -> np.ndarray:
     n = spec.modules_per_side
     mask, value = fixed_modules(spec)
     free = ~mask

@@ -52,3 +52,13 @@ def test_default_codebook_never_changes(default_codebook):
     If this fails after a numpy upgrade, the random stream changed; pin the old codebook as data."""
     digest = hashlib.sha256(default_codebook.tobytes()).hexdigest()
     assert digest == "992492aa4fb81ba9cb4c97e53c4ef2546796b4a269ccc098d2fef1253c779669"
+
+
+def test_codebook_is_generated_once_and_each_call_gets_its_own_copy():
+    spec = PatternSpec(num_ids=64, rows=4, cols=4, seed=11)
+    first = generate_codebook(spec)
+    first[:] = 0  # a caller changing its copy changes nobody else's
+    second = generate_codebook(spec)
+    assert second.any() and second.flags.writeable
+    assert np.array_equal(second, generate_codebook(dataclasses.replace(spec)))  # an equal spec hits the cache
+    assert not np.array_equal(second, generate_codebook(dataclasses.replace(spec, seed=12)))
