@@ -9,7 +9,8 @@ garment (the recognizer's mistakes: 0.26 is the chained Detector's measured rate
 markers, 0.35 on all).  Markers whose noisy points are fully observed (`networks.detector.fully_observed`
 at the Detector's cut threshold) vote, as in the Detector.  Reports the ID accuracy without and with
 votes, on all markers and on the fully observed ones, how many wrong IDs were put right and right
-ones made wrong, per error rate; 3 noise draws each.
+ones made wrong, and how many IDs are still wrong among the markers whose final ID has a neighbour's
+vote (`Detections.id_support` >= 1) and among those with none, per error rate; 3 noise draws each.
 
     python benchmarks/id_votes.py --data .bench/rendered [--error-rates 0,0.1,0.26,0.35,0.5]
 
@@ -66,7 +67,7 @@ def main() -> None:
     started = time.perf_counter()
     for rate in (float(r) for r in args.error_rates.split(",")):
         count = {k: 0 for k in ("markers", "full", "wrong", "wrong_full", "right_after", "right_after_full",
-                                "fixed", "broken")}
+                                "fixed", "broken", "supported", "supported_wrong", "unsupported_wrong")}
         for draw in range(DRAWS):
             rng = np.random.default_rng([draw, int(rate * 1000)])
             for points, ids, size in truth:
@@ -76,7 +77,7 @@ def main() -> None:
                 read[wrong] = rng.choice(garment, int(wrong.sum()))
                 wrong = read != ids  # a draw may hit the true ID
                 full = fully_observed(spec, noisy, size, config.max_layout_residual_cells)
-                voted, _ = vote_ids(layout, spec, read, noisy, full, config.vote_min, config.vote_min_partial,
+                voted, support = vote_ids(layout, spec, read, noisy, full, config.vote_min, config.vote_min_partial,
                                     config.vote_tolerance)
                 right = voted == ids
                 count["markers"] += len(ids)
@@ -87,6 +88,9 @@ def main() -> None:
                 count["right_after_full"] += int((right & full).sum())
                 count["fixed"] += int((wrong & right).sum())
                 count["broken"] += int((~wrong & ~right).sum())
+                count["supported"] += int((support > 0).sum())
+                count["supported_wrong"] += int(((support > 0) & ~right).sum())
+                count["unsupported_wrong"] += int(((support == 0) & ~right).sum())
         rows.append({"error_rate": rate, **count,
                      "accuracy_before": 1 - count["wrong"] / count["markers"],
                      "accuracy_after": count["right_after"] / count["markers"],
@@ -101,11 +105,13 @@ def main() -> None:
     print(f"# ID votes, {result['date']}, {args.data}: {len(truth)} images, {result['markers_per_draw']} markers, "
           f"{DRAWS} draws, points moved by {args.point_noise} px, {result['seconds']:.1f} s")
     print("\n| IDs replaced | ID accuracy, recognizer's IDs (baseline): all / fully observed | with votes: all / "
-          "fully observed | wrong IDs put right | right IDs made wrong |\n|---|---|---|---|---|")
+          "fully observed | wrong IDs put right | right IDs made wrong | wrong after votes: with support >= 1 "
+          "/ with support 0 |\n|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['error_rate']:.0%} | {r['accuracy_before']:.3f} / {r['accuracy_before_full']:.3f} | "
               f"{r['accuracy_after']:.3f} / {r['accuracy_after_full']:.3f} | {r['fixed']} of {r['wrong']} | "
-              f"{r['broken']} of {r['markers'] - r['wrong']} |")
+              f"{r['broken']} of {r['markers'] - r['wrong']} | {r['supported_wrong']} of {r['supported']} / "
+              f"{r['unsupported_wrong']} of {r['markers'] - r['supported']} |")
     print("RESULT " + json.dumps(result))
 
 

@@ -355,20 +355,22 @@ class Detector:
         return xy, visible
 
     def vote(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
-             marker_id: np.ndarray) -> np.ndarray:
-        """Stage 3: marker_id (N,) int64 corrected by the neighbours' votes, per image (unchanged
-        without tables or with `config.vote_ids` off)."""
+             marker_id: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 3: (marker_id (N,) int64 corrected by the neighbours' votes, per image; id_support
+        (N,) int16, the votes for that ID); unchanged IDs and support -1 without tables or with
+        `config.vote_ids` off."""
         marker_id = np.asarray(marker_id, dtype=np.int64).copy()
+        support = np.full(len(marker_id), -1, dtype=np.int16)
         if self.layout is None or not self.config.vote_ids:
-            return marker_id
+            return marker_id, support
         for i in np.unique(image_index):
             pick = np.flatnonzero(image_index == i)
             size = (images[i].shape[1], images[i].shape[0])
             full = fully_observed(self.spec, points_px[pick], size, self.config.max_layout_residual_cells)
-            marker_id[pick] = vote_ids(self.layout, self.spec, marker_id[pick], points_px[pick], full,
-                                       self.config.vote_min, self.config.vote_min_partial,
-                                       self.config.vote_tolerance)[0]
-        return marker_id
+            marker_id[pick], support[pick] = vote_ids(self.layout, self.spec, marker_id[pick], points_px[pick], full,
+                                                      self.config.vote_min, self.config.vote_min_partial,
+                                                      self.config.vote_tolerance)
+        return marker_id, support
 
     def complete_partial(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
                          marker_id: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -410,7 +412,7 @@ class Detector:
 
         marker_id, probability = self.recognize(images, image_index, points)
         lap("recognize")
-        voted = self.vote(images, image_index, points, marker_id)
+        voted, support = self.vote(images, image_index, points, marker_id)
         changed = voted != marker_id
         if changed.any():
             marker_id = voted
@@ -427,5 +429,6 @@ class Detector:
             pick = image_index == i
             result.append(Detections(
                 marker_id=marker_id[pick], confidence=confidence[pick], points_px=points[pick].astype(np.float32),
-                crosspoints_px=crosspoints_px[pick], crosspoint_visible=visible[pick], partial=partial[pick]))
+                crosspoints_px=crosspoints_px[pick], crosspoint_visible=visible[pick], partial=partial[pick],
+                id_support=support[pick]))
         return result

@@ -219,12 +219,14 @@ def test_detector_votes_per_image_and_scores_a_voted_id_by_its_probability(detec
     wrong = ids.copy()
     wrong[4] = 9
     index = np.array([0] * 6 + [1])  # image 1 shows marker 11 alone, with the same wrong ID
-    voted = detector.vote([image, image], index, np.concatenate([points, points[4:5]]), np.append(wrong, 9))
+    voted, support = detector.vote([image, image], index, np.concatenate([points, points[4:5]]), np.append(wrong, 9))
     assert np.array_equal(voted[:6], ids) and voted[6] == 9
+    assert support.dtype == np.int16 and support.tolist() == [3, 5, 3, 3, 5, 3, 0]
     off = dataclasses.replace(detector.config, vote_ids=False)
     plain = Detector(detector.localizer, detector.recognizer, detector.crosspoints, SPEC, tables=[table],
                      codebook=detector.codebook, config=off)
-    assert np.array_equal(plain.vote([image], index[:6], points, wrong), wrong)
+    kept, support = plain.vote([image], index[:6], points, wrong)
+    assert np.array_equal(kept, wrong) and (support == -1).all()
     # the probability of a given ID is the softmax entry the argmax path reports for its own pick
     best, probability = detector.recognize([image], np.zeros(6, np.int64), points)
     again = detector.recognize([image], np.zeros(6, np.int64), points, best)[1]
@@ -276,6 +278,7 @@ def _check(detections, image):
     assert detections.crosspoints_px.shape == (n, k, k, 2) and detections.crosspoints_px.dtype == np.float32
     assert detections.crosspoint_visible.shape == (n, k, k) and detections.crosspoint_visible.dtype == np.bool_
     assert detections.partial.shape == (n,) and detections.partial.dtype == np.bool_
+    assert detections.id_support.shape == (n,) and (detections.id_support >= 0).all()  # a garment: votes taken
     assert ((detections.confidence >= 0) & (detections.confidence <= 1)).all()
     assert ((detections.marker_id >= FIRST_ID) & (detections.marker_id < FIRST_ID + 6)).all()  # on the garment
     assert np.isfinite(detections.points_px).all() and np.isfinite(detections.crosspoints_px).all()
@@ -325,6 +328,10 @@ def test_detections_save_load_round_trip(tmp_path, detector, scene):
     np.savez(tmp_path / "bad.npz", **bad)
     with pytest.raises(ValueError, match=r"bad\.npz: Detections\.partial: expected shape"):
         Detections.load(tmp_path / "bad.npz")
+    older = {k: v for k, v in detections.to_dict().items() if k != "id_support"}  # saved before id_support
+    np.savez(tmp_path / "older.npz", **older)
+    assert (Detections.load(tmp_path / "older.npz").id_support == -1).all()
+    assert (detections.select(np.arange(len(detections))[::-1]).id_support == detections.id_support[::-1]).all()
     with pytest.raises(ValueError, match="missing array"):
         np.savez(tmp_path / "short.npz", marker_id=detections.marker_id)
         Detections.load(tmp_path / "short.npz")
