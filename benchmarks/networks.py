@@ -61,7 +61,7 @@ import torch  # noqa: E402
 
 from assets.fileio import save_json, save_npz  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, training_samples  # noqa: E402
-from networks.checkpoint import codebook_hash, read_checkpoint  # noqa: E402
+from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
 from networks.data import dataset_spec, garment_marker_ids  # noqa: E402
 from networks.evaluate import evaluate  # noqa: E402
@@ -210,20 +210,30 @@ def pretrained_weights(folder: Path | None) -> dict[str, str]:
             (("localizer", 18), ("recognizer", 50), ("crosspoints", 50)) if found[depth]}
 
 
-def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str]) -> TrainConfig:
+def init_weights(folder: Path | None) -> dict[str, str]:
+    """Per run name, a checkpoint `<run>.pt` in `folder` (a slim one from an earlier `--export-weights`)
+    that the new run starts from (`networks.train --init`); runs without one are left out."""
+    if folder is None or not folder.is_dir():
+        return {}
+    return {name: str((folder / f"{name}.pt").resolve()) for name in RUNS if (folder / f"{name}.pt").is_file()}
+
+
+def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
+               init: dict[str, str] | None = None) -> TrainConfig:
     task, synth_weight, *_ = RUNS[name]
+    start = (init or {}).get(name)
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
     return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR, warmup_steps=WARMUP,
-                       pretrained=pretrained.get(task),
+                       pretrained=None if start else pretrained.get(task), init=start,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight)
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
-              names: list[str], final: bool = False, ddp: bool = True, pretrained: dict[str, str] | None = None
-              ) -> dict[str, dict]:
+              names: list[str], final: bool = False, ddp: bool = True, pretrained: dict[str, str] | None = None,
+              init: dict[str, str] | None = None) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
     to end within this call (`--fit-time-limit`).  Returns per run its steps, planned steps, wall time
@@ -245,7 +255,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         task = RUNS[name][0]
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        run_config(name, workers[name], max_steps, pretrained or {}).save(folder / "config.in.json")
+        run_config(name, workers[name], max_steps, pretrained or {}, init).save(folder / "config.in.json")
         launcher = [sys.executable]
         if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
             launcher += ["-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(ranks[name])]
@@ -419,6 +429,10 @@ def main() -> None:
     parser.add_argument("--no-ddp", action="store_true", help="one GPU per run: spare GPUs are left idle")
     parser.add_argument("--pretrained", type=Path, help="a folder of torchvision ImageNet ResNet files "
                         "(resnet18-*.pth, resnet50-*.pth) to start new runs from; default: from scratch")
+    parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
+                        "--export-weights) that new runs start from (networks.train --init)")
+    parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
+                        "as a slim bf16 checkpoint to <export>/weights/<run>.pt (for --init elsewhere)")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
@@ -442,9 +456,10 @@ def main() -> None:
                          names)
     t0 = time.perf_counter()
     pretrained = pretrained_weights(args.pretrained)
+    init = init_weights(args.init)
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
-                         not args.no_ddp, pretrained)
+                         not args.no_ddp, pretrained, init)
     train_s = time.perf_counter() - t0
     metrics = evaluate_runs(args.out, test, args.device)
     mixes = compare_mixes(args.out)
@@ -463,22 +478,26 @@ def main() -> None:
                            for t, (s, b) in SCHEDULE.items()},
               "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2]}
                        for name, (t, w, s, _, f) in RUNS.items()},
-              "pretrained": pretrained,
+              "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "detector": chain,
               "throughput": speed,
               "wall_s": time.monotonic() - started}
     save_json(args.out / "results.json", result)
     if args.export is not None:
-        export(args.out, args.export)
+        export(args.out, args.export, args.export_weights)
     _print_tables(result)
     print("RESULT " + json.dumps(result, default=float))
 
 
-def export(out: Path, to: Path) -> None:
+def export(out: Path, to: Path, weights: bool = False) -> None:
     """Copy results.json to `to`, with logs.tar.gz of each run's config, log.jsonl, train.log and
-    held-out metrics (two files: the device machine returns few)."""
+    held-out metrics (two files: the device machine returns few); `weights`: each run's last.pt as a
+    slim bf16 checkpoint in `to`/weights/<run>.pt (`networks.checkpoint.slim_checkpoint`)."""
     to.mkdir(parents=True, exist_ok=True)
+    for name in RUNS if weights else ():
+        if (out / name / "run" / "last.pt").exists():
+            slim_checkpoint(out / name / "run" / "last.pt", to / "weights" / f"{name}.pt")
     shutil.copy2(out / "results.json", to / "results.json")
     with tarfile.open(to / "logs.tar.gz", "w:gz") as tar:
         for name in RUNS:

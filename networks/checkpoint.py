@@ -15,9 +15,11 @@ origin) is not part of a marker's appearance and is not compared.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import hashlib
 import pickle
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -181,3 +183,44 @@ def load_checkpoint(
     except RuntimeError as exc:
         raise ValueError(f"{path}: the weights do not fit the {data['task']} network ({exc})") from exc
     return model.to(device).eval(), config, data
+
+
+def slim_checkpoint(source: str | Path, target: str | Path, dtype: torch.dtype | None = torch.bfloat16) -> Path:
+    """Write `source` without its optimizer, scheduler and random states, its floating-point weights
+    cast to `dtype` (None: kept), to `target` (atomically); returns the target.
+
+    A slim checkpoint is for inference (`load_checkpoint`, `networks.Detector`) and for starting a new
+    run from it (`networks.train --init`); it cannot resume a run.  ResNet-50 weights in bf16 are
+    about a quarter of a checkpoint with Adam's state in float32."""
+    data = read_checkpoint(source)
+    model = {k: v.to(dtype) if dtype is not None and v.is_floating_point() else v for k, v in data["model"].items()}
+    slim = {**data, "model": model, "optimizer": None, "scheduler": None, "rng": {"torch": torch.get_rng_state(),
+                                                                               "cuda": []}}
+    target = Path(target)
+    with atomic_path(target) as tmp:
+        torch.save(slim, tmp)
+    return target
+
+
+def main(argv: list[str] | None = None) -> int:
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m networks.checkpoint", description="Checkpoint tools.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    slim = commands.add_parser("slim", help="weights only, cast to bf16 (for inference and --init)")
+    slim.add_argument("source", type=Path, help="a checkpoint (last.pt, best.pt)")
+    slim.add_argument("target", type=Path, help="the slim checkpoint to write")
+    slim.add_argument("--keep-dtype", action="store_true", help="keep the weights' dtype (float32)")
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        if args.source.resolve() == args.target.resolve():
+            raise ValueError(f"{args.target}: would overwrite its source; name another file")
+        out = slim_checkpoint(args.source, args.target, None if args.keep_dtype else torch.bfloat16)
+        print(f"{out}: {out.stat().st_size / 2**20:.1f} MiB (from {args.source.stat().st_size / 2**20:.1f} MiB)")
+
+    return run_cli(action)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -47,7 +47,10 @@ class TrainConfig:
     (`networks.train.restrict_classes`) and the checkpoint lists the classes (`recognizer_ids`).
     val_samples caps the validation set, evaluated every `val_every` steps;
     `last.pt` is written every `checkpoint_every` steps.  pretrained: a torchvision ImageNet ResNet
-    state-dict file for the backbone (None: random initialisation).
+    state-dict file for the backbone (None: random initialisation).  init: a checkpoint of this task
+    and pattern (ours, e.g. `python -m networks.checkpoint slim`'s) whose weights a new run starts
+    from, with a new optimizer and schedule (fine-tuning, or training continued across machines);
+    not with pretrained.
     """
 
     task: str
@@ -69,6 +72,7 @@ class TrainConfig:
     val_samples: int = 1024
     checkpoint_every: int = 1000
     pretrained: str | None = None
+    init: str | None = None
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -99,8 +103,11 @@ class TrainConfig:
                             f"got {self.recognizer_classes!r}")
         if self.task == "localizer" and self.image_size % 8:
             problems.append(f"image_size must be a multiple of 8 (the localizer's cell), got {self.image_size}")
-        if self.pretrained is not None and not isinstance(self.pretrained, str):
-            problems.append(f"pretrained must be a path string or null, got {self.pretrained!r}")
+        for name in ("pretrained", "init"):
+            if getattr(self, name) is not None and not isinstance(getattr(self, name), str):
+                problems.append(f"{name} must be a path string or null, got {getattr(self, name)!r}")
+        if self.pretrained is not None and self.init is not None:
+            problems.append("give pretrained (ImageNet backbone weights) or init (a checkpoint to start from), not both")
         if problems:
             raise ValueError("invalid TrainConfig: " + "; ".join(problems))
 

@@ -5,6 +5,7 @@
     python -m networks.train crosspoints --data out/ds --synth-weight 0.5 --out runs/xp
     python -m networks.train crosspoints --data out/ds --out runs/xp --resume --time-limit 540
     python -m networks.train localizer --data out/ds --synth-weight 0.5 --shards shards/loc --out runs/loc
+    python -m networks.train recognizer --data my_capture_ds --out runs/rec_ft --init runs/rec/best.pt --steps 5000
 
 Data: `--data DIR` is a factory dataset folder (train split for training, val split for
 validation), mixed with synthesized samples at `--synth-weight`; `--data synth` trains and validates on
@@ -120,6 +121,31 @@ def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoa
         return DataLoader(dataset, **kwargs)
     return DataLoader(dataset, num_workers=num_workers, multiprocessing_context="spawn", worker_init_fn=one_thread,
                       persistent_workers=True, **kwargs)
+
+
+def init_weights(model: torch.nn.Module, config: TrainConfig, spec: PatternSpec, class_ids: np.ndarray | None
+                 ) -> None:
+    """Load the weights of the checkpoint `config.init` (same task and pattern; any dtype) into the
+    new run's `model`.  A recognizer's classes that the checkpoint had masked off (it was trained on
+    another garment's IDs) start from zero weights and bias, not from the masked logit."""
+    path = Path(config.init)
+    data = read_checkpoint(path)
+    if data["task"] != config.task:
+        raise ValueError(f"{path}: a {data['task']} checkpoint, cannot start a {config.task} run from it")
+    check_pattern(data, spec, source=str(path))
+    try:
+        model.load_state_dict(data["model"])
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: its weights do not fit this {config.task} network: {str(exc).splitlines()[0]}") from exc
+    trained = data.get("recognizer_ids")
+    if class_ids is not None and trained is not None:
+        fresh = np.setdiff1d(class_ids, np.asarray(trained, dtype=np.int64))
+        if len(fresh):
+            with torch.no_grad():
+                index = torch.as_tensor(fresh, device=model.backbone.fc.weight.device)
+                model.backbone.fc.weight[index] = 0.0
+                model.backbone.fc.bias[index] = 0.0
+    log.info("%s run starts from the weights of %s (its step %d)", config.task, path, int(data["step"]))
 
 
 def restrict_classes(model: torch.nn.Module, marker_ids: np.ndarray) -> None:
@@ -298,6 +324,9 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
         if not resume:
             raise ValueError(f"{out}: already holds a training run (last.pt); pass --resume or use another --out")
         saved = read_checkpoint(last_path, device)
+        if saved.get("optimizer") is None:
+            raise ValueError(f"{last_path}: holds no optimizer state (a slim checkpoint?), so the run cannot "
+                             "resume from it; start a new run from its weights with --init")
         if saved["task"] != config.task:
             raise ValueError(f"{last_path}: a {saved['task']} run, cannot resume it as {config.task}")
         _check_resume(saved, config, last_path)
@@ -320,6 +349,8 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
                         pretrained=None if saved is not None else config.pretrained).to(device)
     if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
         model = model.to(memory_format=torch.channels_last)
+    if saved is None and config.init is not None:
+        init_weights(model, config, spec, class_ids)
     if class_ids is not None:
         restrict_classes(model, class_ids)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
@@ -471,6 +502,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
     if base.task != args.task:
         raise ValueError(f"{args.config or last}: a {base.task} config, but the task given is {args.task}")
     overrides = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "pretrained": args.pretrained,
+                 "init": str(Path(args.init).resolve()) if args.init is not None else None,
                  "synth_weight": args.synth_weight, "seed": args.seed, "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "recognizer_classes": args.recognizer_classes,
@@ -500,6 +532,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch-size", type=int)
     parser.add_argument("--lr", type=float, help="peak learning rate (Adam, cosine decay)")
     parser.add_argument("--pretrained", help="torchvision ImageNet ResNet state-dict file for the backbone")
+    parser.add_argument("--init", help="a checkpoint of this task to start a new run from (its weights; new "
+                        "optimizer and schedule): fine-tuning, or training continued elsewhere")
     parser.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the dataset's, or the default spec)")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--num-workers", type=int, help="data loading processes")

@@ -8,7 +8,9 @@ import torch
 
 from assets.pattern import PatternSpec
 from networks.backbone import resnet18
-from networks.checkpoint import checkpoint_spec, codebook_hash, load_checkpoint, read_checkpoint, save_checkpoint
+from networks.checkpoint import (checkpoint_spec, codebook_hash, load_checkpoint, read_checkpoint, save_checkpoint,
+                                 slim_checkpoint)
+from networks.checkpoint import main as checkpoint_main
 from networks.config import TASK_DEFAULTS, TrainConfig
 from networks.models import normalize
 from networks.tasks import build_model, forward
@@ -118,3 +120,30 @@ def test_train_config_defaults_json_and_errors(tmp_path):
     (tmp_path / "bad2.json").write_text(json.dumps({"task": "recognizer", "steps": "many"}))
     with pytest.raises(ValueError, match="bad2.json.*steps must be an integer"):
         TrainConfig.load(tmp_path / "bad2.json")
+
+
+def test_slim_checkpoint_keeps_the_network_in_bf16_without_the_optimizer(trained, tmp_path, capsys):
+    path, model, config, batch = trained
+    slim = slim_checkpoint(path, tmp_path / "slim.pt")
+    data = read_checkpoint(slim)
+    assert data["optimizer"] is None and data["scheduler"] is None and data["step"] == 1
+    assert data["best_val_loss"] == 0.25 and data["config"] == config.to_dict()
+    floats = [v for v in data["model"].values() if v.is_floating_point()]
+    assert floats and all(v.dtype == torch.bfloat16 for v in floats)
+    assert data["model"]["backbone.bn1.num_batches_tracked"].dtype == torch.int64
+    assert slim.stat().st_size < path.stat().st_size / 3  # no Adam moments, half the bytes per weight
+    loaded, _, _ = load_checkpoint(slim, expected_task="localizer", spec=SPEC)
+    model.eval()
+    with torch.no_grad():
+        x = normalize(batch["image"])
+        assert torch.allclose(loaded(x), model(x), rtol=0.05, atol=0.05)  # bf16 weights, float32 maths
+    kept = slim_checkpoint(path, tmp_path / "kept.pt", dtype=None)
+    assert all(torch.equal(v, model.state_dict()[k]) for k, v in read_checkpoint(kept)["model"].items())
+    assert checkpoint_main(["slim", str(path), str(tmp_path / "cli.pt")]) == 0
+    assert "cli.pt" in capsys.readouterr().out and (tmp_path / "cli.pt").is_file()
+    assert checkpoint_main(["slim", str(path), str(path)]) != 0  # never over its source
+    assert "overwrite its source" in capsys.readouterr().err and read_checkpoint(path)["optimizer"] is not None
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="junk.pt: not a checkpoint"):
+        slim_checkpoint(tmp_path / "junk.pt", tmp_path / "out.pt")
+    assert not (tmp_path / "out.pt").exists()

@@ -15,7 +15,7 @@ import torch
 
 from assets.fileio import save_npz
 from assets.pattern import PatternSpec
-from networks.checkpoint import load_checkpoint, read_checkpoint
+from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.config import TrainConfig
 from networks.models import normalize
 from networks.shards import write_shards
@@ -242,3 +242,42 @@ def test_the_schedule_fits_the_time_limit(dataset, tmp_path):
     assert json.loads((out / "config.json").read_text())["steps"] == result["steps"]
     with pytest.raises(ValueError, match="needs a time limit"):
         train(config, dataset, tmp_path / "other", device="cpu", spec=SPEC, progress=False, fit_to_time_limit=True)
+
+
+def test_a_new_run_starts_from_the_weights_of_init(dataset, tmp_path):
+    config = _config("localizer", steps=4, batch_size=1, lr=1e-3)
+    train(config, dataset, tmp_path / "first", device="cpu", spec=SPEC, progress=False)
+    slim = slim_checkpoint(tmp_path / "first" / "last.pt", tmp_path / "first.pt")
+    # lr 1e-12: the new run's one step leaves the weights where --init put them
+    later = config.replace(steps=1, lr=1e-12, init=str(slim))
+    train(later, dataset, tmp_path / "second", device="cpu", spec=SPEC, progress=False)
+    a, b = read_checkpoint(slim)["model"], read_checkpoint(tmp_path / "second" / "last.pt")["model"]
+    for key, value in a.items():
+        if value.is_floating_point() and "running_" not in key:  # batch norm statistics move in training mode
+            assert torch.allclose(value.float(), b[key], atol=1e-6), key
+    assert _losses(tmp_path / "second")[1] < _losses(tmp_path / "first")[1]  # starts where the first run got to
+    with pytest.raises(ValueError, match="pretrained.*or init.*not both"):
+        later.replace(pretrained=str(slim))
+    with pytest.raises(ValueError, match="a localizer checkpoint, cannot start a recognizer run"):
+        train(_config("recognizer", init=str(slim)), dataset, tmp_path / "third", device="cpu", spec=SPEC,
+              progress=False)
+    (tmp_path / "slim_run").mkdir()
+    slim_checkpoint(tmp_path / "first" / "last.pt", tmp_path / "slim_run" / "last.pt")
+    with pytest.raises(ValueError, match="no optimizer state.*--init"):
+        train(config, dataset, tmp_path / "slim_run", device="cpu", spec=SPEC, resume=True, progress=False)
+
+
+def test_init_gives_a_recognizer_s_new_classes_a_neutral_start(dataset, tmp_path):
+    seen = sorted({int(i) for i in np.concatenate(
+        [np.load(p)["recognizer_ids"] for p in sorted((dataset / "samples").glob("*.npz"))])})
+    first = _write_garment(tmp_path / "g1", [(i, 1, 1) for i in seen] + [(50, 2, 3)])
+    second = _write_garment(tmp_path / "g2", [(i, 1, 1) for i in seen] + [(56, 1, 2)])
+    config = _config("recognizer", recognizer_classes="garment", steps=2)
+    train(config, dataset, tmp_path / "one", device="cpu", spec=SPEC, garment=first, progress=False)
+    later = config.replace(steps=1, lr=1e-12, init=str(tmp_path / "one" / "last.pt"))
+    train(later, dataset, tmp_path / "two", device="cpu", spec=SPEC, garment=second, progress=False)
+    bias = read_checkpoint(tmp_path / "two" / "last.pt")["model"]["backbone.fc.bias"]
+    assert torch.all(bias[[56, 57]].abs() < 1e-3)  # masked in the first run: start at 0, not at the masked logit
+    assert torch.all(bias[50:56] == MASKED_LOGIT)  # the first garment's IDs are not this one's
+    trained = read_checkpoint(tmp_path / "one" / "last.pt")["model"]["backbone.fc.bias"]
+    assert torch.allclose(bias[seen], trained[seen], atol=1e-6)
