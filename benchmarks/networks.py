@@ -32,6 +32,13 @@ inference.  One call fits a 10-minute device command; calling it again with the 
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn --final   # the last call
 
+Training continued across device sessions (a session's 30 minutes are far from the targets, and
+checkpoints with Adam's state, about 1 GB, cannot come back): `--export-weights` writes each trained
+run as a slim bf16 checkpoint (localizer 24 MB, recognizer 64 MB, crosspoints about 60 MB) under
+<export>/weights; a call returns at most 64 MiB, so split them (`split -b 15M`) and fetch four parts
+per call.  The next session carries them back (64 MiB per call, staged in the machine's /tmp over
+back-to-back calls) and passes `--init <folder>`: new runs start from those weights.
+
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
 `--codebook-hash` (the hash printed on the machine that rendered it) stops the run early otherwise.
