@@ -72,3 +72,33 @@ def test_bad_input_and_config_are_refused():
         Augment(noise_probability=1.5)
     with pytest.raises(ValueError, match="gamma"):
         Augment(gamma=(1.5, 0.7))
+
+
+def test_the_colour_transform_is_gain_then_contrast_then_saturation():
+    """The one affine map equals the three steps done one after another (same draws)."""
+    config = replace(OFF, colour_probability=1)
+    image = _image(4)
+    out = augment(image, np.random.default_rng(7), config)
+    rng = np.random.default_rng(7)
+    rng.uniform(), rng.uniform()  # motion blur and blur not drawn: their probabilities are 0
+    assert rng.uniform() < 1  # the colour draw
+    x = image.astype(np.float64) * (rng.uniform(*config.brightness)
+                                    * (1 + rng.uniform(-config.channel_gain, config.channel_gain, 3)))
+    mean = x.mean(axis=(0, 1))
+    x = (x - mean) * rng.uniform(*config.contrast) + mean
+    gray = (x @ np.array([0.299, 0.587, 0.114]))[..., None]
+    x = gray + rng.uniform(*config.saturation) * (x - gray)
+    expected = np.clip(x + 0.5, 0, 255).astype(np.uint8)
+    assert np.abs(out.astype(int) - expected).max() <= 1  # float32 against float64 rounding
+
+
+def test_noise_differs_between_images_and_keeps_its_statistics():
+    config = replace(OFF, noise_probability=1, noise_sigma=(6.0, 6.0), shot_noise=(0.0, 0.0))
+    flat = np.full((96, 96, 3), 128, np.uint8)
+    a = augment(flat, np.random.default_rng(1), config).astype(float) - 128
+    b = augment(flat, np.random.default_rng(2), config).astype(float) - 128
+    assert abs(a.std() - 6.0) < 0.3 and abs(a.mean()) < 0.2
+    assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.05  # two images, two noises
+    big = np.full((600, 600, 3), 128, np.uint8)  # larger than half the bank: drawn afresh
+    c = augment(big, np.random.default_rng(3), config).astype(float) - 128
+    assert abs(c.std() - 6.0) < 0.2
