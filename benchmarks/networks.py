@@ -10,7 +10,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    DistributedDataParallel ranks through torchrun, the comparison runs share GPUs):
    the main runs, localizer_mix (rendered train split + shards, synth weight 0.5), recognizer and
    crosspoints (shards + rendered crops, synth weight 0.75), and recognizer_jitter (the recognizer
-   on shards whose crops are cut from jittered points, `CROP_JITTER_PX`, as the Detector cuts them)
+   on crops cut from jittered points, `CROP_JITTER_PX`, as the Detector cuts them: shards written so,
+   rendered crops cut anew per item, `TrainConfig.crop_jitter_px`)
    train until the budget's end; the
    data-mix comparison runs localizer_synth (shards only) and localizer_rendered (rendered only)
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
@@ -227,13 +228,14 @@ def init_weights(folder: Path | None) -> dict[str, str]:
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
                init: dict[str, str] | None = None) -> TrainConfig:
-    task, synth_weight, *_ = RUNS[name]
+    task, synth_weight, _, _, folder = RUNS[name]
     start = (init or {}).get(name)
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
     return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR, warmup_steps=WARMUP,
                        pretrained=None if start else pretrained.get(task), init=start,
+                       crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight)
 

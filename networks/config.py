@@ -50,7 +50,11 @@ class TrainConfig:
     state-dict file for the backbone (None: random initialisation).  init: a checkpoint of this task
     and pattern (ours, e.g. `python -m networks.checkpoint slim`'s) whose weights a new run starts
     from, with a new optimizer and schedule (fine-tuning, or training continued across machines);
-    not with pretrained.
+    not with pretrained.  crop_jitter_px: the recognizer's training crops (rendered and synthesized)
+    and the synthesized crosspoint crops are cut from five points moved by Gaussian noise of this
+    standard deviation (pixels), as the Detector cuts them from the localizer's points; shards must
+    have been written with the same (`networks.synth write --crop-jitter`); 0: the reference's exact
+    crops.
     """
 
     task: str
@@ -73,6 +77,7 @@ class TrainConfig:
     checkpoint_every: int = 1000
     pretrained: str | None = None
     init: str | None = None
+    crop_jitter_px: float = 0.0
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -96,6 +101,8 @@ class TrainConfig:
             problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
+        if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
+            problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:

@@ -44,8 +44,8 @@ from tqdm import tqdm
 
 from assets.fileio import load_json, load_npz
 from assets.pattern.codebook import generate_codebook
-from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
-from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
+from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment
 from networks.checkpoint import codebook_hash
@@ -172,11 +172,15 @@ class RenderedDataset(_Items, Dataset):
     that keeps an image's crops close together profits most).
     crop_px: localizer items are random crops of min(crop_px, side) pixels per side (rounded down to
     whole 8 px cells and placed on the cell grid, so the cell targets stay exact; seeded per
-    (seed, epoch, index)); None: whole images."""
+    (seed, epoch, index)); None: whole images.
+    crop_jitter_px (recognizer only): each item's crop is cut anew from the image, from its marker's
+    five true points moved by Gaussian noise of this standard deviation in pixels (seeded per
+    (seed, epoch, index)), as the Detector cuts crops from the localizer's points; 0: the stored
+    exact crops."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
-                 crop_px: int | None = None):
+                 crop_px: int | None = None, crop_jitter_px: float = 0.0):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -186,6 +190,10 @@ class RenderedDataset(_Items, Dataset):
         if crop_px is not None and crop_px < CELL:
             raise ValueError(f"crop_px must be >= {CELL} (one localizer cell), got {crop_px}")
         self.crop_px = crop_px
+        if not 0 <= crop_jitter_px <= 8 or (crop_jitter_px > 0 and task != "recognizer"):
+            raise ValueError(f"crop_jitter_px must be in [0, 8] and only for the recognizer, got {crop_jitter_px} "
+                             f"for the {task}")
+        self.crop_jitter_px = float(crop_jitter_px)
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
@@ -205,6 +213,8 @@ class RenderedDataset(_Items, Dataset):
             crop = np.arange(len(image)) - np.repeat(np.cumsum(counts) - counts, counts)
             self._index = np.stack([image, crop], axis=1).astype(np.int64)
         self.spec = self.codebook = None
+        if self.crop_jitter_px > 0:
+            self.spec = spec if spec is not None else dataset_spec(self.root)
         if task == "crosspoints":
             self.spec = spec if spec is not None else dataset_spec(self.root)
             self.codebook = generate_codebook(self.spec)  # before DataLoader workers fork, so they share it
@@ -228,6 +238,10 @@ class RenderedDataset(_Items, Dataset):
                 cells = cells[i0:i0 + height // CELL, j0:j0 + width // CELL]
             return self._item(index, image=image, cells=cells)
         if self.task == "recognizer":
+            if self.crop_jitter_px > 0:
+                points = arrays["points_px"][crop] + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
+                cut = unwarp(arrays["image"], self.spec, RECOGNIZER_CROP, points)
+                return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
                           xy=arrays["crosspoint_xy"][crop], visible=arrays["crosspoint_visible"][crop])
@@ -253,6 +267,8 @@ class RenderedDataset(_Items, Dataset):
                 raise ValueError(f"{path}: cells has shape {arrays['cells'].shape}, expected "
                                  f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
             return self._keep(image_index, arrays)
+        if self.crop_jitter_px > 0:
+            return self._keep(image_index, self._jitter_source(image_index))
         arrays = load_npz(path, only=_CROP_KEYS[self.task])
         count = len(arrays[_CROP_KEYS[self.task][1]])
         size = (RECOGNIZER_CROP if self.task == "recognizer" else CROSSPOINT_CROP).size_px
@@ -266,6 +282,22 @@ class RenderedDataset(_Items, Dataset):
         if problems:
             raise ValueError(f"{path}: " + "; ".join(problems))
         return self._keep(image_index, arrays)
+
+    def _jitter_source(self, image_index: int) -> dict[str, np.ndarray]:
+        """What jittered recognizer crops are cut from: the image, and the five true points and IDs of
+        the markers of its stored crops (`recognizer_crops` picks them), checked against the samples."""
+        entry = self.entries[image_index]
+        if "gt" not in entry:
+            raise ValueError(f"{self.root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' entry, which "
+                             "crop jitter cuts its crops from")
+        gt = ImageGroundTruth.load(self.root / entry["gt"])
+        pick = np.flatnonzero(gt.point_visible.all(axis=1))
+        stored = load_npz(self.root / entry["samples"], only=("recognizer_ids",))["recognizer_ids"]
+        if not np.array_equal(gt.marker_id[pick], stored):
+            raise ValueError(f"{self.root / entry['gt']}: its fully visible markers do not match the recognizer "
+                             f"crops of {self.root / entry['samples']}")
+        return {"image": _read_png(self.root / entry["image"]), "points_px": gt.points_px[pick].astype(np.float64),
+                "recognizer_ids": stored}
 
     def _keep(self, image_index: int, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self._cache[image_index] = arrays

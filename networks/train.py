@@ -53,6 +53,7 @@ from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
 from networks.data import MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids
 from networks.evaluate import evaluate_model, resolve_device
+from networks.synth import SynthConfig
 from networks.tasks import autocast, build_model, forward
 from networks.workers import one_thread, worker_environment
 
@@ -201,12 +202,21 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     length = config.steps * config.batch_size
     size = (config.image_size, config.image_size) if task == "localizer" else None  # crops: the synthesizer's own
 
+    jitter = config.crop_jitter_px if task != "localizer" else 0.0
+
     def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
-              stored: bool = True) -> Dataset:
+              stored: bool = True, crop_jitter_px: float = 0.0) -> Dataset:
         if shards is None or not stored:
-            return SynthDataset(task, spec, length=count, seed=seed, image_size=image_size, augment=with_augment,
-                                marker_ids=marker_ids)
+            synth_config = None if task == "localizer" else SynthConfig(image_size=(256, 256), centred=True,
+                                                                         crop_jitter_px=crop_jitter_px)
+            return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
+                                augment=with_augment, marker_ids=marker_ids)
         dataset = ShardDataset(shards, task, with_augment, spec, seed)
+        written = float(dataset.meta["synth"].get("crop_jitter_px", 0.0))
+        if task != "localizer" and written != crop_jitter_px:
+            raise ValueError(f"{shards}: crops cut with a jitter of {written} px, but this run's crop_jitter_px is "
+                             f"{crop_jitter_px}; write shards with --crop-jitter {crop_jitter_px} or train with "
+                             f"--crop-jitter {written}")
         if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
                                                   else np.arange(spec.num_ids), marker_ids).all():
             raise ValueError(f"{shards}: the shards hold marker IDs outside the {len(marker_ids)} of this run; "
@@ -217,11 +227,12 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
         return dataset
 
     if str(data) == "synth":
-        return (synth(length, config.seed, augment, size),
+        return (synth(length, config.seed, augment, size, crop_jitter_px=jitter),
                 synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size, stored=False))
     root = _dataset_root(data)
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
-                               crop_px=config.image_size if task == "localizer" else None)
+                               crop_px=config.image_size if task == "localizer" else None,
+                               crop_jitter_px=jitter if task == "recognizer" else 0.0)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
@@ -230,9 +241,9 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
         height, width = rendered[0]["image"].shape[1:]
         size = (width, height)
     if config.synth_weight >= 1.0:
-        return synth(length, config.seed, augment, size), val
+        return synth(length, config.seed, augment, size, crop_jitter_px=jitter), val
     if config.synth_weight > 0.0:
-        mixed = MixedDataset([rendered, synth(length, config.seed, augment, size)],
+        mixed = MixedDataset([rendered, synth(length, config.seed, augment, size, crop_jitter_px=jitter)],
                              [1.0 - config.synth_weight, config.synth_weight], length=length, seed=config.seed)
         return mixed, val
     return rendered, val
@@ -503,7 +514,8 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
         raise ValueError(f"{args.config or last}: a {base.task} config, but the task given is {args.task}")
     overrides = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "pretrained": args.pretrained,
                  "init": str(Path(args.init).resolve()) if args.init is not None else None,
-                 "synth_weight": args.synth_weight, "seed": args.seed, "num_workers": args.num_workers,
+                 "synth_weight": args.synth_weight, "crop_jitter_px": args.crop_jitter, "seed": args.seed,
+                 "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -534,6 +546,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pretrained", help="torchvision ImageNet ResNet state-dict file for the backbone")
     parser.add_argument("--init", help="a checkpoint of this task to start a new run from (its weights; new "
                         "optimizer and schedule): fine-tuning, or training continued elsewhere")
+    parser.add_argument("--crop-jitter", type=float, metavar="PX", help="cut the recognizer's crops and the "
+                        "synthesized crosspoint crops from five points moved by this noise (px), as the Detector "
+                        "cuts them from the localizer's; shards need the same (default 0: exact crops)")
     parser.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the dataset's, or the default spec)")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--num-workers", type=int, help="data loading processes")

@@ -149,6 +149,27 @@ def test_crop_tasks_index_every_crop_of_the_split(folder, codebook):
             assert np.array_equal(item["reference"].permute(1, 2, 0).numpy(), reference)
 
 
+def test_jittered_recognizer_crops_are_cut_anew_from_moved_points(folder):
+    exact = RenderedDataset(folder, "train", "recognizer")
+    tiny = RenderedDataset(folder, "train", "recognizer", crop_jitter_px=1e-9)
+    jittered = RenderedDataset(folder, "train", "recognizer", crop_jitter_px=1.5)
+    assert len(exact) == len(tiny) == len(jittered) > 2
+    moved = []
+    for i in range(len(exact)):
+        stored = exact[i]["crop"].numpy().astype(int)
+        # cut again from the PNG at the true points: the stored crop (the same unwarp of the same image)
+        assert np.array_equal(tiny[i]["crop"].numpy().astype(int), stored)
+        item = jittered[i]
+        assert item["marker_id"] == exact[i]["marker_id"]
+        moved.append(np.abs(item["crop"].numpy().astype(int) - stored).mean())
+        assert torch.equal(item["crop"], jittered[i]["crop"])  # reproducible per (seed, epoch, index)
+    assert np.mean(moved) > 3
+    jittered.set_epoch(1)
+    assert not torch.equal(jittered[0]["crop"], RenderedDataset(folder, "train", "recognizer", crop_jitter_px=1.5)[0]["crop"])
+    with pytest.raises(ValueError, match="only for the recognizer"):
+        RenderedDataset(folder, "train", "crosspoints", crop_jitter_px=1.0)
+
+
 def test_default_collate_batches_the_items(folder):
     for task, keys in (("localizer", {"image", "cells"}), ("recognizer", {"crop", "marker_id"}),
                        ("crosspoints", {"crop", "reference", "xy", "visible"})):

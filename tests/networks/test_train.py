@@ -281,3 +281,18 @@ def test_init_gives_a_recognizer_s_new_classes_a_neutral_start(dataset, tmp_path
     assert torch.all(bias[50:56] == MASKED_LOGIT)  # the first garment's IDs are not this one's
     trained = read_checkpoint(tmp_path / "one" / "last.pt")["model"]["backbone.fc.bias"]
     assert torch.allclose(bias[seen], trained[seen], atol=1e-6)
+
+
+def test_the_recognizer_trains_on_jittered_crops_from_shards_written_so(dataset, tmp_path):
+    shards = tmp_path / "shards"
+    write_shards(shards, "recognizer", SPEC, count=2, config=SynthConfig(image_size=(128, 128), crop_jitter_px=1.0),
+                 images_per_part=2, progress=False)
+    config = _config("recognizer", synth_weight=0.5, steps=2, crop_jitter_px=1.0)
+    result = train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, shards=shards, progress=False)
+    assert result["step"] == 2
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["crop_jitter_px"] == 1.0
+    with pytest.raises(ValueError, match=r"jitter of 1\.0 px.*--crop-jitter"):
+        train(config.replace(crop_jitter_px=0.0), dataset, tmp_path / "exact", device="cpu", spec=SPEC,
+              shards=shards, progress=False)
+    with pytest.raises(ValueError, match="crop_jitter_px must be in"):
+        config.replace(crop_jitter_px=-1.0)
