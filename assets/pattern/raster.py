@@ -69,13 +69,25 @@ def cell_weights(edges: np.ndarray, first: int, count: int) -> sp.csr_matrix:
 
 
 def composite(spec: PatternSpec, fill: np.ndarray, lines: np.ndarray) -> np.ndarray:
-    """Code fraction `fill` and line coverage `lines` (same shape (...)) -> sRGB (..., 3) uint8."""
-    bg = np.asarray(spec.background_rgb, dtype=np.float32)
-    code = np.asarray(spec.code_rgb, dtype=np.float32)
-    line = np.asarray(spec.line_rgb, dtype=np.float32)
-    rgb = bg + fill[..., None] * (code - bg)
-    rgb += lines[..., None] * (line - rgb)
-    return np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
+    """Code fraction `fill` and line coverage `lines` (same shape (...)) -> sRGB (..., 3) uint8.
+
+    The colour is bg + fill (code - bg), then lines of the line colour over it; expanded, an affine
+    map of (fill, lines, fill * lines), done in one `cv2.transform` pass, in float32 when both inputs
+    are float32 (as the colour arithmetic has always been for them), else in float64."""
+    dtype = np.result_type(np.asarray(fill).dtype, np.asarray(lines).dtype, np.float32)
+    fill = np.asarray(fill, dtype=dtype)
+    lines = np.broadcast_to(np.asarray(lines, dtype=dtype), fill.shape)
+    if fill.size == 0:
+        return np.zeros(fill.shape + (3,), dtype=np.uint8)
+    bg = np.asarray(spec.background_rgb, dtype=dtype)
+    code = np.asarray(spec.code_rgb, dtype=dtype)
+    line = np.asarray(spec.line_rgb, dtype=dtype)
+    affine = np.concatenate([np.stack([code - bg, line - bg, bg - code], axis=1), (bg + 0.5)[:, None]], axis=1)
+    flat = (-1, fill.shape[-1]) if fill.ndim > 1 else (1, -1)
+    f, l = fill.reshape(flat), np.ascontiguousarray(lines).reshape(flat)
+    rgb = cv2.transform(cv2.merge([f, l, f * l]), affine)
+    np.clip(rgb, 0, 255, out=rgb)
+    return rgb.astype(np.uint8).reshape(fill.shape + (3,))
 
 
 def fabric_cells(table: MarkerTable) -> np.ndarray:

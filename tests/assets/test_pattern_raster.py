@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from assets.pattern import render_region, write_png, xy_to_pixel
-from assets.pattern.raster import box_weights
+from assets.pattern import PatternSpec, render_region, write_png, xy_to_pixel
+from assets.pattern.raster import box_weights, composite
 
 
 def _line_centre(profile: np.ndarray) -> float:
@@ -90,3 +90,21 @@ def test_panel_outside_fabric_is_an_error(small_table):
     bad = np.array([[x0, y0], [x1 + 0.05, y0], [x0, y1]])
     with pytest.raises(ValueError, match=r"polygons\[1\].*outside"):
         render_region(small_table, dpi=50, polygons_xy=[good, bad])
+
+
+def test_composite_is_the_code_colour_then_the_lines_over_it():
+    """The one-pass affine map gives, byte for byte, the two steps computed in the inputs' precision."""
+    spec = PatternSpec()
+    rng = np.random.default_rng(0)
+    bg, code, line = (np.asarray(c) for c in (spec.background_rgb, spec.code_rgb, spec.line_rgb))
+    for dtype in (np.float32, np.float64):
+        fill = np.round(rng.random((2, 9, 11)) * 16).astype(dtype) / dtype(16)  # dyadic: halves are exact
+        lines = rng.choice(np.array([0.0, 0.3, 0.5, 1.0], dtype), (9, 11))
+        rgb = bg.astype(dtype) + fill[..., None] * (code - bg).astype(dtype)
+        rgb = rgb + lines[None, ..., None] * (line.astype(dtype) - rgb)
+        expected = np.clip(rgb + dtype(0.5), 0, 255).astype(np.uint8)
+        out = composite(spec, fill, np.broadcast_to(lines, fill.shape))
+        assert out.shape == (2, 9, 11, 3) and out.dtype == np.uint8
+        assert np.array_equal(out, expected), dtype
+    assert np.array_equal(composite(spec, np.zeros(3), np.zeros(3)), np.broadcast_to(bg, (3, 3)))
+    assert composite(spec, np.zeros((0, 5)), np.zeros((0, 5))).shape == (0, 5, 3)
