@@ -4,8 +4,8 @@ A synthetic capture folder (`factory.dataset.capture`) holds, per camera and fra
 of every marker in the image (``<camera>/f<frame:06d>_gt.npz``, an
 `assets.pattern.observation.ImageGroundTruth`).  `GroundTruthCapture.detections` turns it into the
 `networks.detections.Detections` the Detector would output: the visible crosspoints only, confidence
-1, with optional Gaussian pixel noise and dropout, seeded per (seed, camera, frame) so any view can be
-remade alone.  This measures triangulation and post-processing on their own; everything made from
+1, with optional Gaussian pixel noise, dropout and wrong marker IDs (the recognizer's mistakes),
+seeded per (seed, camera, frame) so any view can be remade alone.  This measures triangulation and post-processing on their own; everything made from
 these detections says so through `GroundTruthConfig.source` (for example
 ``groundtruth(noise=0.3px, dropout=0.1, unit=crosspoint, seed=0)``), which later stages write into
 their outputs (`CapturedPoints.source`).
@@ -47,19 +47,23 @@ class GroundTruthConfig:
 
     noise_px: standard deviation of the Gaussian noise added to each crosspoint's x and y, pixels.
     dropout: fraction of `unit`s removed at random ('crosspoint': each detected marker crosspoint
-    independently; 'marker': whole markers).  seed: with the camera index and frame number, seeds
-    the noise and dropout of one view."""
+    independently; 'marker': whole markers).  id_error: fraction of the detected markers whose ID is
+    replaced by one drawn from the garment's IDs (a recognizer's mistakes; the points stay).  seed:
+    with the camera index and frame number, seeds the noise, dropout and ID errors of one view."""
 
     noise_px: float = 0.0
     dropout: float = 0.0
     unit: str = "crosspoint"
     seed: int = 0
+    id_error: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.noise_px) and self.noise_px >= 0):
             raise ValueError(f"GroundTruthConfig.noise_px must be >= 0 pixels, got {self.noise_px}")
         if not 0 <= self.dropout < 1:
             raise ValueError(f"GroundTruthConfig.dropout must be a fraction in [0, 1), got {self.dropout}")
+        if not 0 <= self.id_error < 1:
+            raise ValueError(f"GroundTruthConfig.id_error must be a fraction in [0, 1), got {self.id_error}")
         if self.unit not in DROPOUT_UNITS:
             raise ValueError(f"GroundTruthConfig.unit must be one of {DROPOUT_UNITS}, got {self.unit!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
@@ -68,21 +72,25 @@ class GroundTruthConfig:
     @property
     def source(self) -> str:
         """The name every output made from these detections carries."""
-        return f"groundtruth(noise={self.noise_px:g}px, dropout={self.dropout:g}, unit={self.unit}, seed={self.seed})"
+        ids = f", id_error={self.id_error:g}" if self.id_error > 0 else ""
+        return (f"groundtruth(noise={self.noise_px:g}px, dropout={self.dropout:g}, unit={self.unit}{ids}, "
+                f"seed={self.seed})")
 
     def rng(self, camera: int, frame: int) -> np.random.Generator:
         """The generator of one view (camera index, frame number)."""
         return np.random.default_rng([self.seed, camera, frame])
 
 
-def ground_truth_detections(gt: ImageGroundTruth, config: GroundTruthConfig,
-                            rng: np.random.Generator) -> Detections:
+def ground_truth_detections(gt: ImageGroundTruth, config: GroundTruthConfig, rng: np.random.Generator,
+                            garment_ids: np.ndarray | None = None) -> Detections:
     """One image's ground truth -> the `Detections` a perfect detector would give, degraded by
-    `config` (noise, dropout) with `rng`.
+    `config` (noise, dropout, ID errors drawn from `garment_ids`) with `rng`.
 
     Markers keep their visible crosspoints (minus dropout); markers left with none are removed.
     points_px are the (noisy) localization crosspoints; `partial` marks markers whose five
     localization points are not all visible; confidence is 1."""
+    if config.id_error > 0 and (garment_ids is None or len(garment_ids) < 2):
+        raise ValueError("ground_truth_detections: id_error needs the garment's marker IDs (garment_ids)")
     m, k = gt.num_markers, gt.crosspoints_px.shape[1]
     visible = gt.crosspoint_visible.copy()
     keep_marker = np.ones(m, dtype=bool)
@@ -98,8 +106,12 @@ def ground_truth_detections(gt: ImageGroundTruth, config: GroundTruthConfig,
     keep = keep_marker & visible.any(axis=(1, 2))
     rc = localization_rc(PatternSpec(crosspoints_per_side=k))
     crosspoints = crosspoints[keep].astype(np.float32)
+    marker_id = gt.marker_id[keep].astype(np.int64)
+    if config.id_error > 0:  # drawn last: the other degradations stay those of id_error 0
+        wrong = rng.random(len(marker_id)) < config.id_error
+        marker_id[wrong] = rng.choice(np.asarray(garment_ids, dtype=np.int64), int(wrong.sum()))
     return Detections(
-        marker_id=gt.marker_id[keep].astype(np.int64),
+        marker_id=marker_id,
         confidence=np.ones(int(keep.sum()), np.float32),
         points_px=crosspoints[:, rc[:, 0], rc[:, 1]],
         crosspoints_px=crosspoints,
@@ -142,8 +154,14 @@ class GroundTruthCapture:
         """Every camera's ground-truth detections at frame number `frame`, in camera order."""
         if frame not in self.frames:
             raise ValueError(f"{self.folder}: no ground truth for frame {frame} (frames: {self.frames})")
-        return [ground_truth_detections(self.ground_truth(frame, c), config, config.rng(c, frame))
+        ids = self.garment_ids if config.id_error > 0 else None
+        return [ground_truth_detections(self.ground_truth(frame, c), config, config.rng(c, frame), ids)
                 for c in range(len(self.cameras))]
+
+    @cached_property
+    def garment_ids(self) -> np.ndarray:
+        """(M,) int64: the marker IDs printed on the garment (its template's panels)."""
+        return np.concatenate([t.marker_ids for t in self.template.layout.tables()]).astype(np.int64)
 
     # ---- the ground-truth garment ----------------------------------------------------------------
     @cached_property

@@ -90,6 +90,26 @@ def test_noise_and_dropout_are_seeded_and_named(ground_truth):
         GroundTruthConfig(dropout=1.0)
 
 
+def test_id_errors_replace_ids_with_garment_ids_and_leave_the_rest(ground_truth):
+    exact = GroundTruthConfig(noise_px=0.3, seed=2)
+    wrong = GroundTruthConfig(noise_px=0.3, seed=2, id_error=0.3)
+    assert wrong.source == "groundtruth(noise=0.3px, dropout=0, unit=crosspoint, id_error=0.3, seed=2)"
+    garment = set(ground_truth.garment_ids.tolist())
+    changed = total = 0
+    for a, b in zip(ground_truth.detections(3, exact), ground_truth.detections(3, wrong)):
+        for name in ("crosspoints_px", "crosspoint_visible", "points_px", "partial"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))  # only the IDs differ
+        assert set(b.marker_id.tolist()) <= garment
+        changed += int((a.marker_id != b.marker_id).sum())
+        total += len(a)
+    assert 0.25 < changed / total < 0.32  # a replacement may draw the true ID
+    gt = ground_truth.ground_truth(3, 0)
+    with pytest.raises(ValueError, match="garment_ids"):
+        ground_truth_detections(gt, wrong, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="id_error must be a fraction"):
+        GroundTruthConfig(id_error=1.0)
+
+
 def test_the_capture_folder_is_read_as_views_and_checked(capture_folder, ground_truth, tmp_path):
     views = Views.open(capture_folder, ground_truth.cameras)
     assert views.frames == (3, 4)
