@@ -46,7 +46,7 @@ def voted(detections: Detections, layout: MarkerLayout, spec, size: tuple[int, i
     full = fully_observed(spec, points, size, config.max_layout_residual_cells)
     ids, support = vote_ids(layout, spec, detections.marker_id, points, full, config.vote_min,
                             config.vote_min_partial, config.vote_tolerance)
-    return Detections(**{**detections.to_dict(), "marker_id": ids, "id_support": support})
+    return Detections(**{**detections.to_dict(), "marker_id": ids, "id_support": support.astype(np.int16)})
 
 
 def main() -> None:

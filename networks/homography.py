@@ -267,8 +267,9 @@ def vote_ids(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, poi
     replaced by random garment IDs, the defaults restore 1,197 of 2,019 wrong IDs (1,159 of 1,287 on
     fully observed markers) and change 10 right ones; on the true IDs, 10 change (0.15%).
 
-    marker_id (N,) int64, points_px (N, 5, 2) image pixels.  Returns (marker_id (N,) int64 after
-    voting, support (N,) int64: the neighbours' votes for that final ID).
+    marker_id (N,) int64, points_px (N, 5, 2) image pixels (a marker with a NaN centre takes no part).
+    Returns (marker_id (N,) int64 after voting, support (N,) int64: the neighbours' votes for that
+    final ID).
     """
     marker_id = np.asarray(marker_id, dtype=np.int64).copy()
     points_px = np.asarray(points_px, dtype=np.float64)
@@ -287,8 +288,9 @@ def vote_ids(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, poi
         predicted = apply_homography(to_image, slots[None])  # (V, 8, 2)
     corners = points_px[voters][:, [1, 2, 4, 3, 1]]
     side_px = np.linalg.norm(np.diff(corners, axis=1), axis=-1).mean(axis=1)
-    distance, target = cKDTree(points_px[:, 0]).query(np.nan_to_num(predicted.reshape(-1, 2), nan=-1e9), k=1)
-    target = target.reshape(-1, 8)
+    located = np.flatnonzero(np.isfinite(points_px[:, 0]).all(axis=1))  # receivers need a centre
+    distance, nearest = cKDTree(points_px[located, 0]).query(np.nan_to_num(predicted.reshape(-1, 2), nan=-1e9), k=1)
+    target = located[np.minimum(nearest, len(located) - 1)].reshape(-1, 8)
     found = np.isfinite(predicted).all(axis=-1) & (distance.reshape(-1, 8) <= tolerance * side_px[:, None])
     found &= target != voters[:, None]
     # a receiver that votes must see its voter at the opposite slot

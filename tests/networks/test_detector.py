@@ -208,6 +208,13 @@ def test_vote_ids_restores_ids_that_the_neighbours_contradict(table, scene):
     wrong = ids.copy()
     wrong[4] = 9
     assert vote_ids(layout, SPEC, wrong, moved, full)[0][4] == 9
+    # a marker without a centre (its points off the fabric) takes no part; the others vote on
+    lost = points.copy()
+    lost[0] = np.nan
+    wrong = ids.copy()
+    wrong[4] = 9
+    voted, support = vote_ids(layout, SPEC, wrong, lost, full)
+    assert voted[4] == 11 and voted[0] == ids[0] and support[0] == 0 and support[4] == 4
     # one marker alone, or no voter: nothing to go by
     assert vote_ids(layout, SPEC, wrong[4:5], points[4:5], full[4:5])[0].tolist() == [9]
     assert np.array_equal(vote_ids(layout, SPEC, wrong, points, np.zeros(6, bool))[0], wrong)
