@@ -6,9 +6,9 @@ ID of the garment, `GroundTruthConfig.id_error`; 0.26 is the chained Detector's 
 fully visible markers, RESULTS.md issue 7) the ground-truth detections of every camera and frame
 (0.3 px noise, as `make demo`) are triangulated (`reconstruction.triangulate.triangulate_frame`, its
 defaults: RANSAC over the views) three times: with the IDs as given (the baseline), after the
-Detector's ID votes per view (`networks.homography.vote_ids` with `DetectorConfig` defaults, fully
-observed markers voting), and after the votes without the markers no neighbour supports
-(`Detections.id_support` 0), a policy reconstruction could take.  The captured points are compared with the ground-truth garment at their
+Detector's ID votes per view (`networks.detector.vote_markers`, `DetectorConfig` defaults), and after
+the votes without the markers no neighbour supports (`Detections.id_support` 0), a policy
+reconstruction could take.  The captured points are compared with the ground-truth garment at their
 crosspoints: median, 95th percentile and worst error, and how many are more than 5 mm off (a
 crosspoint placed on another marker's part of the garment).
 
@@ -31,8 +31,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from networks.detections import Detections  # noqa: E402
-from networks.detector import DetectorConfig, fully_observed  # noqa: E402
-from networks.homography import MarkerLayout, vote_ids  # noqa: E402
+from networks.detector import DetectorConfig, vote_markers  # noqa: E402
+from networks.homography import MarkerLayout  # noqa: E402
 from reconstruction.groundtruth import GroundTruthCapture, GroundTruthConfig  # noqa: E402
 from reconstruction.triangulate import triangulate_frame  # noqa: E402
 
@@ -43,11 +43,8 @@ OFF_MM = 5.0
 def voted(detections: Detections, layout: MarkerLayout, spec, size: tuple[int, int], config: DetectorConfig
           ) -> Detections:
     """One view's detections with their IDs put to the neighbours' votes, as `networks.Detector.vote`."""
-    points = detections.points_px.astype(np.float64)
-    full = fully_observed(spec, points, size, config.max_layout_residual_cells)
-    ids, support = vote_ids(layout, spec, detections.marker_id, points, full, config.vote_min,
-                            config.vote_min_partial, config.vote_tolerance)
-    return Detections(**{**detections.to_dict(), "marker_id": ids, "id_support": support.astype(np.int16)})
+    ids, support = vote_markers(layout, spec, detections.marker_id, detections.points_px, size, config)
+    return Detections(**{**detections.to_dict(), "marker_id": ids, "id_support": support})
 
 
 def main() -> None:
@@ -62,6 +59,8 @@ def main() -> None:
     layout = MarkerLayout.from_tables(tables, spec.num_ids)
     config = DetectorConfig()
     crosspoints = capture.crosspoint_map
+    truths = {frame: capture.detections(frame, GroundTruthConfig(noise_px=NOISE_PX, seed=args.seed))
+              for frame in capture.frames}
     rows = []
     started = time.perf_counter()
     for rate in (float(r) for r in args.id_errors.split(",")):
@@ -70,15 +69,15 @@ def main() -> None:
             errors, right, seen = [], 0, 0
             for frame in capture.frames:
                 views = capture.detections(frame, degrade)
-                truths = capture.detections(frame, GroundTruthConfig(noise_px=NOISE_PX, seed=args.seed))
+                truth = truths[frame]
                 if votes != "no (baseline)":
                     views = [voted(d, layout, spec, (cam.width, cam.height), config)
                              for d, cam in zip(views, capture.cameras)]
                 if votes == "yes, unsupported markers dropped":
-                    truths = [t.select(d.id_support != 0) for t, d in zip(truths, views)]
+                    truth = [t.select(d.id_support != 0) for t, d in zip(truth, views)]
                     views = [d.select(d.id_support != 0) for d in views]
-                for d, truth in zip(views, truths):
-                    right += int((d.marker_id == truth.marker_id).sum())
+                for d, t in zip(views, truth):
+                    right += int((d.marker_id == t.marker_id).sum())
                     seen += len(d)
                 points = triangulate_frame(crosspoints, capture.cameras, views, frame=frame, source=degrade.source)
                 true = capture.crosspoints(frame, points.key)

@@ -562,7 +562,7 @@ def _print_tables(result: dict) -> None:
               f"{_number(ids['full']['accuracy'], '.3f')} | {_number(d['partial']['full']['fraction'], '.3f')} | "
               f"{points} | {xp['visibility']['precision']:.3f} / {xp['visibility']['recall']:.3f} | "
               f"{_number(xp['error_px']['median'], '.3f')} / {_number(xp['error_px']['p95'], '.3f')} | "
-              f"{d['seconds_per_image']:.3f} | {_stages(d, d['seconds'] / d['seconds_per_image'])} |")
+              f"{d['seconds_per_image']:.3f} | {_stages(d, d['images'])} |")
     print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
           "| first image: found / shown | stages s/image: localize, recognize, vote, complete, crosspoints "
           "|\n|---|---|---|---|---|---|---|")

@@ -213,10 +213,9 @@ class RenderedDataset(_Items, Dataset):
             crop = np.arange(len(image)) - np.repeat(np.cumsum(counts) - counts, counts)
             self._index = np.stack([image, crop], axis=1).astype(np.int64)
         self.spec = self.codebook = None
-        if self.crop_jitter_px > 0:
+        if task == "crosspoints" or self.crop_jitter_px > 0:  # references, or crops cut anew
             self.spec = spec if spec is not None else dataset_spec(self.root)
         if task == "crosspoints":
-            self.spec = spec if spec is not None else dataset_spec(self.root)
             self.codebook = generate_codebook(self.spec)  # before DataLoader workers fork, so they share it
 
     def __len__(self) -> int:

@@ -192,6 +192,18 @@ def fully_observed(spec: PatternSpec, points_px: np.ndarray, image_size: tuple[i
     return inside & (layout_residual(spec, points_px) <= max_residual_cells) & is_convex_layout(points_px)
 
 
+def vote_markers(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, points_px: np.ndarray,
+                 image_size: tuple[int, int], config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """One image's markers (N,) with their five points (N, 5, 2) in an image of `image_size` (W, H):
+    (IDs after the neighbours' votes, id_support (N,) int16), the fully observed markers voting
+    (`networks.homography.vote_ids` with the config's vote settings)."""
+    points_px = np.asarray(points_px, dtype=np.float64)
+    full = fully_observed(spec, points_px, image_size, config.max_layout_residual_cells)
+    ids, support = vote_ids(layout, spec, marker_id, points_px, full, config.vote_min, config.vote_min_partial,
+                            config.vote_tolerance)
+    return ids, support.astype(np.int16)
+
+
 def _batches(count: int, size: int) -> Iterator[slice]:
     for start in range(0, count, size):
         yield slice(start, min(start + size, count))
@@ -366,10 +378,8 @@ class Detector:
         for i in np.unique(image_index):
             pick = np.flatnonzero(image_index == i)
             size = (images[i].shape[1], images[i].shape[0])
-            full = fully_observed(self.spec, points_px[pick], size, self.config.max_layout_residual_cells)
-            marker_id[pick], support[pick] = vote_ids(self.layout, self.spec, marker_id[pick], points_px[pick], full,
-                                                      self.config.vote_min, self.config.vote_min_partial,
-                                                      self.config.vote_tolerance)
+            marker_id[pick], support[pick] = vote_markers(self.layout, self.spec, marker_id[pick], points_px[pick],
+                                                          size, self.config)
         return marker_id, support
 
     def complete_partial(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,

@@ -5,10 +5,10 @@ of every marker in the image (``<camera>/f<frame:06d>_gt.npz``, an
 `assets.pattern.observation.ImageGroundTruth`).  `GroundTruthCapture.detections` turns it into the
 `networks.detections.Detections` the Detector would output: the visible crosspoints only, confidence
 1, with optional Gaussian pixel noise, dropout and wrong marker IDs (the recognizer's mistakes),
-seeded per (seed, camera, frame) so any view can be remade alone.  This measures triangulation and post-processing on their own; everything made from
-these detections says so through `GroundTruthConfig.source` (for example
-``groundtruth(noise=0.3px, dropout=0.1, unit=crosspoint, seed=0)``), which later stages write into
-their outputs (`CapturedPoints.source`).
+seeded per (seed, camera, frame) so any view can be remade alone.  This measures triangulation and
+post-processing on their own; everything made from these detections says so through
+`GroundTruthConfig.source` (for example ``groundtruth(noise=0.3px, dropout=0.1, unit=crosspoint,
+seed=0)``), which later stages write into their outputs (`CapturedPoints.source`).
 
 The folder's ground-truth garment (``garment.npz``: sewn-mesh positions (T, V, 3) at ``level_mm``,
 ``faces``, ``frames``; ``template.npz``) is read too, for measuring: `GroundTruthCapture.crosspoints`
