@@ -5,12 +5,14 @@ For each ID error rate (`--id-errors`: the share of detected markers whose ID is
 ID of the garment, `GroundTruthConfig.id_error`; 0.26 is the chained Detector's measured rate on
 fully visible markers, RESULTS.md issue 7) the ground-truth detections of every camera and frame
 (0.3 px noise, as `make demo`) are triangulated (`reconstruction.triangulate.triangulate_frame`, its
-defaults: RANSAC over the views) three times: with the IDs as given (the baseline), after the
-Detector's ID votes per view (`networks.detector.vote_markers`, `DetectorConfig` defaults), and after
-the votes without the markers no neighbour supports (`Detections.id_support` 0), a policy
-reconstruction could take.  The captured points are compared with the ground-truth garment at their
-crosspoints: median, 95th percentile and worst error, and how many are more than 5 mm off (a
-crosspoint placed on another marker's part of the garment).
+defaults: RANSAC over the views) five times: without the pattern-neighbour check
+(`TriangulationConfig.neighbours` None) with the IDs as given (the baseline), after the Detector's ID
+votes per view (`networks.detector.vote_markers`, `DetectorConfig` defaults), and after the votes
+without the markers no neighbour supports (`Detections.id_support` 0); then with the neighbour check
+(`reconstruction.consistency`, its defaults: on in triangulation by default) without and with the
+votes.  The captured points are compared with the ground-truth garment at their crosspoints: median,
+95th percentile and worst error, and how many are more than 5 mm off (a crosspoint placed on another
+marker's part of the garment).
 
     python benchmarks/id_errors.py --capture out/demo/capture [--id-errors 0,0.05,0.26]
 
@@ -34,10 +36,13 @@ from networks.detections import Detections  # noqa: E402
 from networks.detector import DetectorConfig, vote_markers  # noqa: E402
 from networks.homography import MarkerLayout  # noqa: E402
 from reconstruction.groundtruth import GroundTruthCapture, GroundTruthConfig  # noqa: E402
-from reconstruction.triangulate import triangulate_frame  # noqa: E402
+from reconstruction.triangulate import TriangulationConfig, triangulate_frame  # noqa: E402
 
 NOISE_PX = 0.3
 OFF_MM = 5.0
+#: (ID votes, unsupported markers dropped, neighbour check) of each variant, in the table's order
+VARIANTS = ((False, False, False), (True, False, False), (True, True, False), (False, False, True),
+            (True, False, True))
 
 
 def voted(detections: Detections, layout: MarkerLayout, spec, size: tuple[int, int], config: DetectorConfig
@@ -65,26 +70,31 @@ def main() -> None:
     started = time.perf_counter()
     for rate in (float(r) for r in args.id_errors.split(",")):
         degrade = GroundTruthConfig(noise_px=NOISE_PX, id_error=rate, seed=args.seed)
-        for votes in ("no (baseline)", "yes", "yes, unsupported markers dropped"):
+        for votes, supported, checked in VARIANTS:
+            triangulation = TriangulationConfig() if checked else TriangulationConfig(neighbours=None)
             errors, right, seen = [], 0, 0
             for frame in capture.frames:
                 views = capture.detections(frame, degrade)
                 truth = truths[frame]
-                if votes != "no (baseline)":
+                if votes:
                     views = [voted(d, layout, spec, (cam.width, cam.height), config)
                              for d, cam in zip(views, capture.cameras)]
-                if votes == "yes, unsupported markers dropped":
+                if supported:
                     truth = [t.select(d.id_support != 0) for t, d in zip(truth, views)]
                     views = [d.select(d.id_support != 0) for d in views]
                 for d, t in zip(views, truth):
                     right += int((d.marker_id == t.marker_id).sum())
                     seen += len(d)
-                points = triangulate_frame(crosspoints, capture.cameras, views, frame=frame, source=degrade.source)
+                points = triangulate_frame(crosspoints, capture.cameras, views, triangulation, frame=frame,
+                                           source=degrade.source)
                 true = capture.crosspoints(frame, points.key)
                 ok = np.isfinite(true).all(axis=1)
                 errors.append(1e3 * np.linalg.norm(points.xyz[ok] - true[ok], axis=1))
             error = np.concatenate(errors)
-            rows.append({"id_error": rate, "votes": votes, "id_accuracy": right / max(seen, 1),
+            label = ("yes" if votes else "no" if checked else "no (baseline)") + (
+                ", unsupported markers dropped" if supported else "")
+            rows.append({"id_error": rate, "votes": label, "neighbour_check": checked,
+                         "id_accuracy": right / max(seen, 1),
                          "points": int(len(error)), "median_mm": float(np.median(error)),
                          "p95_mm": float(np.percentile(error, 95)), "max_mm": float(error.max()),
                          "off": int((error > OFF_MM).sum())})
@@ -93,10 +103,11 @@ def main() -> None:
               "rows": rows}
     print(f"# ID errors and triangulation, {result['date']}, {args.capture}: {len(capture.cameras)} cameras, "
           f"frames {capture.frames}, {NOISE_PX} px noise, {result['seconds']:.0f} s")
-    print(f"\n| IDs replaced | ID votes | ID accuracy of the detections | captured points | error median / p95 / "
-          f"worst mm | points more than {OFF_MM:g} mm off |\n|---|---|---|---|---|---|")
+    print(f"\n| IDs replaced | ID votes | neighbour check | ID accuracy of the detections | captured points | "
+          f"error median / p95 / worst mm | points more than {OFF_MM:g} mm off |\n|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['id_error']:.0%} | {r['votes']} | {r['id_accuracy']:.3f} | "
+        check = "yes" if r["neighbour_check"] else "no"
+        print(f"| {r['id_error']:.0%} | {r['votes']} | {check} | {r['id_accuracy']:.3f} | "
               f"{r['points']} | {r['median_mm']:.2f} / {r['p95_mm']:.2f} / {r['max_mm']:.1f} | {r['off']} |")
     print("RESULT " + json.dumps(result))
 

@@ -26,6 +26,8 @@ _EXPORTS = {
     "triangulate_frame": "reconstruction.triangulate",
     "triangulate_points": "reconstruction.triangulate",
     "triangulate_sequence": "reconstruction.triangulate",
+    "NeighbourConfig": "reconstruction.consistency",
+    "consistent_points": "reconstruction.consistency",
     "GroundTruthCapture": "reconstruction.groundtruth",
     "GroundTruthConfig": "reconstruction.groundtruth",
     "vertex_errors": "reconstruction.groundtruth",

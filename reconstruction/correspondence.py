@@ -66,6 +66,10 @@ class CrosspointMap:
       face (G,) int64, bary (G, 3) float64 per garment-wide crosspoint: face of the level's sewn
                                            mesh and barycentric weights, -1 / 0 off the fabric
       sewn_faces (F, 3) int32              the level's sewn faces
+      pattern_xy (G, 2) float64            per garment-wide crosspoint, its place on its panel's flat
+                                           fabric (`MarkerTable.crosspoint_xy`), metres
+      grid_shape (Pn, 2) int64             per panel, its crosspoint grid (rows, cols): panel crosspoint
+                                           (gr, gc) has index gr * cols + gc
     """
 
     level_mm: int
@@ -76,6 +80,8 @@ class CrosspointMap:
     face: np.ndarray
     bary: np.ndarray
     sewn_faces: np.ndarray
+    pattern_xy: np.ndarray
+    grid_shape: np.ndarray
 
     @classmethod
     def build(cls, template: Template, level_mm: int, tables: Sequence[MarkerTable] | None = None) -> "CrosspointMap":
@@ -95,10 +101,14 @@ class CrosspointMap:
         # border crosspoints are written once per marker holding them, with identical values
         face[flat] = surface.xp_face
         bary[flat] = surface.xp_bary
+        pattern_xy = np.zeros((total, 2))
+        for start, table in zip(first, tables):
+            pattern_xy[start:start + table.spec.num_crosspoints] = table.crosspoint_xy
         order = np.argsort(surface.marker_id, kind="stable")
         return cls(level_mm=int(level_mm), marker_id=surface.marker_id[order].astype(np.int64), panel=panel[order],
                    crosspoint_index=index[order], first_crosspoint=first, face=face, bary=bary,
-                   sewn_faces=surface.sewn_faces)
+                   sewn_faces=surface.sewn_faces, pattern_xy=pattern_xy,
+                   grid_shape=np.array([t.spec.grid_shape for t in tables], dtype=np.int64).reshape(-1, 2))
 
     @property
     def crosspoints_per_side(self) -> int:
@@ -108,6 +118,24 @@ class CrosspointMap:
     def num_crosspoints(self) -> int:
         """G: crosspoints of the whole garment (every panel's table)."""
         return len(self.face)
+
+    @property
+    def marker_flat(self) -> np.ndarray:
+        """(M, K, K) int64: the garment-wide crosspoint number of each marker's local (row, col)."""
+        return self.first_crosspoint[self.panel][:, None, None] + self.crosspoint_index
+
+    def grid_pairs(self, stride: int) -> np.ndarray:
+        """(E, 2) int64 garment-wide numbers of the crosspoint pairs `stride` grid steps apart along a
+        row or a column of a panel's grid, both on the fabric (across marker borders too)."""
+        if stride < 1:
+            raise ValueError(f"grid_pairs: stride must be >= 1, got {stride}")
+        pairs = []
+        for start, (rows, cols) in zip(self.first_crosspoint, self.grid_shape):
+            grid = start + np.arange(rows * cols, dtype=np.int64).reshape(rows, cols)
+            pairs += [np.stack([grid[:, :-stride].ravel(), grid[:, stride:].ravel()], axis=1),
+                      np.stack([grid[:-stride].ravel(), grid[stride:].ravel()], axis=1)]
+        pairs = np.concatenate(pairs) if pairs else np.zeros((0, 2), np.int64)
+        return pairs[(self.face[pairs] >= 0).all(axis=1)]
 
     # ---- lookups (vectorised) ------------------------------------------------------------------
     def marker_rows(self, marker_id: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

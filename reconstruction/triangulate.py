@@ -26,6 +26,11 @@ Per frame (`triangulate_frame`):
                                                    point best (closest to 90 degrees)
          fit       = exp(-(rms / threshold_px)^2 / 2)
 
+4. **Neighbour check** (`reconstruction.consistency`, `TriangulationConfig.neighbours`): points
+   that no crosspoint of another marker confirms in 3D (within the cloth's stretch of their rest
+   distance on the pattern) are dropped: a marker read with a wrong ID in one view gives points
+   that reproject well at a wrong depth when only two views see them.
+
 Reprojection errors are measured in the pinhole (undistorted) image of each camera, pixels.
 C cameras, N points.
 """
@@ -43,6 +48,7 @@ from tqdm import tqdm
 from assets.cameras import Camera
 from networks.detections import Detections
 from reconstruction.cameras import undistort_pixels
+from reconstruction.consistency import NeighbourConfig, consistent_points
 from reconstruction.correspondence import CrosspointMap
 from reconstruction.points import CapturedPoints
 
@@ -64,7 +70,9 @@ class TriangulationConfig:
         antiparallel.
     duplicate_px: two observations of one crosspoint in one view within this many pixels are
         averaged; otherwise the more confident is kept (default: `threshold_px`).
-    seed: seeds the choice of pairs when a point has more than `max_hypotheses`."""
+    seed: seeds the choice of pairs when a point has more than `max_hypotheses`.
+    neighbours: the pattern-neighbour check of the frame's points (`reconstruction.consistency`), or
+        None to keep every point the views accept."""
 
     threshold_px: float = 2.0
     min_views: int = 2
@@ -73,6 +81,7 @@ class TriangulationConfig:
     min_angle_deg: float = 1.0
     duplicate_px: float | None = None
     seed: int = 0
+    neighbours: NeighbourConfig | None = NeighbourConfig()
 
     def __post_init__(self) -> None:
         if not self.threshold_px > 0:
@@ -413,11 +422,17 @@ def triangulate_frame(crosspoints: CrosspointMap, cameras: Sequence[Camera], det
     on `crosspoints`' template level; `source` names where the detections came from."""
     gathered = gather_views(crosspoints, cameras, detections, config)
     solved = triangulate_points(cameras, gathered.pixels, gathered.observed, config, gathered.confidence)
-    keep = solved.valid
+    keep = solved.valid.copy()
+    triangulated = int(keep.sum())
+    if config.neighbours is not None:
+        rows = np.flatnonzero(keep)
+        keep[rows] = consistent_points(crosspoints, gathered.flat[rows], solved.xyz[rows], config.neighbours).kept
     key = crosspoints.unflat(gathered.flat[keep])
     face, bary = crosspoints.locate(key)
-    log.info("frame %d: %d crosspoints observed, %d in >= %d views, %d triangulated", frame, len(gathered.flat),
-             int((gathered.observed.sum(axis=1) >= config.min_views).sum()), config.min_views, int(keep.sum()))
+    log.info("frame %d: %d crosspoints observed, %d in >= %d views, %d triangulated, %d of them dropped by the "
+             "neighbour check", frame, len(gathered.flat),
+             int((gathered.observed.sum(axis=1) >= config.min_views).sum()), config.min_views, triangulated,
+             triangulated - int(keep.sum()))
     return CapturedPoints(level_mm=crosspoints.level_mm, key=key, xyz=solved.xyz[keep], face=face, bary=bary,
                           views=solved.inliers[keep], reprojection_px=solved.reprojection_px[keep],
                           confidence=solved.confidence[keep], frame=frame, source=source)

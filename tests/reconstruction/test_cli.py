@@ -30,7 +30,9 @@ def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, ca
     assert sequence.source.startswith("groundtruth(") and sequence.positions.shape[0] == 2
     assert np.isfinite(sequence.positions).all() and sequence.captured.any()
     summary = json.loads((out / "evaluation.json").read_text())["summary"]
-    assert summary["captured_fraction"] == pytest.approx(1.0)  # noise-free: every point seen twice
+    # noise-free: every point seen twice, but for the small patches of these 96 x 64 views that no
+    # other marker's crosspoints confirm (the neighbour check drops them)
+    assert 0.95 < summary["captured_fraction"] <= 1.0
     assert summary["error_mm_median"] < 1e-3
     assert summary["intersections_after_max"] == 0
     assert (out / "export" / "sequence.npz").is_file() and (out / "export" / "review.blend").is_file()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from reconstruction.groundtruth import GroundTruthCapture, GroundTruthConfig, ground_truth_detections
-from reconstruction.triangulate import triangulate_frame
+from reconstruction.triangulate import TriangulationConfig, triangulate_frame
 from reconstruction.views import Views
 
 pytestmark = pytest.mark.slow  # the shared shirt simulation (about 70 s, once per session) and renders
@@ -24,7 +24,8 @@ def test_noise_free_ground_truth_triangulates_to_the_garment(ground_truth):
     config = GroundTruthConfig()
     for frame in ground_truth.frames:
         detections = ground_truth.detections(frame, config)
-        points = triangulate_frame(crosspoints, ground_truth.cameras, detections, frame=frame, source=config.source)
+        points = triangulate_frame(crosspoints, ground_truth.cameras, detections,
+                                   TriangulationConfig(neighbours=None), frame=frame, source=config.source)
         assert points.source == "groundtruth(noise=0px, dropout=0, unit=crosspoint, seed=0)"
         assert points.level_mm == 12 and points.frame == frame
         # every crosspoint visible in two or more views is captured, from exactly those views
@@ -42,6 +43,10 @@ def test_noise_free_ground_truth_triangulates_to_the_garment(ground_truth):
         # at the ground-truth garment's positions (garment.npz interpolated at the crosspoints)
         truth = ground_truth.crosspoints(frame, points.key)
         assert np.abs(points.xyz - truth).max() < 1e-6
+        # the neighbour check (on by default) drops only what no other marker's crosspoint confirms:
+        # here a few small patches of these 96 x 64 views
+        checked = triangulate_frame(crosspoints, ground_truth.cameras, detections, frame=frame)
+        assert np.isin(crosspoints.flat(checked.key), captured).all() and len(checked) > 0.95 * len(points)
 
 
 def test_detections_are_the_visible_crosspoints(ground_truth):
