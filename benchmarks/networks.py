@@ -111,14 +111,23 @@ RESERVE_S, START_S = 210.0, 45.0
 
 
 def prepare(root: Path, out: Path) -> tuple[Path, int]:
-    """(a view of the rendered dataset folder in `out`, samples built): its files linked, and
-    `samples/<name>.npz` built in the view for every manifest entry when the folder has none."""
+    """(a copy of the rendered dataset folder in `out`, samples built): its files copied, and
+    `samples/<name>.npz` built in the copy for every manifest entry when the folder has none.
+    Copied, not linked: on the device machine the working tree is replaced by each call, and a call
+    that does not carry the folder removes it there, so links into it break under a running
+    benchmark (the fifth networks run lost its evaluation so)."""
     view = out / "rendered"
     view.mkdir(parents=True, exist_ok=True)
     names = ["images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl"]
     for name in names + (["samples"] if (root / "samples").is_dir() else []):
-        if (root / name).exists() and not (view / name).exists():
-            (view / name).symlink_to((root / name).resolve())
+        source, target = root / name, view / name
+        if not source.exists() or target.exists():
+            continue
+        if source.is_dir():
+            shutil.copytree(source, target.with_name(target.name + ".part"), dirs_exist_ok=True)
+            target.with_name(target.name + ".part").rename(target)
+        else:
+            shutil.copy2(source, target)
     spec = dataset_spec(view)
     made = 0
     for line in (view / "manifest.jsonl").read_text().splitlines():
