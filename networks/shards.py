@@ -105,8 +105,9 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
 
     task: one of `TASKS`; spec and config: the pattern and the synthesizer (its seed included);
     marker_ids: the IDs drawn (default all of the codebook); workers: spawned processes of one thread
-    each; time_limit_s: submit no part after that many seconds (parts under way finish; an empty
-    folder gets one part whatever the limit).  A folder
+    each; time_limit_s: submit no part that would end after that many seconds (a part's time is the
+    median of those finished; parts under way finish; an empty folder gets one part whatever the
+    limit).  A folder
     written before must have been written with the same settings.  Returns {"parts", "items" (in the
     folder), "written_parts", "written_images", "seconds", "images_per_s", "images_per_s_per_worker",
     "complete"}."""
@@ -135,19 +136,28 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
         initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
                     crops_per_image)
         bar = tqdm(total=len(todo), desc=f"shards {task}", unit="part", disable=not progress)
-        with worker_environment(), ProcessPoolExecutor(min(workers, len(todo)), mp_context=get_context("spawn"),
+        pool_size = min(workers, len(todo))
+        with worker_environment(), ProcessPoolExecutor(pool_size, mp_context=get_context("spawn"),
                                                        initializer=_start_worker, initargs=initargs) as pool:
-            pending, queue = set(), list(todo)
+            pending, queue, submitted, part_s = set(), list(todo), {}, []
             while queue or pending:
-                late = time_limit_s is not None and time.perf_counter() - started > time_limit_s
-                late &= bool(done) or written > 0 or len(pending) > 0  # an empty folder gets one part at least
-                while queue and not late and len(pending) < 2 * workers:
-                    pending.add(pool.submit(_write_part, str(out), queue.pop(0)))
+                # a part is submitted only while it would end within the limit (a part's time measured
+                # on the finished ones; before the first, one part per worker), so the limit holds to
+                # within one part's time, not the pool's queue
+                while queue and len(pending) < pool_size:
+                    now = time.perf_counter() - started
+                    late = time_limit_s is not None and now + (np.median(part_s) if part_s else 0.0) > time_limit_s
+                    if late and (done or written or pending):  # an empty folder gets one part at least
+                        break
+                    future = pool.submit(_write_part, str(out), queue.pop(0))
+                    submitted[future] = time.perf_counter()
+                    pending.add(future)
                 if not pending:
                     break
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
                     future.result()
+                    part_s.append(time.perf_counter() - submitted.pop(future))
                     written += 1
                     bar.update(1)
         bar.close()

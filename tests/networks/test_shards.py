@@ -97,3 +97,16 @@ def test_cli_writes_jittered_crops(tmp_path, capsys):
         return (a.reshape(len(a), 1, -1) == b.reshape(1, len(b), -1)).all(axis=-1).any(axis=1)
 
     assert len(got) > 0 and among(got, jittered).all() and not among(got, exact).any()
+
+
+def test_time_limit_stops_submitting_parts_that_would_end_after_it(tmp_path):
+    # an empty folder gets one part whatever the limit, and no more (two workers idle beside it)
+    out = tmp_path / "loc"
+    first = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2,
+                         time_limit_s=0.0, progress=False)
+    assert (first["written_parts"], first["complete"]) == (1, False)
+    # a folder with parts gets none when the limit is spent, and all of them without a limit
+    assert write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2,
+                        time_limit_s=0.0, progress=False)["written_parts"] == 0
+    rest = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2, progress=False)
+    assert (rest["written_parts"], rest["complete"]) == (3, True)
