@@ -9,9 +9,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    (`placement`: one GPU per main run while there are GPUs, spare GPUs join the heaviest main runs as
    DistributedDataParallel ranks through torchrun, the comparison runs share GPUs):
    the main runs, localizer_mix (rendered train split + shards, synth weight 0.5), recognizer and
-   crosspoints (shards + rendered crops, synth weight 0.75), and recognizer_jitter (the recognizer
-   on crops cut from jittered points, `CROP_JITTER_PX`, as the Detector cuts them: shards written so,
-   rendered crops cut anew per item, `TrainConfig.crop_jitter_px`)
+   crosspoints (shards + rendered crops, synth weight 0.75), and recognizer_jitter and
+   crosspoints_jitter (those two on crops cut from jittered points, `CROP_JITTER_PX`, as the Detector
+   cuts them: shards written so, rendered crops cut anew per item, `TrainConfig.crop_jitter_px`)
    train until the budget's end; the
    data-mix comparison runs localizer_synth (shards only) and localizer_rendered (rendered only)
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
@@ -93,6 +93,7 @@ RUNS = {
     "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
     "recognizer_jitter": ("recognizer", 0.75, None, 6, "recognizer_jitter"),
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
+    "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
 }
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints": "crosspoints"}
 #: the recognizer_jitter run's synthesized crops are cut from five points jittered by this (pixels,
@@ -101,7 +102,8 @@ MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer", "crosspoints":
 CROP_JITTER_PX = 1.0
 #: shard folder -> (task, synthetic images (the crop tasks keep up to 32 crops of each), crop jitter px)
 SHARDS = {"localizer": ("localizer", 19200, 0.0), "recognizer": ("recognizer", 9600, 0.0),
-          "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX), "crosspoints": ("crosspoints", 4800, 0.0)}
+          "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX), "crosspoints": ("crosspoints", 4800, 0.0),
+          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX)}
 #: the main runs that take spare GPUs as extra DDP ranks, heaviest first
 HEAVIEST = ("crosspoints", "recognizer", "localizer")
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
@@ -365,8 +367,8 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> d
     """`networks.evaluate_detector` of the three main runs chained, on the held-out renders, with the
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
     baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
-    before; and, where the recognizer_jitter run exists, with its recognizer, with and without votes;
-    keyed by a label of the variant."""
+    before; where the recognizer_jitter run exists, with its recognizer, with and without votes; and
+    where crosspoints_jitter exists too, with both jittered runs; keyed by a label of the variant."""
     from networks.detector import DetectorConfig
     from networks.evaluate_detector import evaluate_detector, load_detector
 
@@ -377,6 +379,9 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> d
     if jittered.exists():
         variants["recognizer_jitter"] = ([paths[0], jittered, paths[2]], {})
         variants["recognizer_jitter, no ID votes"] = ([paths[0], jittered, paths[2]], {"vote_ids": False})
+        both = out / "crosspoints_jitter" / "run" / "last.pt"
+        if both.exists():
+            variants["recognizer_jitter + crosspoints_jitter"] = ([paths[0], jittered, both], {})
     results = {}
     for label, (checkpoints, overrides) in variants.items():
         config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, **overrides)

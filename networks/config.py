@@ -50,8 +50,8 @@ class TrainConfig:
     state-dict file for the backbone (None: random initialisation).  init: a checkpoint of this task
     and pattern (ours, e.g. `python -m networks.checkpoint slim`'s) whose weights a new run starts
     from, with a new optimizer and schedule (fine-tuning, or training continued across machines);
-    not with pretrained.  crop_jitter_px: the recognizer's training crops (rendered and synthesized)
-    and the synthesized crosspoint crops are cut from five points moved by Gaussian noise of this
+    not with pretrained.  crop_jitter_px: the training crops of the crop tasks (rendered and
+    synthesized) are cut from five points moved by Gaussian noise of this
     standard deviation (pixels), as the Detector cuts them from the localizer's points; shards must
     have been written with the same (`networks.synth write --crop-jitter`); 0: the reference's exact
     crops.

@@ -45,7 +45,8 @@ from tqdm import tqdm
 from assets.fileio import load_json, load_npz
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
-from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, crosspoint_markers, localizer_targets,
+                                        recognizer_crops)
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment
 from networks.checkpoint import codebook_hash
@@ -173,10 +174,12 @@ class RenderedDataset(_Items, Dataset):
     crop_px: localizer items are random crops of min(crop_px, side) pixels per side (rounded down to
     whole 8 px cells and placed on the cell grid, so the cell targets stay exact; seeded per
     (seed, epoch, index)); None: whole images.
-    crop_jitter_px (recognizer only): each item's crop is cut anew from the image, from its marker's
-    five true points moved by Gaussian noise of this standard deviation in pixels (seeded per
-    (seed, epoch, index)), as the Detector cuts crops from the localizer's points; 0: the stored
-    exact crops."""
+    crop_jitter_px (crop tasks): each item's crop is cut anew from the image, from its marker's five
+    true points moved by Gaussian noise of this standard deviation in pixels (seeded per (seed,
+    epoch, index)), as the Detector cuts crops from the localizer's points; crosspoint targets follow
+    the moved crop (`ImageGroundTruth.jittered`).  The markers are those of the stored crops, picked
+    on the true points (`crosspoint_markers`' crop-sanity test); a jittered crosspoint crop that fails
+    that test (the Detector would not cut it) is cut from the true points.  0: the stored exact crops."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
@@ -190,8 +193,8 @@ class RenderedDataset(_Items, Dataset):
         if crop_px is not None and crop_px < CELL:
             raise ValueError(f"crop_px must be >= {CELL} (one localizer cell), got {crop_px}")
         self.crop_px = crop_px
-        if not 0 <= crop_jitter_px <= 8 or (crop_jitter_px > 0 and task != "recognizer"):
-            raise ValueError(f"crop_jitter_px must be in [0, 8] and only for the recognizer, got {crop_jitter_px} "
+        if not 0 <= crop_jitter_px <= 8 or (crop_jitter_px > 0 and task == "localizer"):
+            raise ValueError(f"crop_jitter_px must be in [0, 8] and only for the crop tasks, got {crop_jitter_px} "
                              f"for the {task}")
         self.crop_jitter_px = float(crop_jitter_px)
         self._references = {}
@@ -242,6 +245,14 @@ class RenderedDataset(_Items, Dataset):
                 cut = unwarp(arrays["image"], self.spec, RECOGNIZER_CROP, points)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
+        if self.crop_jitter_px > 0:
+            one = arrays["gt"].select(np.array([crop]))
+            made = crosspoint_crops(arrays["image"], one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
+                                    self.spec)
+            if not len(made[0]):  # the jittered fit fails the crop-sanity test: the crop of the true points
+                made = crosspoint_crops(arrays["image"], one, self.spec)
+            cut, marker_id, xy, visible = (a[0] for a in made)
+            return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
                           xy=arrays["crosspoint_xy"][crop], visible=arrays["crosspoint_visible"][crop])
 
@@ -283,20 +294,27 @@ class RenderedDataset(_Items, Dataset):
         return self._keep(image_index, arrays)
 
     def _jitter_source(self, image_index: int) -> dict[str, np.ndarray]:
-        """What jittered recognizer crops are cut from: the image, and the five true points and IDs of
-        the markers of its stored crops (`recognizer_crops` picks them), checked against the samples."""
+        """What jittered crops are cut from: the image, and the ground truth of the markers of its
+        stored crops (picked as `recognizer_crops` and `crosspoint_crops` pick them), checked against
+        the samples: the recognizer's five true points and IDs, the crosspoints' `ImageGroundTruth`."""
         entry = self.entries[image_index]
         if "gt" not in entry:
             raise ValueError(f"{self.root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' entry, which "
                              "crop jitter cuts its crops from")
         gt = ImageGroundTruth.load(self.root / entry["gt"])
-        pick = np.flatnonzero(gt.point_visible.all(axis=1))
-        stored = load_npz(self.root / entry["samples"], only=("recognizer_ids",))["recognizer_ids"]
+        key = _CROP_KEYS[self.task][1]
+        if self.task == "recognizer":
+            pick = np.flatnonzero(gt.point_visible.all(axis=1))
+        else:
+            pick = crosspoint_markers(gt, self.spec)[0]
+        stored = load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
-            raise ValueError(f"{self.root / entry['gt']}: its fully visible markers do not match the recognizer "
-                             f"crops of {self.root / entry['samples']}")
-        return {"image": _read_png(self.root / entry["image"]), "points_px": gt.points_px[pick].astype(np.float64),
-                "recognizer_ids": stored}
+            raise ValueError(f"{self.root / entry['gt']}: its markers do not match the {self.task} crops of "
+                             f"{self.root / entry['samples']}")
+        image = _read_png(self.root / entry["image"])
+        if self.task == "recognizer":
+            return {"image": image, "points_px": gt.points_px[pick].astype(np.float64), key: stored}
+        return {"image": image, "gt": gt.select(pick), key: stored}
 
     def _keep(self, image_index: int, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self._cache[image_index] = arrays

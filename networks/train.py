@@ -232,7 +232,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     root = _dataset_root(data)
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
-                               crop_jitter_px=jitter if task == "recognizer" else 0.0)
+                               crop_jitter_px=jitter)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:

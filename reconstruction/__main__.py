@@ -74,7 +74,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--evaluate", action="store_true", help="ground-truth mode: evaluate against the capture")
     detect = sub.add_parser("detect", help="detections per camera and frame")
     settings(detect), common(detect)
-    common(sub.add_parser("triangulate", help="captured 3D points per frame"))
+    triangulate = sub.add_parser("triangulate", help="captured 3D points per frame")
+    common(triangulate)
+    for p in (run, triangulate):
+        p.add_argument("--no-neighbour-check", action="store_true",
+                       help="keep the triangulated points that no other marker's crosspoints confirm in 3D "
+                       "(reconstruction.consistency; on by default: it removes wrong-ID points)")
     refine = sub.add_parser("refine", help="Newton VBD post-processing -> sequence.npz")
     common(refine), refine_options(refine)
     refine.add_argument("--frames", help="refine a window of the triangulated frames, e.g. 120-131 (default: all)")
@@ -114,7 +119,10 @@ def main(argv: list[str] | None = None) -> int:
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")
         if args.command in ("run", "triangulate"):
-            paths = pipeline.triangulate(args.out, progress=progress)
+            from reconstruction.triangulate import TriangulationConfig
+
+            config = TriangulationConfig(neighbours=None) if args.no_neighbour_check else TriangulationConfig()
+            paths = pipeline.triangulate(args.out, config=config, progress=progress)
             print(f"captured points of {len(paths)} frames in {args.out / 'points'}")
         if args.command in ("run", "refine"):
             from reconstruction.refine import RefineConfig

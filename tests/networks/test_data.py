@@ -166,8 +166,46 @@ def test_jittered_recognizer_crops_are_cut_anew_from_moved_points(folder):
     assert np.mean(moved) > 3
     jittered.set_epoch(1)
     assert not torch.equal(jittered[0]["crop"], RenderedDataset(folder, "train", "recognizer", crop_jitter_px=1.5)[0]["crop"])
-    with pytest.raises(ValueError, match="only for the recognizer"):
-        RenderedDataset(folder, "train", "crosspoints", crop_jitter_px=1.0)
+    with pytest.raises(ValueError, match="only for the crop tasks"):
+        RenderedDataset(folder, "train", "localizer", crop_jitter_px=1.0)
+
+
+def _at(crop: torch.Tensor, xy: np.ndarray) -> np.ndarray:
+    """The crop's colours (float) at the crop pixel positions xy (M, 2), bilinear."""
+    image = crop.permute(1, 2, 0).numpy().astype(np.float32)
+    # pixel centres at +0.5: the crop's xy are continuous coordinates
+    map_x = (xy[:, 0] - 0.5).astype(np.float32)[None]
+    map_y = (xy[:, 1] - 0.5).astype(np.float32)[None]
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)[0]
+
+
+def test_jittered_crosspoint_crops_move_their_targets_with_the_crop(folder):
+    exact = RenderedDataset(folder, "train", "crosspoints")
+    tiny = RenderedDataset(folder, "train", "crosspoints", crop_jitter_px=1e-9)
+    jittered = RenderedDataset(folder, "train", "crosspoints", crop_jitter_px=1.5)
+    assert len(exact) == len(tiny) == len(jittered) > 2
+    same, shuffled, shift = [], [], []
+    for i in range(len(exact)):
+        want, near, item = exact[i], tiny[i], jittered[i]
+        # cut again at the true points: the stored crop and targets
+        assert np.abs(near["crop"].numpy().astype(int) - want["crop"].numpy().astype(int)).max() <= 1
+        assert np.allclose(near["xy"].numpy(), want["xy"].numpy(), atol=1e-3, equal_nan=True)
+        assert torch.equal(near["visible"], want["visible"])
+        assert torch.equal(item["reference"], want["reference"])  # the same marker
+        assert torch.equal(item["crop"], jittered[i]["crop"])  # reproducible per (seed, epoch, index)
+        both = (item["visible"] & want["visible"]).numpy()
+        inner = both & (np.stack([item["xy"].numpy(), want["xy"].numpy()]) > 4).all(axis=(0, -1)) \
+            & (np.stack([item["xy"].numpy(), want["xy"].numpy()]) < 108).all(axis=(0, -1))
+        if inner.sum() < 20:
+            continue
+        moved, true = item["xy"].numpy()[inner], want["xy"].numpy()[inner]
+        shift.append(np.linalg.norm(moved - true, axis=-1).mean())
+        # the moved targets point at what the true targets point at in the exact crop
+        same.append(np.abs(_at(item["crop"], moved) - _at(want["crop"], true)).mean())
+        shuffled.append(np.abs(_at(item["crop"], true) - _at(want["crop"], true)).mean())
+    assert len(same) > 2
+    assert 0.3 < np.mean(shift) < 10  # 1.5 px of jitter moves the targets by a few crop pixels
+    assert np.mean(same) < 0.5 * np.mean(shuffled)
 
 
 def test_default_collate_batches_the_items(folder):

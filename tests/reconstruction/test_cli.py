@@ -2,6 +2,7 @@
 stage's files, the evaluation, resume, and refusal of a folder made with other settings."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -40,6 +41,15 @@ def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, ca
     stamps = {p: p.stat().st_mtime_ns for p in (out / "points").iterdir()}
     assert main(argv) == 0  # resumes: nothing is redone
     assert {p: p.stat().st_mtime_ns for p in (out / "points").iterdir()} == stamps
+
+    # without the neighbour check: the same detections give every point, the dropped patches too
+    unchecked = tmp_path / "unchecked"
+    shutil.copytree(out / "detections", unchecked / "detections")
+    shutil.copy2(out / "run.json", unchecked / "run.json")
+    assert main(["triangulate", "--out", str(unchecked), "--no-neighbour-check", "--quiet"]) == 0
+    for checked, kept in zip(points, load_sequence(unchecked / "points")):
+        assert set(map(tuple, checked.key)) <= set(map(tuple, kept.key))
+    assert sum(len(p.key) for p in load_sequence(unchecked / "points")) > sum(len(p.key) for p in points)
 
     capsys.readouterr()
     assert main(argv[:-2] + ["--noise", "0.5", "--quiet"]) != 0
