@@ -36,9 +36,19 @@ inference.  One call fits a 10-minute device command; calling it again with the 
 Training continued across device sessions (a session's 30 minutes are far from the targets, and
 checkpoints with Adam's state, about 1 GB, cannot come back): `--export-weights` writes each trained
 run as a slim bf16 checkpoint (localizer 24 MB, recognizer 64 MB, crosspoints about 60 MB) under
-<export>/weights; a call returns at most 64 MiB, so split them (`split -b 15M`) and fetch four parts
-per call.  The next session carries them back (64 MiB per call, staged in the machine's /tmp over
-back-to-back calls) and passes `--init <folder>`: new runs start from those weights.
+<export>/weights.  A call returns at most 64 MiB and carries at most 64 MiB, so they travel in checked
+parts (`benchmarks/device_files.py`: pack, send, unpack).  One session, every call carrying
+`.bench/carry` (a call without it removes it from the machine's working tree) and following the
+last within the machine's 30 s idle release:
+
+    1. python3 benchmarks/networks.py ... --final --export-weights --export /tmp/bn/export &  (sleep ~9 min)
+    2. python3 benchmarks/device_files.py wait /tmp/bn/export/results.json; cp results.json, logs.tar.gz
+       and bench.log to $OUT; device_files.py pack /tmp/bn/export/weights /tmp/parts; send parts 0-1
+    3.. device_files.py send /tmp/parts $OUT --parts 2-4 (and so on); here: unpack into .bench/weights
+
+The next session carries the parts in (staged in the machine's /tmp over back-to-back calls, with
+room beside .bench/carry's 45 MB), unpacks them there and passes `--init <folder>`: new runs start
+from those weights.
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:

@@ -1,0 +1,225 @@
+"""Move a folder of files larger than one device call carries (64 MiB each way) in checked parts.
+
+The GPU machine returns what a call writes under $OUT, and takes what a call carries, each at most
+64 MiB, and it goes back 30 s after a call: so trained weights (about 150 MB of slim checkpoints)
+leave in parts over quick back-to-back calls and come back the same way.  Standard library only (it
+runs on the device machine's Python as well as here).
+
+    pack SRC PARTS [--part-mb 20]     SRC's files (recursively) -> PARTS/part.NNN + PARTS/MANIFEST.json
+                                      (each file's and each part's size and SHA-256)
+    send PARTS TO [--parts 0-2]       copy the manifest and the chosen parts into TO (e.g. $OUT)
+    unpack PARTS DEST                 check every part, join, check every file, write them under DEST
+                                      (each file written atomically; missing or damaged parts are named
+                                      and nothing is written)
+    wait FILE [--timeout S]           return when FILE exists (exit 1 after S seconds)
+
+A device session's weights, for instance (`benchmarks/networks.py --export-weights`):
+
+    call 2 (on the machine):  python3 benchmarks/device_files.py wait /tmp/bn/export/results.json --timeout 570
+                              python3 benchmarks/device_files.py pack /tmp/bn/export/weights /tmp/parts
+                              python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 0-1
+    calls 3, 4 (at once):     python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 2-4
+    here:                     copy every call's files into one folder, then
+                              python benchmarks/device_files.py unpack <that folder> .bench/weights
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+MANIFEST = "MANIFEST.json"
+PART = "part.{:03d}"
+CHUNK = 1 << 20
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(CHUNK), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def pack(src: Path, parts: Path, part_mb: float = 20.0) -> dict:
+    """Write the files under `src` (sorted by relative path, concatenated) as parts of at most
+    `part_mb` MiB in `parts`, with `MANIFEST.json`; returns the manifest."""
+    src, parts = Path(src), Path(parts)
+    if not src.is_dir():
+        raise ValueError(f"{src}: not a folder")
+    if part_mb <= 0:
+        raise ValueError(f"--part-mb must be > 0, got {part_mb}")
+    files = sorted(p for p in src.rglob("*") if p.is_file())
+    if not files:
+        raise ValueError(f"{src}: no files to pack")
+    parts.mkdir(parents=True, exist_ok=True)
+    size = int(part_mb * (1 << 20))
+    written, number, left, out = [], 0, 0, None
+    for path in files:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(CHUNK), b""):
+                while block:
+                    if left == 0:
+                        if out is not None:
+                            out.close()
+                        out = open(parts / PART.format(number), "wb")
+                        written.append(parts / PART.format(number))
+                        number, left = number + 1, size
+                    piece, block = block[:left], block[left:]
+                    out.write(piece)
+                    left -= len(piece)
+    out.close()
+    manifest = {"files": [{"path": p.relative_to(src).as_posix(), "bytes": p.stat().st_size, "sha256": _sha256(p)}
+                          for p in files],
+                "parts": [{"name": p.name, "bytes": p.stat().st_size, "sha256": _sha256(p)} for p in written]}
+    (parts / MANIFEST).write_text(json.dumps(manifest, indent=1))
+    return manifest
+
+
+def _read_manifest(parts: Path) -> dict:
+    path = Path(parts) / MANIFEST
+    if not path.is_file():
+        raise ValueError(f"{parts}: no {MANIFEST} (not a folder written by `pack`)")
+    try:
+        manifest = json.loads(path.read_text())
+        manifest["files"], manifest["parts"]  # noqa: B018 (both keys must be there)
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a manifest of `pack` ({exc})") from exc
+    return manifest
+
+
+def _numbers(spec: str, count: int) -> list[int]:
+    """Part numbers of 'a-b,c' (inclusive ranges), within the `count` parts."""
+    chosen = []
+    for item in spec.split(","):
+        first, _, last = item.strip().partition("-")
+        try:
+            chosen += list(range(int(first), int(last or first) + 1))
+        except ValueError as exc:
+            raise ValueError(f"--parts: {spec!r} is not like 0-2,5") from exc
+    outside = [n for n in chosen if not 0 <= n < count]
+    if outside:
+        raise ValueError(f"--parts: there are {count} parts (0-{count - 1}); {outside} are not among them")
+    return chosen
+
+
+def send(parts: Path, to: Path, numbers: str | None = None) -> list[Path]:
+    """Copy the manifest and the parts `numbers` ('0-2,5'; default all) from `parts` into `to`."""
+    parts, to = Path(parts), Path(to)
+    manifest = _read_manifest(parts)
+    chosen = _numbers(numbers, len(manifest["parts"])) if numbers else range(len(manifest["parts"]))
+    to.mkdir(parents=True, exist_ok=True)
+    copied = [Path(shutil.copy2(parts / MANIFEST, to / MANIFEST))]
+    for n in chosen:
+        copied.append(Path(shutil.copy2(parts / manifest["parts"][n]["name"], to / manifest["parts"][n]["name"])))
+    return copied
+
+
+def unpack(parts: Path, dest: Path) -> list[Path]:
+    """Check the parts in `parts` against the manifest, join them and write the files under `dest`
+    (each checked, then renamed into place); raises naming every missing or damaged part first."""
+    parts, dest = Path(parts), Path(dest)
+    manifest = _read_manifest(parts)
+    problems = []
+    for part in manifest["parts"]:
+        path = parts / part["name"]
+        if not path.is_file():
+            problems.append(f"{part['name']} is missing")
+        elif path.stat().st_size != part["bytes"] or _sha256(path) != part["sha256"]:
+            problems.append(f"{part['name']} is damaged (size or SHA-256 differs from {MANIFEST})")
+    if problems:
+        raise ValueError(f"{parts}: " + "; ".join(problems))
+    for entry in manifest["files"]:
+        target = (dest / entry["path"]).resolve()
+        if dest.resolve() not in target.parents:
+            raise ValueError(f"{parts / MANIFEST}: {entry['path']!r} lies outside the destination")
+    written, stream, current = [], None, 0
+
+    def read(count: int) -> bytes:
+        nonlocal stream, current
+        data = b""
+        while len(data) < count:
+            if stream is None:
+                stream = open(parts / manifest["parts"][current]["name"], "rb")
+            block = stream.read(min(CHUNK, count - len(data)))
+            if not block:
+                stream.close()
+                stream, current = None, current + 1
+                continue
+            data += block
+        return data
+
+    for entry in manifest["files"]:
+        target = dest / entry["path"]
+        target.parent.mkdir(parents=True, exist_ok=True)
+        partial = target.with_name(target.name + ".part")
+        digest, left = hashlib.sha256(), entry["bytes"]
+        with open(partial, "wb") as out:
+            while left:
+                block = read(min(CHUNK, left))
+                digest.update(block)
+                out.write(block)
+                left -= len(block)
+        if digest.hexdigest() != entry["sha256"]:
+            partial.unlink()
+            raise ValueError(f"{parts}: {entry['path']} joined from the parts does not match its SHA-256")
+        os.replace(partial, target)
+        written.append(target)
+    if stream is not None:
+        stream.close()
+    return written
+
+
+def wait(path: Path, timeout_s: float) -> bool:
+    """Whether `path` exists within `timeout_s` seconds (checked every second)."""
+    deadline = time.monotonic() + timeout_s
+    while not Path(path).exists():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(1.0)
+    return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("pack", help="a folder's files -> checked parts")
+    p.add_argument("src", type=Path)
+    p.add_argument("parts", type=Path)
+    p.add_argument("--part-mb", type=float, default=20.0, help="largest part, MiB")
+    p = sub.add_parser("send", help="copy the manifest and some parts")
+    p.add_argument("parts", type=Path)
+    p.add_argument("to", type=Path)
+    p.add_argument("--parts", dest="numbers", help="part numbers, e.g. 0-2,5 (default: all)")
+    p = sub.add_parser("unpack", help="check and join parts into files")
+    p.add_argument("parts", type=Path)
+    p.add_argument("dest", type=Path)
+    p = sub.add_parser("wait", help="wait for a file")
+    p.add_argument("path", type=Path)
+    p.add_argument("--timeout", type=float, default=570.0, help="seconds")
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "pack":
+            manifest = pack(args.src, args.parts, args.part_mb)
+            print(f"{len(manifest['files'])} files in {len(manifest['parts'])} parts in {args.parts}")
+        elif args.command == "send":
+            print("\n".join(str(p) for p in send(args.parts, args.to, args.numbers)))
+        elif args.command == "unpack":
+            print("\n".join(str(p) for p in unpack(args.parts, args.dest)))
+        elif not wait(args.path, args.timeout):
+            print(f"{args.path}: not there after {args.timeout:.0f} s", file=sys.stderr)
+            return 1
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
