@@ -201,4 +201,5 @@ def reconstruction_command(settings) -> tuple[list[str], Path]:
         argv += ["--cameras", str(capture / "cameras.json"), "--checkpoints",
                  *(str(_existing_file(getattr(review, name), f"{name} checkpoint"))
                    for name in ("localizer", "recognizer", "crosspoints"))]
+    argv += [] if review.neighbour_check else ["--no-neighbour-check"]
     return argv + (["--levels", review.levels.replace(" ", "")] if review.levels.strip() else []), out

@@ -173,7 +173,9 @@ class CLOTHCAPTURE_PT_review(_Panel, bpy.types.Panel):
         else:
             for name in ("localizer", "recognizer", "crosspoints"):
                 box.prop(review, name)
-        box.prop(review, "levels")
+        row = box.row(align=True)
+        row.prop(review, "levels")
+        row.prop(review, "neighbour_check")
         box.operator("clothcapture.reconstruct", icon="OUTLINER_OB_POINTCLOUD")
         draw_jobs(box, "reconstruction")
         row = layout.row(align=True)

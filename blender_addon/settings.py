@@ -149,6 +149,9 @@ class CLOTHCAPTURE_PG_review(bpy.types.PropertyGroup):
         "localizer": _path("Localizer", "The Marker Localizer's checkpoint"),
         "recognizer": _path("Recognizer", "The Marker Recognizer's checkpoint"),
         "crosspoints": _path("Crosspoints", "The Crosspoint Localizer's checkpoint"),
+        "neighbour_check": BoolProperty(name="Neighbour Check", default=True,
+                                        description="Drop triangulated points that no other marker's crosspoints "
+                                        "confirm in 3D (wrong-ID markers' points at a wrong depth)"),
         "levels": StringProperty(name="Levels", default="12",
                                  description="Refine levels, coarse to fine, mm (empty: the reference's hierarchy)"),
         "show_groundtruth": BoolProperty(name="Ground Truth Beside", default=True),

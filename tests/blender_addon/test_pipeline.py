@@ -336,3 +336,17 @@ def test_a_reconstruction_refined_but_not_exported_is_imported_from_its_sequence
     np.testing.assert_allclose(uv.reshape(-1, 3, 2), level.uv[level.faces], atol=1e-6)
     for t, frame in enumerate(refined.frames):
         np.testing.assert_allclose(evaluated_positions(obj, int(frame)), refined.positions[t], atol=1e-5)
+
+
+def test_the_neighbour_check_is_turned_off_from_the_review_panel(addon, settings, capture):
+    from reconstruction.__main__ import build_parser
+
+    review = settings.review
+    argv, _ = addon.commands.reconstruction_command(settings)
+    assert review.neighbour_check and not build_parser().parse_args(argv[2:]).no_neighbour_check
+    review.neighbour_check = False
+    try:
+        argv, _ = addon.commands.reconstruction_command(settings)
+    finally:
+        review.neighbour_check = True
+    assert build_parser().parse_args(argv[2:]).no_neighbour_check  # the CLI hands it to triangulation
