@@ -21,6 +21,16 @@ A device session's weights, for instance (`benchmarks/networks.py --export-weigh
     calls 3, 4 (at once):     python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 2-4
     here:                     copy every call's files into one folder, then
                               python benchmarks/device_files.py unpack <that folder> .bench/weights
+
+And back in, the next session (a call's carry holds at most 64 MiB, and a path it does not name is
+removed from the machine's working tree, so each call copies its parts out of the tree at once):
+
+    here:                     python benchmarks/device_files.py pack .bench/weights .bench/parts
+    calls 1, 2 (at once):     carry .bench/parts/MANIFEST.json and three parts each;
+                              mkdir -p /tmp/parts && cp .bench/parts/* /tmp/parts/
+    call 3:                   carry the last parts and .bench/carry; cp as above, then
+                              python3 benchmarks/device_files.py unpack /tmp/parts /tmp/init
+                              python3 benchmarks/networks.py ... --init /tmp/init
 """
 
 from __future__ import annotations
