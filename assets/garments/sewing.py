@@ -58,6 +58,8 @@ BODY_PARTS = (
 #: seams whose two edges differ in length by more than this fraction are rejected (ease is a few %)
 SEAM_LENGTH_TOLERANCE = 0.25
 _SAMPLES_PER_CURVE = 256
+#: outline points closer than this fraction of the panel's size to a segment's line are on it
+_ON_LINE = 1e-9
 
 
 class PatternError(ValueError):
@@ -250,28 +252,38 @@ def _bezier(p0: np.ndarray, p3: np.ndarray, control: np.ndarray, t: np.ndarray) 
 
 
 def _segments_cross(points: np.ndarray) -> tuple[int, int] | None:
-    """First pair of non-adjacent segments of the closed polyline that intersect, or None."""
-    a = points
-    b = np.roll(points, -1, axis=0)
-    n = len(a)
-    d = b - a
+    """First pair (i, j), i < j, of non-adjacent segments of the closed polyline (P, 2) that cross or
+    touch, or None; segment i runs points[i] -> points[i + 1].  A point within `_ON_LINE` of the
+    polyline's size from a segment's line counts as on it: the orientation of exactly collinear samples
+    (two pieces of one straight edge) is float rounding, about 1e-17 m to either side of the line, and
+    no evidence of a crossing."""
+    n = len(points)
+    a, b = points, np.roll(points, -1, axis=0)
+    tolerance = _ON_LINE * float(np.ptp(points, axis=0).max())
+    # only segments whose bounding boxes overlap can meet: a few per segment instead of all n^2 pairs
+    low, high = np.minimum(a, b) - tolerance, np.maximum(a, b) + tolerance
+    (low_x, low_y), (high_x, high_y) = low.T, high.T
+    overlap = ((low_x[:, None] <= high_x) & (low_x <= high_x[:, None])
+               & (low_y[:, None] <= high_y) & (low_y <= high_y[:, None]))
+    i, j = np.nonzero(np.triu(overlap, k=2))  # j >= i + 2: neither the segment itself nor the next one
+    keep = ~((i == 0) & (j == n - 1))  # the last segment is adjacent to the first
+    i, j = i[keep], j[keep]
 
-    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    def side_and_on(k: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Side of segment k's line each point p is on (-1, 0 on the line, 1), and whether p is on the
+        segment itself; k (m,), p (m, 2)."""
+        direction, offset = b[k] - a[k], p - a[k]
+        length = np.linalg.norm(direction, axis=1)
+        distance = (direction[:, 0] * offset[:, 1] - direction[:, 1] * offset[:, 0]) / length
+        along = np.einsum("md,md->m", direction, offset) / length
+        side = np.where(np.abs(distance) <= tolerance, 0.0, np.sign(distance))
+        return side, (side == 0) & (along >= -tolerance) & (along <= length + tolerance)
 
-    # orientation tests for every pair (i, j): O(n^2) but n is a few thousand at most
-    ai, aj = a[:, None], a[None, :]
-    di, dj = d[:, None], d[None, :]
-    o1 = cross(di, aj - ai)
-    o2 = cross(di, aj + dj - ai)
-    o3 = cross(dj, ai - aj)
-    o4 = cross(dj, ai + di - aj)
-    hit = (o1 * o2 < 0) & (o3 * o4 < 0)
-    idx = np.arange(n)
-    adjacent = (np.abs(idx[:, None] - idx[None, :]) <= 1) | (np.abs(idx[:, None] - idx[None, :]) == n - 1)
-    hit &= ~adjacent
-    pairs = np.argwhere(hit)
-    return (int(pairs[0, 0]), int(pairs[0, 1])) if len(pairs) else None
+    (side_ja, on_ja), (side_jb, on_jb) = side_and_on(i, a[j]), side_and_on(i, b[j])
+    (side_ia, on_ia), (side_ib, on_ib) = side_and_on(j, a[i]), side_and_on(j, b[i])
+    hit = ((side_ja * side_jb < 0) & (side_ia * side_ib < 0)) | on_ja | on_jb | on_ia | on_ib
+    first = np.flatnonzero(hit)
+    return (int(i[first[0]]), int(j[first[0]])) if len(first) else None
 
 
 # ---- validation --------------------------------------------------------------------------------
@@ -296,7 +308,7 @@ def validate(pattern: SewingPattern, source: str = "pattern") -> None:
         outline = panel.outline(max(1e-3, math.sqrt(abs(polygon_area(panel.vertices)) + 1e-12) / 200))
         crossing = _segments_cross(outline)
         if crossing is not None:
-            raise PatternError(f"{where}: outline crosses itself (near {outline[crossing[0]].round(4).tolist()})")
+            raise PatternError(f"{where}: outline crosses or touches itself (near {outline[crossing[0]].round(4).tolist()})")
         if polygon_area(outline) <= 0:
             raise PatternError(
                 f"{where}: outline is clockwise; list vertices counter-clockwise as seen from the outside"

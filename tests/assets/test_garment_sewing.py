@@ -37,6 +37,12 @@ def test_arc_sampling_is_circular_and_on_the_left():
         (lambda d: d["panels"][1]["edges"][0].update(name="top"), "duplicate edge"),
         (lambda d: d["panels"][0]["placement"].update(body_part="tail"), "body_part"),
         (lambda d: d["panels"][0]["vertices"].__setitem__(2, [0.15, 0.0]), "edge 'right': zero length"),
+        (lambda d: d["panels"][0].update(vertices=[[0, 0], [0.15, 0], [0, 0.2], [0.15, 0.2]],
+                                         edges=[{"name": n} for n in ("hem", "right", "top", "left")]),
+         r"panel 'front': outline crosses or touches itself \(near \[0\.07"),  # a bow tie crossing at (0.075, 0.1)
+        (lambda d: d["panels"][0].update(vertices=[[0, 0], [0.15, 0], [0.15, 0.2], [0.075, 0], [0, 0.2]],
+                                         edges=[{"name": n} for n in ("hem", "right", "top_r", "top_l", "left")]),
+         r"panel 'front': outline crosses or touches itself"),  # two triangles meeting on the hem
     ],
 )
 def test_broken_patterns_name_panel_and_edge(mutate, message):
@@ -44,3 +50,13 @@ def test_broken_patterns_name_panel_and_edge(mutate, message):
     mutate(data)
     with pytest.raises(PatternError, match=message):
         SewingPattern.from_dict(data, "broken.json")
+
+
+def test_pieces_of_one_straight_edge_do_not_cross():
+    """The wide skirt's front drafted for a 1.08 m waist: its straight sides are sampled into collinear
+    pieces whose orientations against each other are float rounding (+-3e-20), not a crossing."""
+    front = {"name": "front", "vertices": [[-0.425185, 0.065442], [0.425185, 0.065442], [0.238747, 0.656747],
+                                           [-0.238747, 0.656747]],
+             "edges": [{"name": "hem", "curve": {"type": "arc", "sagitta": -0.065442}}, {"name": "side_left"},
+                       {"name": "waist", "curve": {"type": "arc", "sagitta": 0.036747}}, {"name": "side_right"}]}
+    assert SewingPattern.from_dict({"name": "skirt", "panels": [front]}).panel("front").area() > 0.3
