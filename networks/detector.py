@@ -401,9 +401,14 @@ class Detector:
 
     def __call__(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """Detect the markers of every image: images uint8 (H, W, 3) -> one `Detections` per image."""
+        return self.detect(images)[0]
+
+    def detect(self, images: Sequence[np.ndarray]) -> tuple[list[Detections], list[tuple[np.ndarray, np.ndarray]]]:
+        """(`Detections` per image, as `__call__`; the localizer's own output per image, as `localize`:
+        the points before the partial markers' completion, which evaluation measures the cut test on)."""
         images = check_images(images)
         if not images:
-            return []
+            return [], []
         clock = time.perf_counter()
 
         def lap(stage: str) -> None:
@@ -441,4 +446,4 @@ class Detector:
                 marker_id=marker_id[pick], confidence=confidence[pick], points_px=points[pick].astype(np.float32),
                 crosspoints_px=crosspoints_px[pick], crosspoint_visible=visible[pick], partial=partial[pick],
                 id_support=support[pick]))
-        return result
+        return result, located

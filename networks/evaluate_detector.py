@@ -21,7 +21,7 @@ every image of the split, as reconstruction does, and compares its `Detections` 
                  truth's, against the Detector's `max_layout_residual_cells` (above it: "cut").
 When the dataset has template.npz, the Detector gets the garment's marker tables (IDs restricted to
 the garment, cut markers completed from their neighbours), as reconstruction's networks mode does.
-"seconds" is the time spent in the Detector (the extra localizer pass for the residuals excluded).
+"seconds" is the time spent in the Detector.
 """
 
 from __future__ import annotations
@@ -100,9 +100,8 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
             raise ValueError(f"{root / entry['image']}: {image.shape[1]} x {image.shape[0]} pixels, its ground "
                              f"truth {root / entry['gt']} is {gt.width} x {gt.height}")
         start = time.perf_counter()
-        detections = detector([image])[0]
+        (detections,), ((localized, _),) = detector.detect([image])  # localized: the points the cut test saw
         seconds += time.perf_counter() - start
-        localized, _ = detector.localize([image])[0]  # the points the cut test saw
         records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
     metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
     return {"data": str(root), "split": split, "radius_px": float(radius_px), "tables": detector.layout is not None,

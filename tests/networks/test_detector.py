@@ -315,6 +315,12 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
     assert np.array_equal(alone.marker_id, result[1].marker_id)
     assert np.allclose(alone.crosspoints_px, result[1].crosspoints_px, atol=1e-3)
     assert detector([]) == []
+    # detect: the same detections, and the localizer's own points per image (before completion)
+    detected, located = detector.detect([small, wide])
+    for (points, presence), own in zip(located, detector.localize([small, wide])):
+        assert np.array_equal(points, own[0]) and np.array_equal(presence, own[1])
+    for a, b in zip(detected, result):
+        assert np.array_equal(a.marker_id, b.marker_id) and np.array_equal(a.points_px, b.points_px)
     with pytest.raises(ValueError, match=r"images\[1\]: expected uint8"):
         detector([small, small.astype(np.float32)])
 
