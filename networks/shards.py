@@ -110,7 +110,8 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     limit).  A folder
     written before must have been written with the same settings.  Returns {"parts", "items" (in the
     folder), "written_parts", "written_images", "seconds", "images_per_s", "images_per_s_per_worker",
-    "complete"}."""
+    "complete", "worker_seconds_per_image" (a worker's median time per image of a part, its start
+    excluded; None when none was written)}."""
     if task not in TASKS:
         raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
     if count < 1 or workers < 1 or images_per_part < 1 or crops_per_image < 1:
@@ -130,7 +131,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     done = {int(p.name.split("_")[1]) for p in shard_parts(out)}
     todo = [n for n in range(-(-count // images_per_part)) if n not in done]
     started = time.perf_counter()
-    written = 0
+    written, worker_s = 0, []
     if todo:
         codebook = PatternSynthesizer(spec, config).codebook  # once here, not in every worker
         initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
@@ -156,7 +157,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
                     break
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
-                    future.result()
+                    worker_s.append(future.result()[2])
                     part_s.append(time.perf_counter() - submitted.pop(future))
                     written += 1
                     bar.update(1)
@@ -170,7 +171,8 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     return {"task": task, "parts": len(parts), "items": items, "written_parts": written,
             "written_images": written * images_per_part, "seconds": seconds, "images_per_s": rate,
             "images_per_s_per_worker": rate / min(workers, max(1, len(todo))),
-            "complete": set(range(-(-count // images_per_part))) <= have}
+            "complete": set(range(-(-count // images_per_part))) <= have,
+            "worker_seconds_per_image": float(np.median(worker_s)) / images_per_part if worker_s else None}
 
 
 def main(argv: list[str] | None = None) -> int:

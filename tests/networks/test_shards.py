@@ -105,8 +105,10 @@ def test_time_limit_stops_submitting_parts_that_would_end_after_it(tmp_path):
     first = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2,
                          time_limit_s=0.0, progress=False)
     assert (first["written_parts"], first["complete"]) == (1, False)
+    assert 0 < first["worker_seconds_per_image"] < first["seconds"] / 2  # per image, the worker's start excluded
     # a folder with parts gets none when the limit is spent, and all of them without a limit
-    assert write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2,
-                        time_limit_s=0.0, progress=False)["written_parts"] == 0
+    none = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2,
+                        time_limit_s=0.0, progress=False)
+    assert (none["written_parts"], none["worker_seconds_per_image"]) == (0, None)
     rest = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2, progress=False)
     assert (rest["written_parts"], rest["complete"]) == (3, True)
