@@ -1,11 +1,12 @@
 """Move a folder of files larger than one device call carries (64 MiB each way) in checked parts.
 
-The GPU machine returns what a call writes under $OUT, and takes what a call carries, each at most
-64 MiB, and it goes back 30 s after a call: so trained weights (about 150 MB of slim checkpoints)
-leave in parts over quick back-to-back calls and come back the same way.  Standard library only (it
+The GPU machine returns what a call writes under $OUT (at most 8 files of 16 MiB, 64 MiB in all) and
+takes the working tree with what a call carries (64 MiB in all, the tree's own 4 MiB included), and
+it goes back 30 s after a call: so trained weights (about 150 MB of slim checkpoints) and rendered
+datasets travel in parts of 15 MiB, three a call, over quick back-to-back calls.  Standard library only (it
 runs on the device machine's Python as well as here).
 
-    pack SRC PARTS [--part-mb 20]     SRC's files (recursively) -> PARTS/part.NNN + PARTS/MANIFEST.json
+    pack SRC PARTS [--part-mb 15]     SRC's files (recursively) -> PARTS/part.NNN + PARTS/MANIFEST.json
                                       (each file's and each part's size and SHA-256)
     send PARTS TO [--parts 0-2]       copy the manifest and the chosen parts into TO (e.g. $OUT)
     unpack PARTS DEST                 check every part, join, check every file, write them under DEST
@@ -17,8 +18,8 @@ A device session's weights, for instance (`benchmarks/networks.py --export-weigh
 
     call 2 (on the machine):  python3 benchmarks/device_files.py wait /tmp/bn/export/results.json --timeout 570
                               python3 benchmarks/device_files.py pack /tmp/bn/export/weights /tmp/parts
-                              python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 0-1
-    calls 3, 4 (at once):     python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 2-4
+                              python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 0-2
+    calls 3, 4 (at once):     python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 3-5
     here:                     copy every call's files into one folder, then
                               python benchmarks/device_files.py unpack <that folder> .bench/weights
 
@@ -57,7 +58,7 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def pack(src: Path, parts: Path, part_mb: float = 20.0) -> dict:
+def pack(src: Path, parts: Path, part_mb: float = 15.0) -> dict:
     """Write the files under `src` (sorted by relative path, concatenated) as parts of at most
     `part_mb` MiB in `parts`, with `MANIFEST.json`; returns the manifest."""
     src, parts = Path(src), Path(parts)
@@ -202,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("pack", help="a folder's files -> checked parts")
     p.add_argument("src", type=Path)
     p.add_argument("parts", type=Path)
-    p.add_argument("--part-mb", type=float, default=20.0, help="largest part, MiB")
+    p.add_argument("--part-mb", type=float, default=15.0, help="largest part, MiB (16 at most come back)")
     p = sub.add_parser("send", help="copy the manifest and some parts")
     p.add_argument("parts", type=Path)
     p.add_argument("to", type=Path)

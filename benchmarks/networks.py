@@ -44,8 +44,8 @@ last within the machine's 30 s idle release:
 
     1. python3 benchmarks/networks.py ... --final --export-weights --export /tmp/bn/export &  (sleep ~9 min)
     2. python3 benchmarks/device_files.py wait /tmp/bn/export/results.json; cp results.json, logs.tar.gz
-       and bench.log to $OUT; device_files.py pack /tmp/bn/export/weights /tmp/parts; send parts 0-1
-    3.. device_files.py send /tmp/parts $OUT --parts 2-4 (and so on); here: unpack into .bench/weights
+       and bench.log to $OUT; device_files.py pack /tmp/bn/export/weights /tmp/parts; send parts 0-2
+    3.. device_files.py send /tmp/parts $OUT --parts 3-5 (and so on); here: unpack into .bench/weights
 
 The next session carries the parts in (staged in the machine's /tmp over back-to-back calls, with
 room beside .bench/carry's 45 MB), unpacks them there and passes `--init <folder>`: new runs start
