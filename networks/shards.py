@@ -131,7 +131,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     done = {int(p.name.split("_")[1]) for p in shard_parts(out)}
     todo = [n for n in range(-(-count // images_per_part)) if n not in done]
     started = time.perf_counter()
-    written, worker_s = 0, []
+    part_s = []  # each written part's time in its worker (the worker's start excluded)
     if todo:
         codebook = PatternSynthesizer(spec, config).codebook  # once here, not in every worker
         initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
@@ -140,28 +140,24 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
         pool_size = min(workers, len(todo))
         with worker_environment(), ProcessPoolExecutor(pool_size, mp_context=get_context("spawn"),
                                                        initializer=_start_worker, initargs=initargs) as pool:
-            pending, queue, submitted, part_s = set(), list(todo), {}, []
+            pending, queue = set(), list(todo)
             while queue or pending:
-                # a part is submitted only while it would end within the limit (a part's time measured
-                # on the finished ones; before the first, one part per worker), so the limit holds to
-                # within one part's time, not the pool's queue
+                # one part per worker, submitted only while it would end within the limit (a part's
+                # time: the median of the finished ones), so the limit holds to within one part
                 while queue and len(pending) < pool_size:
-                    now = time.perf_counter() - started
-                    late = time_limit_s is not None and now + (np.median(part_s) if part_s else 0.0) > time_limit_s
-                    if late and (done or written or pending):  # an empty folder gets one part at least
+                    ahead = np.median(part_s) if part_s else 0.0
+                    late = time_limit_s is not None and time.perf_counter() - started + ahead > time_limit_s
+                    if late and (done or part_s or pending):  # an empty folder gets one part at least
                         break
-                    future = pool.submit(_write_part, str(out), queue.pop(0))
-                    submitted[future] = time.perf_counter()
-                    pending.add(future)
+                    pending.add(pool.submit(_write_part, str(out), queue.pop(0)))
                 if not pending:
                     break
                 finished, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
-                    worker_s.append(future.result()[2])
-                    part_s.append(time.perf_counter() - submitted.pop(future))
-                    written += 1
+                    part_s.append(future.result()[2])
                     bar.update(1)
         bar.close()
+    written = len(part_s)
     seconds = time.perf_counter() - started
     parts = shard_parts(out)
     key = SHARD_ARRAYS[task][0]
@@ -172,7 +168,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
             "written_images": written * images_per_part, "seconds": seconds, "images_per_s": rate,
             "images_per_s_per_worker": rate / min(workers, max(1, len(todo))),
             "complete": set(range(-(-count // images_per_part))) <= have,
-            "worker_seconds_per_image": float(np.median(worker_s)) / images_per_part if worker_s else None}
+            "worker_seconds_per_image": float(np.median(part_s)) / images_per_part if part_s else None}
 
 
 def main(argv: list[str] | None = None) -> int:
