@@ -58,6 +58,30 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+class _Joined:
+    """The files `paths` read as one stream: `read(count)` returns `count` bytes (fewer at the end)."""
+
+    def __init__(self, paths: list[Path]):
+        self._paths, self._open = list(paths), None
+
+    def read(self, count: int) -> bytes:
+        blocks = []
+        while count > 0 and (self._open is not None or self._paths):
+            if self._open is None:
+                self._open = open(self._paths.pop(0), "rb")
+            block = self._open.read(count)
+            if not block:
+                self._open.close()
+                self._open = None
+            blocks.append(block)
+            count -= len(block)
+        return b"".join(blocks)
+
+    def close(self) -> None:
+        if self._open is not None:
+            self._open.close()
+
+
 def pack(src: Path, parts: Path, part_mb: float = 15.0) -> dict:
     """Write the files under `src` (sorted by relative path, concatenated) as parts of at most
     `part_mb` MiB in `parts`, with `MANIFEST.json`; returns the manifest."""
@@ -70,22 +94,10 @@ def pack(src: Path, parts: Path, part_mb: float = 15.0) -> dict:
     if not files:
         raise ValueError(f"{src}: no files to pack")
     parts.mkdir(parents=True, exist_ok=True)
-    size = int(part_mb * (1 << 20))
-    written, number, left, out = [], 0, 0, None
-    for path in files:
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(CHUNK), b""):
-                while block:
-                    if left == 0:
-                        if out is not None:
-                            out.close()
-                        out = open(parts / PART.format(number), "wb")
-                        written.append(parts / PART.format(number))
-                        number, left = number + 1, size
-                    piece, block = block[:left], block[left:]
-                    out.write(piece)
-                    left -= len(piece)
-    out.close()
+    size, joined, written = int(part_mb * (1 << 20)), _Joined(files), []
+    while data := joined.read(size):
+        written.append(parts / PART.format(len(written)))
+        written[-1].write_bytes(data)
     manifest = {"files": [{"path": p.relative_to(src).as_posix(), "bytes": p.stat().st_size, "sha256": _sha256(p)}
                           for p in files],
                 "parts": [{"name": p.name, "bytes": p.stat().st_size, "sha256": _sha256(p)} for p in written]}
@@ -99,9 +111,10 @@ def _read_manifest(parts: Path) -> dict:
         raise ValueError(f"{parts}: no {MANIFEST} (not a folder written by `pack`)")
     try:
         manifest = json.loads(path.read_text())
-        manifest["files"], manifest["parts"]  # noqa: B018 (both keys must be there)
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+    except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not a manifest of `pack` ({exc})") from exc
+    if not isinstance(manifest, dict) or not {"files", "parts"} <= manifest.keys():
+        raise ValueError(f"{path}: not a manifest of `pack` (it needs 'files' and 'parts')")
     return manifest
 
 
@@ -150,22 +163,7 @@ def unpack(parts: Path, dest: Path) -> list[Path]:
         target = (dest / entry["path"]).resolve()
         if dest.resolve() not in target.parents:
             raise ValueError(f"{parts / MANIFEST}: {entry['path']!r} lies outside the destination")
-    written, stream, current = [], None, 0
-
-    def read(count: int) -> bytes:
-        nonlocal stream, current
-        data = b""
-        while len(data) < count:
-            if stream is None:
-                stream = open(parts / manifest["parts"][current]["name"], "rb")
-            block = stream.read(min(CHUNK, count - len(data)))
-            if not block:
-                stream.close()
-                stream, current = None, current + 1
-                continue
-            data += block
-        return data
-
+    joined, written = _Joined([parts / part["name"] for part in manifest["parts"]]), []
     for entry in manifest["files"]:
         target = dest / entry["path"]
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -173,7 +171,9 @@ def unpack(parts: Path, dest: Path) -> list[Path]:
         digest, left = hashlib.sha256(), entry["bytes"]
         with open(partial, "wb") as out:
             while left:
-                block = read(min(CHUNK, left))
+                block = joined.read(min(CHUNK, left))
+                if not block:  # the parts, each of its checked size, hold fewer bytes than the files
+                    raise ValueError(f"{parts / MANIFEST}: the parts end before {entry['path']} does")
                 digest.update(block)
                 out.write(block)
                 left -= len(block)
@@ -182,8 +182,7 @@ def unpack(parts: Path, dest: Path) -> list[Path]:
             raise ValueError(f"{parts}: {entry['path']} joined from the parts does not match its SHA-256")
         os.replace(partial, target)
         written.append(target)
-    if stream is not None:
-        stream.close()
+    joined.close()
     return written
 
 

@@ -37,19 +37,11 @@ inference.  One call fits a 10-minute device command; calling it again with the 
 Training continued across device sessions (a session's 30 minutes are far from the targets, and
 checkpoints with Adam's state, about 1 GB, cannot come back): `--export-weights` writes each trained
 run as a slim bf16 checkpoint (localizer 24 MB, recognizer 64 MB, crosspoints about 60 MB) under
-<export>/weights.  A call returns at most 64 MiB and carries at most 64 MiB, so they travel in checked
-parts (`benchmarks/device_files.py`: pack, send, unpack).  One session, every call carrying
-`.bench/carry` (a call without it removes it from the machine's working tree) and following the
-last within the machine's 30 s idle release:
-
-    1. python3 benchmarks/networks.py ... --final --export-weights --export /tmp/bn/export &  (sleep ~9 min)
-    2. python3 benchmarks/device_files.py wait /tmp/bn/export/results.json; cp results.json, logs.tar.gz
-       and bench.log to $OUT; device_files.py pack /tmp/bn/export/weights /tmp/parts; send parts 0-2
-    3.. device_files.py send /tmp/parts $OUT --parts 3-5 (and so on); here: unpack into .bench/weights
-
-The next session carries the parts in (staged in the machine's /tmp over back-to-back calls, with
-room beside .bench/carry's 45 MB), unpacks them there and passes `--init <folder>`: new runs start
-from those weights.
+<export>/weights.  They leave the machine, and reach it again in a later session, in checked parts
+over back-to-back calls (`benchmarks/device_files.py`, whose docstring lists a session's calls: a
+call returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes back 30 s after a
+call, and a path a call does not carry is removed from its working tree); new runs start from them
+with `--init <folder>`.
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
@@ -128,7 +120,7 @@ def prepare(root: Path, out: Path) -> tuple[Path, int]:
     `samples/<name>.npz` built in the copy for every manifest entry when the folder has none.
     Copied, not linked: on the device machine the working tree is replaced by each call, and a call
     that does not carry the folder removes it there, so links into it break under a running
-    benchmark (the fifth networks run lost its evaluation so)."""
+    benchmark (the sixth networks run lost its evaluation so)."""
     view = out / "rendered"
     view.mkdir(parents=True, exist_ok=True)
     names = ["images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl"]
@@ -136,9 +128,10 @@ def prepare(root: Path, out: Path) -> tuple[Path, int]:
         source, target = root / name, view / name
         if not source.exists() or target.exists():
             continue
-        if source.is_dir():
-            shutil.copytree(source, target.with_name(target.name + ".part"), dirs_exist_ok=True)
-            target.with_name(target.name + ".part").rename(target)
+        if source.is_dir():  # whole or not at all: an interrupted copy is finished by the next call
+            partial = target.with_name(target.name + ".part")
+            shutil.copytree(source, partial, dirs_exist_ok=True)
+            partial.rename(target)
         else:
             shutil.copy2(source, target)
     spec = dataset_spec(view)
