@@ -109,6 +109,9 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0), "recognizer": ("recognizer", 9
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX)}
 #: the main runs that take spare GPUs as extra DDP ranks, heaviest first
 HEAVIEST = ("crosspoints", "recognizer", "localizer")
+#: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
+#: localizer 15.3, recognizer 14.2, crosspoints 8.2 steps/s)
+GPU_COST = {"localizer": 1.0, "recognizer": 1.1, "crosspoints": 1.9}
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
 CHECKPOINT_EVERY = 2000
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
@@ -197,18 +200,25 @@ def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: 
 
 
 def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
-    """The GPUs of each active run: the main runs first, one GPU each while there are GPUs, the other
-    runs round-robin over the same GPUs; GPUs left over join the heaviest main runs (`HEAVIEST`) as
-    further DDP ranks.  No GPUs (the CPU): every run gets [] (one process)."""
+    """The GPUs of each active run: the main runs first, heaviest first (`GPU_COST`), each on the GPU
+    with the least cost placed so far (so on two GPUs the crosspoint run has one to itself and the
+    two lighter runs share the other), then the other runs round-robin over the same GPUs; GPUs left
+    over join the heaviest main runs (`HEAVIEST`) as further DDP ranks.  No GPUs (the CPU): every run
+    gets [] (one process)."""
     if gpus < 1:
         return {name: [] for name in active}
-    order = [n for n in active if n in MAIN.values()] + [n for n in active if n not in MAIN.values()]
-    placed = {name: [i % gpus] for i, name in enumerate(order)}
-    spare = list(range(len(order), gpus))
+    load, placed = [0.0] * gpus, {}
+    for task in HEAVIEST:
+        if MAIN[task] in active:
+            gpu = min(range(gpus), key=lambda g: (load[g], g))
+            placed[MAIN[task]], load[gpu] = [gpu], load[gpu] + GPU_COST[task]
+    others = [n for n in active if n not in placed]
+    placed.update({name: [i % gpus] for i, name in enumerate(others)})
+    spare = list(range(len(placed), gpus))
     heavy = [MAIN[t] for t in HEAVIEST if MAIN[t] in placed]
     for k, gpu in enumerate(spare if heavy else []):
         placed[heavy[k % len(heavy)]].append(gpu)
-    return placed
+    return {name: placed[name] for name in active}
 
 
 def worker_counts(active: list[str], ranks: dict[str, int], cores: int, smoke: bool) -> dict[str, int]:

@@ -1,0 +1,43 @@
+"""The GPU placement of `benchmarks/networks.py`'s runs (which GPU each training process gets)."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_networks", ROOT / "benchmarks" / "networks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+MAIN3 = ["localizer_mix", "recognizer_jitter", "crosspoints_jitter"]
+
+
+def test_no_gpu_is_one_process_each(bench):
+    assert bench.placement(MAIN3, 0) == {name: [] for name in MAIN3}
+
+
+def test_one_gpu_is_shared(bench):
+    assert bench.placement(MAIN3 + ["recognizer"], 1) == {name: [0] for name in MAIN3 + ["recognizer"]}
+
+
+def test_two_gpus_give_the_crosspoint_run_one_to_itself(bench):
+    placed = bench.placement(MAIN3, 2)
+    assert placed["crosspoints_jitter"] == [0]
+    assert placed["recognizer_jitter"] == placed["localizer_mix"] == [1]
+    assert list(placed) == MAIN3  # the caller's order
+
+
+def test_comparison_runs_round_robin_and_spare_gpus_join_the_heaviest(bench):
+    placed = bench.placement(MAIN3 + ["localizer_synth"], 3)
+    assert sorted(g for name in MAIN3 for g in placed[name]) == [0, 1, 2]
+    assert placed["localizer_synth"] == [0]
+    spare = bench.placement(MAIN3, 5)
+    assert spare["crosspoints_jitter"] == [0, 3] and spare["recognizer_jitter"] == [1, 4]
+    assert spare["localizer_mix"] == [2]
