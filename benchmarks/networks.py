@@ -548,11 +548,13 @@ def export(out: Path, to: Path, weights: bool = False) -> None:
 def _print_tables(result: dict) -> None:
     print(f"# networks benchmark, {result['date']}, {result['machine']}, {result['wall_s']:.0f} s")
     print("\n| shards | parts | items | written images | s | images/s | per worker | worker ms per image "
-          "(start excluded) |\n|---|---|---|---|---|---|---|---|")
+          "(start excluded) | first part after s | workers busy |\n|---|---|---|---|---|---|---|---|---|---|")
     for task, r in result["shards"].items():
         in_worker = "-" if r.get("worker_seconds_per_image") is None else f"{1e3 * r['worker_seconds_per_image']:.0f}"
+        first = "-" if r.get("first_part_s") is None else f"{r['first_part_s']:.1f}"
         print(f"| {task} | {r['parts']} | {r['items']} | {r['written_images']} | {r['seconds']:.0f} | "
-              f"{r['images_per_s']:.1f} | {r['images_per_s_per_worker']:.1f} | {in_worker} |")
+              f"{r['images_per_s']:.1f} | {r['images_per_s_per_worker']:.1f} | {in_worker} | {first} | "
+              f"{r.get('busy', 0.0):.0%} |")
     print("\n| run | synth weight | GPUs | workers per rank | step / target | this call: steps, s, steps/s "
           "| loss first -> last |")
     print("|---|---|---|---|---|---|---|")

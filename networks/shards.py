@@ -28,7 +28,6 @@ import shutil
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +41,7 @@ from networks.config import TASKS
 from networks.data import (SHARD_ARRAYS, SHARD_FORMAT, SHARD_META, dataset_spec, garment_marker_ids, read_shard_meta,
                            shard_parts, synth_crops)
 from networks.synth import PatternSynthesizer, SynthConfig
-from networks.workers import one_thread, worker_environment
+from networks.workers import one_thread, worker_context
 
 log = logging.getLogger(__name__)
 
@@ -104,14 +103,16 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     """Write the parts of `count` synthetic images (rounded up to whole parts) that `out` lacks.
 
     task: one of `TASKS`; spec and config: the pattern and the synthesizer (its seed included);
-    marker_ids: the IDs drawn (default all of the codebook); workers: spawned processes of one thread
-    each; time_limit_s: submit no part that would end after that many seconds (a part's time is the
+    marker_ids: the IDs drawn (default all of the codebook); workers: processes of one thread each
+    (`networks.workers`); time_limit_s: submit no part that would end after that many seconds (a part's time is the
     median of those finished; parts under way finish; an empty folder gets one part whatever the
     limit).  A folder
     written before must have been written with the same settings.  Returns {"parts", "items" (in the
     folder), "written_parts", "written_images", "seconds", "images_per_s", "images_per_s_per_worker",
     "complete", "worker_seconds_per_image" (a worker's median time per image of a part, its start
-    excluded; None when none was written)}."""
+    excluded; None when none was written), "first_part_s" (seconds to the first finished part, the
+    workers' start included; None when none was written), "busy" (the share of the pool's time spent
+    in parts)}."""
     if task not in TASKS:
         raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
     if count < 1 or workers < 1 or images_per_part < 1 or crops_per_image < 1:
@@ -132,14 +133,15 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     todo = [n for n in range(-(-count // images_per_part)) if n not in done]
     started = time.perf_counter()
     part_s = []  # each written part's time in its worker (the worker's start excluded)
+    first_s = None  # from the start to the first finished part (the workers' start included)
     if todo:
         codebook = PatternSynthesizer(spec, config).codebook  # once here, not in every worker
         initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
                     crops_per_image)
         bar = tqdm(total=len(todo), desc=f"shards {task}", unit="part", disable=not progress)
         pool_size = min(workers, len(todo))
-        with worker_environment(), ProcessPoolExecutor(pool_size, mp_context=get_context("spawn"),
-                                                       initializer=_start_worker, initargs=initargs) as pool:
+        with ProcessPoolExecutor(pool_size, mp_context=worker_context(__name__), initializer=_start_worker,
+                                 initargs=initargs) as pool:
             pending, queue = set(), list(todo)
             while queue or pending:
                 # one part per worker, submitted only while it would end within the limit (a part's
@@ -156,6 +158,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
                 for future in finished:
                     part_s.append(future.result()[2])
                     bar.update(1)
+                first_s = first_s or time.perf_counter() - started
         bar.close()
     written = len(part_s)
     seconds = time.perf_counter() - started
@@ -164,9 +167,11 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     items = sum(len(np.load(p / f"{key}.npy", mmap_mode="r")) for p in parts)
     rate = written * images_per_part / seconds if written else 0.0
     have = {int(p.name.split("_")[1]) for p in parts}
+    pool_size = min(workers, max(1, len(todo)))
     return {"task": task, "parts": len(parts), "items": items, "written_parts": written,
             "written_images": written * images_per_part, "seconds": seconds, "images_per_s": rate,
-            "images_per_s_per_worker": rate / min(workers, max(1, len(todo))),
+            "images_per_s_per_worker": rate / pool_size, "first_part_s": first_s,
+            "busy": sum(part_s) / (pool_size * seconds) if written else 0.0,
             "complete": set(range(-(-count // images_per_part))) <= have,
             "worker_seconds_per_image": float(np.median(part_s)) / images_per_part if part_s else None}
 
@@ -218,7 +223,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.out}: {result['parts']} parts, {result['items']} {args.task} items "
               f"({'complete' if result['complete'] else 'incomplete: run again to continue'}); wrote "
               f"{result['written_images']} images in {result['seconds']:.0f} s = {result['images_per_s']:.1f} "
-              f"images/s ({result['images_per_s_per_worker']:.1f} per worker)")
+              f"images/s ({result['images_per_s_per_worker']:.1f} per worker)"
+              + (f"; first part after {result['first_part_s']:.1f} s, {result['worker_seconds_per_image'] * 1e3:.0f} "
+                 f"ms per image in a worker, workers busy {result['busy']:.0%}" if result['written_parts'] else ""))
 
     return run_cli(action)
 

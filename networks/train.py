@@ -55,7 +55,7 @@ from networks.data import MixedDataset, RenderedDataset, ShardDataset, SynthData
 from networks.evaluate import evaluate_model, resolve_device
 from networks.synth import SynthConfig
 from networks.tasks import autocast, build_model, forward
-from networks.workers import one_thread, worker_environment
+from networks.workers import one_thread, worker_context
 
 log = logging.getLogger(__name__)
 
@@ -116,11 +116,12 @@ class StepOrder(Dataset):
 
 
 def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoader:
-    """A DataLoader whose `num_workers` workers are spawned interpreters, each with one BLAS, OpenMP and
-    OpenCV thread (start them inside `networks.workers.worker_environment`, which says why)."""
+    """A DataLoader whose `num_workers` workers come from a fork server (`networks.workers.worker_context`,
+    which says why), each with one BLAS, OpenMP and OpenCV thread."""
     if num_workers == 0:
         return DataLoader(dataset, **kwargs)
-    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context="spawn", worker_init_fn=one_thread,
+    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context=worker_context(__name__),
+                      worker_init_fn=one_thread,
                       persistent_workers=True, **kwargs)
 
 
@@ -304,7 +305,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     `FIT_PROBE_SHARE`, `FIT_MARGIN`), never lengthening it; the fitted steps are saved with the run's
     config, so a resumed run keeps them.  Returns {"step", "finished", "best_val_loss", "last", "best",
     "val", "steps"} (the last validation metrics, or None; the planned steps).  With
-    config.num_workers > 0 the data-loading workers are spawned interpreters (`data_loader`): a
+    config.num_workers > 0 the data-loading workers come from a fork server (`data_loader`): a
     script that calls `train` needs the usual
     ``if __name__ == "__main__":`` guard.
 
@@ -450,43 +451,42 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     bar = tqdm(total=config.steps, initial=step, desc=f"train {config.task}", unit="step", disable=not progress)
     running = None
     try:
-        with worker_environment():
-            for batch in loader:
-                with autocast(device, config.mixed_precision):
-                    _, loss, parts = forward(config.task, trained, batch, device, count_mean)
-                # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
-                reported = mean_over_ranks(torch.stack([loss.detach().float(), *(v.float() for v in parts.values())]),
-                                           ranks).tolist()
-                value = reported[0]
-                if not math.isfinite(value):
-                    raise RuntimeError(f"{config.task} loss is {value} at step {step}; lower --lr")
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                optimizer.step()
-                scheduler.step()
-                step += 1
-                running = value if running is None else 0.98 * running + 0.02 * value
-                bar.update(1)
-                bar.set_postfix(loss=f"{running:.4g}")
-                if ranks.main and (step % config.log_every == 0 or step == stop):
-                    _append_log(log_path, {"step": step, "loss": value, **dict(zip(parts, reported[1:])),
-                                           "lr": scheduler.get_last_lr()[0], "elapsed_s": time.monotonic() - started})
-                if step % config.val_every == 0 or step == config.steps:
-                    validate()
-                if step % config.checkpoint_every == 0:
-                    checkpoint(last_path)
-                if time_limit_s is not None and any_rank(ranks.main and time.monotonic() - started > time_limit_s,
-                                                        ranks, device):
-                    log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
-                    break
-                if probe is not None:  # fit_to_time_limit: time the steps from probe[0], then fit once
-                    if probe[1] is None:
-                        probe = (step, time.monotonic()) if step >= probe[0] else probe
-                    elif any_rank(ranks.main and time.monotonic() - probe[1] >= FIT_PROBE_SHARE * time_limit_s,
-                                  ranks, device):
-                        fit_schedule()
-                if step >= stop:
-                    break
+        for batch in loader:
+            with autocast(device, config.mixed_precision):
+                _, loss, parts = forward(config.task, trained, batch, device, count_mean)
+            # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
+            reported = mean_over_ranks(torch.stack([loss.detach().float(), *(v.float() for v in parts.values())]),
+                                       ranks).tolist()
+            value = reported[0]
+            if not math.isfinite(value):
+                raise RuntimeError(f"{config.task} loss is {value} at step {step}; lower --lr")
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            scheduler.step()
+            step += 1
+            running = value if running is None else 0.98 * running + 0.02 * value
+            bar.update(1)
+            bar.set_postfix(loss=f"{running:.4g}")
+            if ranks.main and (step % config.log_every == 0 or step == stop):
+                _append_log(log_path, {"step": step, "loss": value, **dict(zip(parts, reported[1:])),
+                                       "lr": scheduler.get_last_lr()[0], "elapsed_s": time.monotonic() - started})
+            if step % config.val_every == 0 or step == config.steps:
+                validate()
+            if step % config.checkpoint_every == 0:
+                checkpoint(last_path)
+            if time_limit_s is not None and any_rank(ranks.main and time.monotonic() - started > time_limit_s,
+                                                    ranks, device):
+                log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
+                break
+            if probe is not None:  # fit_to_time_limit: time the steps from probe[0], then fit once
+                if probe[1] is None:
+                    probe = (step, time.monotonic()) if step >= probe[0] else probe
+                elif any_rank(ranks.main and time.monotonic() - probe[1] >= FIT_PROBE_SHARE * time_limit_s,
+                              ranks, device):
+                    fit_schedule()
+            if step >= stop:
+                break
     except KeyboardInterrupt:
         checkpoint(last_path)
         if ranks.main:

@@ -1,15 +1,23 @@
-"""Worker processes of data loading and shard writing: spawned interpreters with one thread each.
+"""Worker processes of data loading and shard writing: one thread each, forked from a fork server.
 
-Forked workers would inherit the parent's initialised OpenBLAS and run a pool of every core in each
-worker (synthesis measured 8-17x slower with 14 workers on 16 cores), and OpenCV or CUDA state
-inherited by a fork can deadlock.  So workers are spawned inside `worker_environment` (they read the
-thread variables at import) and call `one_thread` first.
+Workers forked from the caller would inherit its initialised OpenBLAS and run a pool of every core in
+each worker (synthesis measured 8-17x slower with 14 workers on 16 cores), and OpenCV or CUDA state
+inherited by a fork can deadlock.  Spawned workers avoid both, but each imports the caller's main
+module and torch again: on the GPU machine 31 workers starting at once took 48 s before their first
+part (importing `networks.shards` alone takes 8 s there; RESULTS.md, issue 7), against 9 s for the
+part itself.  So workers come from a fork server (`worker_context`): one fresh interpreter, started
+inside `worker_environment` (one BLAS / OpenMP thread, read at import), that imports the caller's
+main module and the named modules once and forks each worker from that clean state; each worker
+calls `one_thread` first.  Where there is no fork server (Windows), workers are spawned.
 """
 
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import os
+from multiprocessing import forkserver
+from multiprocessing.context import BaseContext
 
 import cv2
 
@@ -18,16 +26,21 @@ WORKER_THREADS_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_
 
 
 def one_thread(*_: object) -> None:
-    """Worker initialiser: one OpenCV thread (safe in a spawned worker; in a forked one it can
-    deadlock, see `networks.data`).  Accepts and ignores a DataLoader's worker id."""
+    """Worker initialiser: one OpenCV thread.  Accepts and ignores a DataLoader's worker id."""
     cv2.setNumThreads(1)
 
 
+#: and of the fork server: a worker started for `python -m module` runs that module again as
+#: __mp_main__ (multiprocessing's preparation), after the server's preload imported it, and runpy
+#: warns about that on every worker
+SERVER_ENV = {**WORKER_THREADS_ENV, "PYTHONWARNINGS": "ignore::RuntimeWarning:runpy"}
+
+
 @contextlib.contextmanager
-def worker_environment():
-    """`WORKER_THREADS_ENV` set while workers start, then the caller's environment restored."""
-    saved = {k: os.environ.get(k) for k in WORKER_THREADS_ENV}
-    os.environ.update(WORKER_THREADS_ENV)
+def worker_environment(variables: dict[str, str] = WORKER_THREADS_ENV):
+    """`variables` set while workers start, then the caller's environment restored."""
+    saved = {k: os.environ.get(k) for k in variables}
+    os.environ.update(variables)
     try:
         yield
     finally:
@@ -36,3 +49,16 @@ def worker_environment():
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+
+def worker_context(*modules: str) -> BaseContext:
+    """The multiprocessing context for workers: the fork server (started now, in `worker_environment`,
+    preloading the caller's main module and `modules`: the one holding the workers' functions), or
+    spawn where there is none.  The server is one per process: the first call's modules stay."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["__main__", *modules])
+    with worker_environment(SERVER_ENV):
+        forkserver.ensure_running()
+    return context

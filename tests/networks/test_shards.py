@@ -106,9 +106,13 @@ def test_time_limit_stops_submitting_parts_that_would_end_after_it(tmp_path):
                          time_limit_s=0.0, progress=False)
     assert (first["written_parts"], first["complete"]) == (1, False)
     assert 0 < first["worker_seconds_per_image"] < first["seconds"] / 2  # per image, the worker's start excluded
+    # the first part comes after the workers' start and its own two images; one of two workers worked
+    assert 2 * first["worker_seconds_per_image"] < first["first_part_s"] <= first["seconds"]
+    assert 0 < first["busy"] <= 0.5
     # a folder with parts gets none when the limit is spent, and all of them without a limit
     none = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2,
                         time_limit_s=0.0, progress=False)
-    assert (none["written_parts"], none["worker_seconds_per_image"]) == (0, None)
+    assert (none["written_parts"], none["worker_seconds_per_image"], none["first_part_s"], none["busy"]) == (0, None,
+                                                                                                   None, 0.0)
     rest = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2, progress=False)
     assert (rest["written_parts"], rest["complete"]) == (3, True)
