@@ -23,8 +23,9 @@ A device session's weights, for instance (`benchmarks/networks.py --export-weigh
     here:                     copy every call's files into one folder, then
                               python benchmarks/device_files.py unpack <that folder> .bench/weights
 
-And back in, the next session (a call's carry holds at most 64 MiB, and a path it does not name is
-removed from the machine's working tree, so each call copies its parts out of the tree at once):
+And back in, in a session that still has them (a new checkout lacks ignored folders such as .bench;
+a call's carry holds at most 64 MiB, and a path it does not name is removed from the machine's
+working tree, so each call copies its parts out of the tree at once):
 
     here:                     python benchmarks/device_files.py pack .bench/weights .bench/parts
     calls 1, 2 (at once):     carry .bench/parts/MANIFEST.json and three parts each;

@@ -34,14 +34,16 @@ inference.  One call fits a 10-minute device command; calling it again with the 
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn --final   # the last call
 
-Training continued across device sessions (a session's 30 minutes are far from the targets, and
-checkpoints with Adam's state, about 1 GB, cannot come back): `--export-weights` writes each trained
-run as a slim bf16 checkpoint (localizer 24 MB, recognizer 64 MB, crosspoints about 60 MB) under
-<export>/weights.  They leave the machine, and reach it again in a later session, in checked parts
-over back-to-back calls (`benchmarks/device_files.py`, whose docstring lists a session's calls: a
-call returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes back 30 s after a
-call, and a path a call does not carry is removed from its working tree); new runs start from them
-with `--init <folder>`.
+Trained networks leave the machine (checkpoints with Adam's state, about 1 GB, cannot):
+`--export-weights` writes each trained run as a slim bf16 checkpoint (localizer 24 MB, recognizer
+64 MB, crosspoints about 57 MB) under <export>/weights, and they come back in checked parts over
+back-to-back calls (`benchmarks/device_files.py`, whose docstring lists a session's calls: a call
+returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes back 30 s after a
+call, and a path a call does not carry is removed from its working tree).  A later run starts from
+them with `--init <folder>`, where they still exist: they are too large for the repository (its
+working tree travels with every call), and a session may start from a new checkout without the
+ignored folders of the last (the seventh run's session did), so a session can count only on what it
+trains itself.
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
