@@ -28,9 +28,10 @@ from scipy.spatial import cKDTree
 
 from networks.models import CELL, NUM_POINTS
 
-#: Default NMS radius in pixels: well below the distance between two markers' centres (a marker
-#: is at least ~32 px across for the localizer to see its centre checker at 1/8 resolution) and
-#: well above the spread of a duplicated marker's two predictions of the same centre.
+#: Default NMS radius in pixels: below the distance between two markers' centres (one marker
+#: apart: 11-23 px in the 512 px renders, p5-p95) and above the spread of a duplicated marker's two
+#: predictions of the same centre.  Larger radii (6-10 px, or 0.4-0.6 of the predicted marker's size)
+#: traded recall for precision at the same F1 on the seventh GPU run's localizer (RESULTS.md).
 NMS_RADIUS_PX = 4.0
 
 _CHANNELS = 1 + 2 * NUM_POINTS
