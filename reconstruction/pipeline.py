@@ -134,7 +134,8 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
     """Detections of every camera at every frame (or `frames`) into ``detections/``; returns the frames.
 
     views: one folder (or video) per camera (networks mode) or the factory capture folder
-    (ground-truth mode, whose cameras.json is used when `cameras` is None)."""
+    (ground-truth mode); when `cameras` is None, the views folder's cameras.json is used (a factory
+    capture's, in either mode)."""
     out = Path(out)
     settings = settings_of(out)
     if settings.detections == "groundtruth":
@@ -153,8 +154,12 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
         from networks import Detector, DetectorConfig
         from reconstruction.views import Views
 
+        if cameras is None and (Path(views) / "cameras.json").is_file():  # a folder laid out as a capture
+            from reconstruction.cameras import read_cameras
+
+            cameras = read_cameras(Path(views) / "cameras.json")
         if cameras is None:
-            raise ValueError("the networks mode needs the cameras (cameras.json)")
+            raise ValueError(f"the networks mode needs the cameras: give --cameras, or put cameras.json in {views}")
         opened = Views.open(views, cameras)
         chosen = _frames(opened.frames, frames, views)
         detector = None

@@ -54,3 +54,21 @@ def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capt
     assert np.isin(ids, garment_ids).all()  # the recognizer's answer is restricted to the garment's IDs
     k = template.layout.spec.crosspoints_per_side
     assert all(d.crosspoints_px.shape[1:] == (k, k, 2) for d in found)
+
+
+def test_networks_mode_reads_the_cameras_of_a_capture_folder(capture_folder, tmp_path, capsys):
+    """Without --cameras, the views folder's cameras.json (a factory capture's); a folder without one
+    is refused, naming it."""
+    template = capture_folder / "template.npz"
+    checkpoints = _checkpoints(tmp_path, load_template(template).layout.spec)
+    argv = ["detect", "--template", str(template), "--device", "cpu", "--checkpoints", *checkpoints,
+            "--localizer-scale", "0.25", "--frames", "3", "--quiet"]
+    assert main([*argv, "--views", str(capture_folder), "--out", str(tmp_path / "rec")]) == 0
+    cameras = json.loads((capture_folder / "cameras.json").read_text())["cameras"]
+    assert [c["name"] for c in json.loads((tmp_path / "rec" / "detections" / "cameras.json").read_text())["cameras"]] \
+        == [c["name"] for c in cameras]
+    bare = tmp_path / "views"
+    bare.mkdir()
+    capsys.readouterr()
+    assert main([*argv, "--views", str(bare), "--out", str(tmp_path / "rec2")]) != 0
+    assert f"put cameras.json in {bare}" in capsys.readouterr().err
