@@ -109,11 +109,11 @@ CROP_JITTER_PX = 1.0
 SHARDS = {"localizer": ("localizer", 19200, 0.0), "recognizer": ("recognizer", 9600, 0.0),
           "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX), "crosspoints": ("crosspoints", 4800, 0.0),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX)}
-#: the main runs that take spare GPUs as extra DDP ranks, heaviest first
-HEAVIEST = ("crosspoints", "recognizer", "localizer")
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
 #: localizer 15.3, recognizer 14.2, crosspoints 8.2 steps/s)
 GPU_COST = {"localizer": 1.0, "recognizer": 1.1, "crosspoints": 1.9}
+#: the tasks heaviest first: the order the main runs are placed in and take spare GPUs as DDP ranks
+HEAVIEST = tuple(sorted(GPU_COST, key=GPU_COST.get, reverse=True))
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
 CHECKPOINT_EVERY = 2000
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start

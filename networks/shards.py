@@ -132,6 +132,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     done = {int(p.name.split("_")[1]) for p in shard_parts(out)}
     todo = [n for n in range(-(-count // images_per_part)) if n not in done]
     started = time.perf_counter()
+    pool_size = min(workers, max(1, len(todo)))
     part_s = []  # each written part's time in its worker (the worker's start excluded)
     first_s = None  # from the start to the first finished part (the workers' start included)
     if todo:
@@ -139,7 +140,6 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
         initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
                     crops_per_image)
         bar = tqdm(total=len(todo), desc=f"shards {task}", unit="part", disable=not progress)
-        pool_size = min(workers, len(todo))
         with ProcessPoolExecutor(pool_size, mp_context=worker_context(__name__), initializer=_start_worker,
                                  initargs=initargs) as pool:
             pending, queue = set(), list(todo)
@@ -158,7 +158,8 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
                 for future in finished:
                     part_s.append(future.result()[2])
                     bar.update(1)
-                first_s = first_s or time.perf_counter() - started
+                if first_s is None:
+                    first_s = time.perf_counter() - started
         bar.close()
     written = len(part_s)
     seconds = time.perf_counter() - started
@@ -167,7 +168,6 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     items = sum(len(np.load(p / f"{key}.npy", mmap_mode="r")) for p in parts)
     rate = written * images_per_part / seconds if written else 0.0
     have = {int(p.name.split("_")[1]) for p in parts}
-    pool_size = min(workers, max(1, len(todo)))
     return {"task": task, "parts": len(parts), "items": items, "written_parts": written,
             "written_images": written * images_per_part, "seconds": seconds, "images_per_s": rate,
             "images_per_s_per_worker": rate / pool_size, "first_part_s": first_s,

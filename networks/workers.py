@@ -6,9 +6,10 @@ inherited by a fork can deadlock.  Spawned workers avoid both, but each imports 
 module and torch again: on the GPU machine 31 workers starting at once took 48 s before their first
 part (importing `networks.shards` alone takes 8 s there; RESULTS.md, issue 7), against 9 s for the
 part itself.  So workers come from a fork server (`worker_context`): one fresh interpreter, started
-inside `worker_environment` (one BLAS / OpenMP thread, read at import), that imports the caller's
+inside `server_environment` (one BLAS / OpenMP thread, read at import), that imports the caller's
 main module and the named modules once and forks each worker from that clean state; each worker
-calls `one_thread` first.  Where there is no fork server (Windows), workers are spawned.
+calls `one_thread` first.  Where there is no fork server (Windows), workers are spawned and take
+the caller's thread settings (set OMP_NUM_THREADS=1 and OPENBLAS_NUM_THREADS=1 there).
 """
 
 from __future__ import annotations
@@ -30,17 +31,17 @@ def one_thread(*_: object) -> None:
     cv2.setNumThreads(1)
 
 
-#: and of the fork server: a worker started for `python -m module` runs that module again as
-#: __mp_main__ (multiprocessing's preparation), after the server's preload imported it, and runpy
-#: warns about that on every worker
+#: the fork server's environment: the workers' threads, and quiet about a worker started for
+#: `python -m module` running that module again as __mp_main__ (multiprocessing's preparation) after
+#: the server's preload imported it, which runpy warns about on every worker
 SERVER_ENV = {**WORKER_THREADS_ENV, "PYTHONWARNINGS": "ignore::RuntimeWarning:runpy"}
 
 
 @contextlib.contextmanager
-def worker_environment(variables: dict[str, str] = WORKER_THREADS_ENV):
-    """`variables` set while workers start, then the caller's environment restored."""
-    saved = {k: os.environ.get(k) for k in variables}
-    os.environ.update(variables)
+def server_environment():
+    """`SERVER_ENV` set while the fork server starts, then the caller's environment restored."""
+    saved = {k: os.environ.get(k) for k in SERVER_ENV}
+    os.environ.update(SERVER_ENV)
     try:
         yield
     finally:
@@ -52,13 +53,13 @@ def worker_environment(variables: dict[str, str] = WORKER_THREADS_ENV):
 
 
 def worker_context(*modules: str) -> BaseContext:
-    """The multiprocessing context for workers: the fork server (started now, in `worker_environment`,
+    """The multiprocessing context for workers: the fork server (started now, in `server_environment`,
     preloading the caller's main module and `modules`: the one holding the workers' functions), or
     spawn where there is none.  The server is one per process: the first call's modules stay."""
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(["__main__", *modules])
-    with worker_environment(SERVER_ENV):
+    with server_environment():
         forkserver.ensure_running()
     return context
