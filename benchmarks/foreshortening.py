@@ -1,0 +1,131 @@
+"""How oblique are the markers a network sees?  The same measure on the three sources of marker
+images: the synthesizer (`networks.synth`), a rendered training dataset (`factory.dataset build`) and
+a capture (`factory.dataset capture`), so training data can be matched to what a capture ring sees.
+
+Per marker, from its four corners (TL, TR, BL, BR) in image pixels: the affine map from the printed
+square that fits them best (least squares); its singular values s_min <= s_max.  `ratio` = s_min /
+s_max is the foreshortening (1 frontal, 0.5 the marker seen at 60 degrees, 0 edge-on), `size` =
+sqrt(s_min s_max) * edge the marker's size in pixels (the square root of its area).  Markers are
+counted by status: fully visible (every on-fabric point visible) and all present (also partly).
+
+    python benchmarks/foreshortening.py --rendered .bench/rendered2 --capture .bench/cap/capture \
+        --synth 60 [--synth-config '{"foreshortening": 8}'] [--scale 0.3]
+
+--scale multiplies the capture's sizes (the Detector's --localizer-scale), so sizes compare with
+what the localizer sees.  Prints a table and a `RESULT {json}` line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from assets.pattern.observation import ImageGroundTruth  # noqa: E402
+
+#: the printed square's corners TL, TR, BL, BR (unit edge), as `ImageGroundTruth.points_px[:, 1:]`
+SQUARE = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float64)
+OBLIQUE = 0.6
+
+
+def marker_shape(points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 5, 2) localization points -> (ratio, size) per marker whose four corners are known (see the
+    module docstring)."""
+    corners = np.asarray(points_px, np.float64)[:, 1:]
+    corners = corners[np.isfinite(corners).all(axis=(1, 2))]  # a partial marker's off-fabric corners are NaN
+    centred = corners - corners.mean(axis=1, keepdims=True)
+    square = SQUARE - SQUARE.mean(axis=0)
+    # corners ~ square @ A.T: A = (square^+ corners).T for every marker at once
+    affine = np.einsum("ij,mjk->mki", np.linalg.pinv(square), centred)
+    singular = np.linalg.svd(affine, compute_uv=False)
+    ratio = singular[:, 1] / np.maximum(singular[:, 0], 1e-12)
+    size = np.sqrt(singular[:, 0] * singular[:, 1])
+    return ratio, size
+
+
+def summary(ratio: np.ndarray, size: np.ndarray) -> dict:
+    if len(ratio) == 0:
+        return {"markers": 0}
+    q = np.percentile(ratio, [5, 25, 50])
+    s = np.percentile(size, [5, 50, 95])
+    return {"markers": int(len(ratio)), "ratio_p5": float(q[0]), "ratio_p25": float(q[1]), "ratio_median": float(q[2]),
+            "oblique_share": float(np.mean(ratio < OBLIQUE)), "size_p5": float(s[0]), "size_median": float(s[1]),
+            "size_p95": float(s[2])}
+
+
+def measure(gts: list[ImageGroundTruth], scale: float = 1.0) -> dict:
+    """Summaries of fully visible and of all present markers over ground-truth images."""
+    rows = {}
+    for name, least in (("fully visible", 2), ("present", 1)):
+        shapes = [marker_shape(gt.points_px[gt.status >= least]) for gt in gts if gt.num_markers]
+        ratio = np.concatenate([r for r, _ in shapes]) if shapes else np.zeros(0)
+        size = np.concatenate([s for _, s in shapes]) * scale if shapes else np.zeros(0)
+        rows[name] = summary(ratio, size)
+    return rows
+
+
+def rendered_gts(folder: Path, split: str | None) -> list[ImageGroundTruth]:
+    manifest = folder / "manifest.jsonl"
+    if not manifest.is_file():
+        raise FileNotFoundError(f"{folder}: no manifest.jsonl (not a factory dataset folder)")
+    entries = [json.loads(line) for line in manifest.read_text().splitlines() if line.strip()]
+    names = [e["name"] for e in entries if split is None or e.get("split") == split]
+    return [ImageGroundTruth.load(folder / "gt" / f"{name}.npz") for name in names]
+
+
+def capture_gts(folder: Path) -> list[ImageGroundTruth]:
+    files = sorted(folder.glob("cam*/f*_gt.npz"))
+    if not files:
+        raise FileNotFoundError(f"{folder}: no cam*/f*_gt.npz (not a capture folder)")
+    return [ImageGroundTruth.load(f) for f in files]
+
+
+def synth_gts(count: int, overrides: dict) -> list[ImageGroundTruth]:
+    from assets.pattern.spec import PatternSpec
+    from networks.synth import PatternSynthesizer, SynthConfig
+
+    synth = PatternSynthesizer(PatternSpec(), SynthConfig(**overrides))
+    return [synth.render(i).gt for i in range(count)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rendered", type=Path, help="a factory dataset folder")
+    parser.add_argument("--split", help="only this split of --rendered (default: all)")
+    parser.add_argument("--capture", type=Path, help="a capture folder")
+    parser.add_argument("--scale", type=float, default=1.0, help="multiply the capture's sizes (--localizer-scale)")
+    parser.add_argument("--synth", type=int, default=0, help="this many synthesized 512 x 512 images")
+    parser.add_argument("--synth-config", default="{}", help="SynthConfig overrides as JSON")
+    args = parser.parse_args(argv)
+    sources = {}
+    if args.synth:
+        overrides = json.loads(args.synth_config)
+        sources[f"synth {json.dumps(overrides)}" if overrides else "synth (defaults)"] = measure(synth_gts(args.synth, overrides))
+    if args.rendered:
+        sources[f"rendered {args.rendered.name}"] = measure(rendered_gts(args.rendered, args.split))
+    if args.capture:
+        sources[f"capture {args.capture.name} x{args.scale:g}"] = measure(capture_gts(args.capture), args.scale)
+    if not sources:
+        parser.error("give at least one of --synth, --rendered, --capture")
+    print("| source | markers | count | ratio p5 / p25 / median | share < 0.6 | size p5 / median / p95 px |")
+    print("|---|---|---|---|---|---|")
+    for source, rows in sources.items():
+        for kind, r in rows.items():
+            if not r["markers"]:
+                print(f"| {source} | {kind} | 0 | | | |")
+                continue
+            print(f"| {source} | {kind} | {r['markers']} | {r['ratio_p5']:.2f} / {r['ratio_p25']:.2f} / "
+                  f"{r['ratio_median']:.2f} | {r['oblique_share']:.0%} | {r['size_p5']:.1f} / "
+                  f"{r['size_median']:.1f} / {r['size_p95']:.1f} |")
+    print("RESULT " + json.dumps(sources))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
