@@ -335,13 +335,16 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
     for name in names:
         records = _log(out / name / "run")
         losses = [r for r in records if "loss" in r]
+        startups = [r["startup"] for r in records if "startup" in r]
+        fifty = [r["elapsed_s"] for r in losses if r["step"] == before[name] + 50]
         step = run_step(out / name / "run")
         entry = results.setdefault(name, {"seconds": 0.0, "summary": "already at its last step"})
         config = out / name / "run" / "config.json"
         planned = json.loads(config.read_text())["steps"] if config.exists() else None
         entry.update(step=step, target=min(targets[name], planned or targets[name]), planned_steps=planned,
                      steps_this_call=step - before[name],
-                     first_loss=losses[0]["loss"] if losses else None, last_loss=losses[-1]["loss"] if losses else None)
+                     first_loss=losses[0]["loss"] if losses else None, last_loss=losses[-1]["loss"] if losses else None,
+                     startup={**(startups[-1] if startups else {}), **({"step_50_s": fifty[-1]} if fifty else {})})
         if entry.get("seconds"):
             entry["steps_per_s"] = entry["steps_this_call"] / entry["seconds"]
     return results
@@ -558,17 +561,19 @@ def _print_tables(result: dict) -> None:
               f"{r['images_per_s']:.1f} | {r['images_per_s_per_worker']:.1f} | {in_worker} | {first} | "
               f"{r.get('busy', 0.0):.0%} |")
     print("\n| run | synth weight | GPUs | workers per rank | step / target | this call: steps, s, steps/s "
-          "| loss first -> last |")
-    print("|---|---|---|---|---|---|---|")
+          "| start-up s: setup, first batch, first step, step 50 | loss first -> last |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, r in result["training"].items():
         weight = RUNS[name][1]
         if "error" in r:
-            print(f"| {name} | {weight} | | | failed: {r['error'][-300:]!r} | | |")
+            print(f"| {name} | {weight} | | | failed: {r['error'][-300:]!r} | | | |")
             continue
         loss = "-" if r["first_loss"] is None else f"{r['first_loss']:.4g} -> {r['last_loss']:.4g}"
         gpus = ",".join(map(str, r.get("gpus") or [])) or "-"
+        start = r.get("startup") or {}
+        start = ", ".join(_number(start.get(k), ".1f") for k in ("setup_s", "first_batch_s", "first_step_s", "step_50_s"))
         print(f"| {name} | {weight} | {gpus} | {r.get('workers', '-')} | {r['step']} / {r['target']} | "
-              f"{r['steps_this_call']}, {r['seconds']:.0f}, {r.get('steps_per_s', 0):.2f} | {loss} |")
+              f"{r['steps_this_call']}, {r['seconds']:.0f}, {r.get('steps_per_s', 0):.2f} | {start} | {loss} |")
     if result["mixes"]:
         print("\n| localizer data (rendered val split, same step) | step | loss | precision | recall | F1 "
               "| recall full | centre median px |\n|---|---|---|---|---|---|---|---|")

@@ -1,11 +1,13 @@
-"""Photometric augmentation of training images and crops: what a different camera would have seen.
+"""Augmentation of training images and crops: what a different camera would have seen.
 
 `Augment` holds probabilities and ranges; ``Augment()(image, rng)`` (or `augment(image, rng, config)`)
 applies, in the order a camera would: optical or motion blur, exposure, contrast, saturation and white
 balance, sensor noise (read noise plus signal-dependent shot noise), a gamma curve, and JPEG
-re-encoding.  Nothing here moves a pixel: geometric augmentation would break the targets, whose
-coordinates are exact.  Every random choice comes from the generator passed in, so an item is
-reproducible from its seed.
+re-encoding.  Photometric steps move no pixel, so exact targets stay exact.  `ViewWarp` is the one
+geometric step: a random zoom, rotation and compression of a rendered localizer training image, whose
+targets are remade from its ground-truth points moved by the same homography
+(`networks.data.RenderedDataset`).  Every random choice comes from the generator passed in, so an
+item is reproducible from its seed.
 
 Data loading on the GPU machine's cores bounds the localizer's training (RESULTS.md, issue 7), so the
 colour steps are one 3 x 4 affine transform (`cv2.transform`) and the sensor noise is read from a bank
@@ -132,3 +134,72 @@ def _motion_kernel(length: int, angle: float) -> np.ndarray:
     rows = np.clip(np.round(c + t * np.sin(angle)).astype(int), 0, length - 1)
     kernel[rows, cols] = 1.0
     return kernel / kernel.sum()
+
+
+@dataclass(frozen=True)
+class ViewWarp:
+    """A random change of view of a rendered localizer training image, from the camera's position
+    about the garment: with `probability`, a zoom by `scale` (log-uniform; > 1 enlarges), an
+    in-plane rotation (normal, `rotation_deg` standard deviation) and a compression along a random
+    direction by a factor between `squeeze` and 1 (log-uniform; the cloth turned further from the
+    camera), about a random point of the image.
+
+    The localizer's rendered training set is about a hundred images of one garment, seen from one
+    camera distance with markers of 14-23 px (5th-95th percentile), and it is learnt by heart: in the
+    seventh and eighth GPU runs the validation loss stopped falling after 3,000 of 15,000 steps at
+    about five times the training loss.  Every view warp shows those images as a new camera would,
+    with exact targets."""
+
+    probability: float = 0.75
+    scale: tuple[float, float] = (0.75, 1.4)
+    rotation_deg: float = 15.0
+    squeeze: float = 0.6
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not 0 <= self.probability <= 1:
+            problems.append(f"probability must be in [0, 1], got {self.probability}")
+        if not 0 < self.scale[0] <= self.scale[1]:
+            problems.append(f"scale must be a range (min, max) with 0 < min <= max, got {self.scale}")
+        if not 0 <= self.rotation_deg <= 180:
+            problems.append(f"rotation_deg must be in [0, 180], got {self.rotation_deg}")
+        if not 0 < self.squeeze <= 1:
+            problems.append(f"squeeze must be in (0, 1], got {self.squeeze}")
+        if problems:
+            raise ValueError("invalid ViewWarp: " + "; ".join(problems))
+
+    def homography(self, rng: np.random.Generator, source_size: tuple[int, int],
+                   out_size: tuple[int, int]) -> np.ndarray | None:
+        """(3, 3) float64 homography from the source image's pixels to an output image of `out_size`
+        (width, height), in continuous pixel coordinates (pixel centres at integer + 0.5), or None
+        when this draw leaves the image unwarped.  The output's centre shows a random point of the
+        source, chosen so that the output lies inside the source where it can."""
+        if rng.uniform() >= self.probability:
+            return None
+        zoom = float(np.exp(rng.uniform(*np.log(self.scale))))
+        angle = np.radians(rng.normal(0.0, self.rotation_deg))
+        squeeze = float(np.exp(rng.uniform(np.log(self.squeeze), 0.0)))
+        across = rng.uniform(0.0, np.pi)
+        rotate = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        c, s = np.cos(across), np.sin(across)
+        direction = np.array([[c, -s], [s, c]])
+        linear = zoom * rotate @ direction @ np.diag([squeeze, 1.0]) @ direction.T
+        half_out = np.array(out_size, np.float64) / 2
+        box = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]]) * half_out
+        reach = np.abs(box @ np.linalg.inv(linear).T).max(axis=0)  # the output's half extent in the source
+        size = np.array(source_size, np.float64)
+        low, high = np.minimum(reach, size / 2), np.maximum(size - reach, size / 2)
+        centre = rng.uniform(low, high)
+        out = np.eye(3)
+        out[:2, :2] = linear
+        out[:2, 2] = half_out - linear @ centre
+        return out
+
+
+def warp_image(image: np.ndarray, homography: np.ndarray, out_size: tuple[int, int]) -> np.ndarray:
+    """`image` (H, W, C) seen through `homography` (continuous pixel coordinates, source -> output) as
+    an image of `out_size` (width, height): bilinear, the source's border pixels repeated outside it."""
+    shift = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])
+    to_index = np.linalg.inv(shift) @ homography @ shift  # OpenCV's pixel centres are at integers
+    return cv2.warpPerspective(image, to_index, tuple(int(v) for v in out_size), flags=cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REPLICATE)

@@ -54,7 +54,9 @@ class TrainConfig:
     synthesized) are cut from five points moved by Gaussian noise of this
     standard deviation (pixels), as the Detector cuts them from the localizer's points; shards must
     have been written with the same (`networks.synth write --crop-jitter`); 0: the reference's exact
-    crops.
+    crops.  view_warp (localizer, with augment): rendered training images are seen through a random
+    zoom, rotation and compression (`networks.augment.ViewWarp`) with targets made anew, against
+    learning the few rendered images by heart; not in the reference, which trained on many more.
     """
 
     task: str
@@ -78,6 +80,7 @@ class TrainConfig:
     pretrained: str | None = None
     init: str | None = None
     crop_jitter_px: float = 0.0
+    view_warp: bool = True
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:

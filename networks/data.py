@@ -45,10 +45,11 @@ from tqdm import tqdm
 from assets.fileio import load_json, load_npz
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
+from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, crosspoint_markers, localizer_targets,
-                                        recognizer_crops)
+                                        marker_cells, recognizer_crops)
 from assets.pattern.spec import PatternSpec
-from networks.augment import Augment
+from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
 from networks.config import TASKS
 from networks.models import CELL
@@ -64,6 +65,8 @@ _CROP_KEYS = {
 _ATTEMPTS = 32
 #: the stream of a synthetic sample's crop jitter (`synth_crops`), apart from the synthesizer's own
 _JITTER = 7
+#: the stream of a rendered localizer item's view warp (`ViewWarp`), apart from its crop's and augmentation's
+_VIEW = 8
 #: shard folders: the format name in shards.json, and the arrays of a part per task (first axis: item)
 SHARD_FORMAT = "clothcapture-synth-shards"
 SHARD_META = "shards.json"
@@ -173,7 +176,10 @@ class RenderedDataset(_Items, Dataset):
     that keeps an image's crops close together profits most).
     crop_px: localizer items are random crops of min(crop_px, side) pixels per side (rounded down to
     whole 8 px cells and placed on the cell grid, so the cell targets stay exact; seeded per
-    (seed, epoch, index)); None: whole images.
+    (seed, epoch, index)); None: whole images.  view_warp (localizer): an item of that size is, at
+    the warp's probability, the image seen through a random `ViewWarp` instead of a crop, its cell
+    targets made anew from the image's ground-truth points (gt/<name>.npz) moved by the same
+    homography; a marker is present when its centre was visible and lands inside the item.
     crop_jitter_px (crop tasks): each item's crop is cut anew from the image, from its marker's five
     true points moved by Gaussian noise of this standard deviation in pixels (seeded per (seed,
     epoch, index)), as the Detector cuts crops from the localizer's points; crosspoint targets follow
@@ -183,7 +189,7 @@ class RenderedDataset(_Items, Dataset):
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
-                 crop_px: int | None = None, crop_jitter_px: float = 0.0):
+                 crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -197,12 +203,16 @@ class RenderedDataset(_Items, Dataset):
             raise ValueError(f"crop_jitter_px must be in [0, 8] and only for the crop tasks, got {crop_jitter_px} "
                              f"for the {task}")
         self.crop_jitter_px = float(crop_jitter_px)
+        if view_warp is not None and task != "localizer":
+            raise ValueError(f"view_warp is for the localizer's images, not the {task} task's crops")
+        self.view_warp = view_warp
+        self._markers: dict[int, dict[str, np.ndarray]] = {}
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
         if not self.entries:
             raise ValueError(f"{self.root}: no images in split {split!r}")
-        needed = ("samples",) if task != "localizer" else ("samples", "image")
+        needed = ("samples",) if task != "localizer" else ("samples", "image") + (("gt",) if view_warp else ())
         missing = [e[k] for e in self.entries for k in needed if not (self.root / e[k]).is_file()]
         if missing:
             raise ValueError(f"{self.root}: {len(missing)} file(s) of the manifest are missing, e.g. {missing[:3]}")
@@ -232,8 +242,13 @@ class RenderedDataset(_Items, Dataset):
         if self.task == "localizer":
             image, cells = arrays["image"], arrays["cells"]
             h, w = image.shape[:2]
+            width, height = self.crop_size((w, h))
+            view = None if self.view_warp is None else self.view_warp.homography(self._rng(index, _VIEW), (w, h),
+                                                                                 (width, height))
+            if view is not None:
+                return self._item(index, image=warp_image(image, view, (width, height)),
+                                  cells=self._warped_cells(image_index, view, (width, height)))
             if self.crop_px is not None:
-                width, height = self.crop_size((w, h))
                 rng = self._rng(index, 3)
                 i0, j0 = (int(rng.integers(0, n + 1)) for n in ((h - height) // CELL, (w - width) // CELL))
                 image = image[i0 * CELL:i0 * CELL + height, j0 * CELL:j0 * CELL + width]
@@ -315,6 +330,20 @@ class RenderedDataset(_Items, Dataset):
         if self.task == "recognizer":
             return {"image": image, "points_px": gt.points_px[pick].astype(np.float64), key: stored}
         return {"image": image, "gt": gt.select(pick), key: stored}
+
+    def _warped_cells(self, image_index: int, view: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """The localizer's cell targets of an image seen through `view` (source -> item pixels) as an
+        item of `size` (width, height), from the image's ground-truth points (kept per worker)."""
+        if image_index not in self._markers:
+            entry = self.entries[image_index]
+            self._markers[image_index] = load_npz(self.root / entry["gt"],
+                                                  only=("points_px", "point_visible", "points_depth", "status"))
+        markers = self._markers[image_index]
+        points = apply_homography(view, markers["points_px"]).astype(np.float32)  # NaN (off the fabric) stays NaN
+        with np.errstate(invalid="ignore"):
+            inside = ((points[:, 0] >= 0) & (points[:, 0] < np.asarray(size, np.float32))).all(axis=1)
+        present = (markers["status"] > 0) & markers["point_visible"][:, 0] & inside
+        return marker_cells(size[0], size[1], points, present, markers["points_depth"][:, 0])
 
     def _keep(self, image_index: int, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self._cache[image_index] = arrays

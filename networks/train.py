@@ -14,7 +14,9 @@ shard folder written before (`--shards`, `python -m networks.synth write`; valid
 rendered val split, or on the fly).  The garment (`--garment`, default the dataset's template.npz)
 gives the marker IDs that are synthesized and that the recognizer classifies among
 (`TrainConfig.recognizer_classes`).  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
-with the loss and its parts, and one per validation with the metrics of `networks.evaluate`),
+with the loss and its parts, one per validation with the metrics of `networks.evaluate`, and one
+per call at its first step, `startup`: seconds from the call's start to the training loop, then to the
+first batch and the first finished step),
 `last.pt` (every `checkpoint_every` steps, at the end, on Ctrl-C and at --until-step/--time-limit) and
 `best.pt` (the lowest validation loss).  `--resume` continues from `last.pt` with the same model,
 optimizer, learning-rate schedule, step, data order and random state; the run's saved config is the
@@ -47,7 +49,7 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
 from assets.pattern import PatternSpec
-from networks.augment import Augment
+from networks.augment import Augment, ViewWarp
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
@@ -231,9 +233,10 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
         return (synth(length, config.seed, augment, size, crop_jitter_px=jitter),
                 synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size, stored=False))
     root = _dataset_root(data)
+    view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
-                               crop_jitter_px=jitter)
+                               crop_jitter_px=jitter, view_warp=view_warp)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
@@ -330,6 +333,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
 def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.device, resume: bool,
            spec: PatternSpec | None, until_step: int | None, time_limit_s: float | None, progress: bool,
            shards: str | Path | None, garment: str | Path | None, ranks: Ranks, fit_to_time_limit: bool) -> dict:
+    entered = time.monotonic()
     last_path, best_path, log_path = out / "last.pt", out / "best.pt", out / "log.jsonl"
     saved = None
     if last_path.exists():
@@ -450,8 +454,11 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     model.train()
     bar = tqdm(total=config.steps, initial=step, desc=f"train {config.task}", unit="step", disable=not progress)
     running = None
+    startup = {"setup_s": started - entered}  # where a call's first seconds go: logged once, at its first step
     try:
         for batch in loader:
+            if "first_batch_s" not in startup:
+                startup["first_batch_s"] = time.monotonic() - started
             with autocast(device, config.mixed_precision):
                 _, loss, parts = forward(config.task, trained, batch, device, count_mean)
             # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
@@ -466,6 +473,10 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
             scheduler.step()
             step += 1
             running = value if running is None else 0.98 * running + 0.02 * value
+            if "first_step_s" not in startup:
+                startup["first_step_s"] = time.monotonic() - started
+                if ranks.main:
+                    _append_log(log_path, {"step": step, "startup": startup})
             bar.update(1)
             bar.set_postfix(loss=f"{running:.4g}")
             if ranks.main and (step % config.log_every == 0 or step == stop):
@@ -517,6 +528,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "synth_weight": args.synth_weight, "crop_jitter_px": args.crop_jitter, "seed": args.seed,
                  "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
+                 "view_warp": False if args.no_view_warp else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
     if args.pretrained is not None:
@@ -553,7 +565,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int)
     parser.add_argument("--num-workers", type=int, help="data loading processes")
     parser.add_argument("--image-size", type=int, help="side of synthesized localizer images, pixels")
-    parser.add_argument("--no-augment", action="store_true", help="train without photometric augmentation")
+    parser.add_argument("--no-augment", action="store_true", help="train without augmentation (photometric, and the localizer's view warp)")
+    parser.add_argument("--no-view-warp", action="store_true",
+                        help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
     parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")

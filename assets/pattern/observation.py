@@ -131,21 +131,30 @@ def localizer_targets(gt: ImageGroundTruth, cell: int = 8) -> np.ndarray:
     top-left corner (the centre's offsets lie in [0, cell)); NaN for a point off the fabric (a
     partial marker's missing corner); 0 in empty cells.  Where two centres share a cell, the marker
     nearer the camera wins."""
-    if gt.height % cell or gt.width % cell:
-        raise ValueError(f"image size {gt.width} x {gt.height} is not a multiple of the cell size {cell}")
-    rows, cols = gt.height // cell, gt.width // cell
-    present = np.flatnonzero((gt.status > 0) & gt.point_visible[:, 0])
-    centre = gt.points_px[present, 0].astype(np.float64)
+    present = (gt.status > 0) & gt.point_visible[:, 0]
+    return marker_cells(gt.width, gt.height, gt.points_px, present, gt.points_depth[:, 0], cell)
+
+
+def marker_cells(width: int, height: int, points_px: np.ndarray, present: np.ndarray, depth: np.ndarray,
+                 cell: int = 8) -> np.ndarray:
+    """`localizer_targets` from arrays: markers' five points (M, 5, 2) in an image of width x height,
+    which of them are present (M,) bool (each present centre must lie inside the image) and their
+    centres' depths (M,) (the nearer of two markers in one cell wins)."""
+    if height % cell or width % cell:
+        raise ValueError(f"image size {width} x {height} is not a multiple of the cell size {cell}")
+    rows, cols = height // cell, width // cell
+    present = np.flatnonzero(present)
+    centre = points_px[present, 0].astype(np.float64)
     cx = np.clip(np.floor(centre[:, 0] / cell).astype(np.int64), 0, cols - 1)  # float32 may round up to W
     cy = np.clip(np.floor(centre[:, 1] / cell).astype(np.int64), 0, rows - 1)
     key = cy * cols + cx
-    order = np.lexsort((gt.points_depth[present, 0], key))
+    order = np.lexsort((depth[present], key))
     _, first = np.unique(key[order], return_index=True)
     chosen = order[first]
     out = np.zeros((rows, cols, 11), dtype=np.float32)
     corner = np.stack([cx[chosen], cy[chosen]], axis=1) * cell
     out[cy[chosen], cx[chosen], 0] = 1.0
-    out[cy[chosen], cx[chosen], 1:] = (gt.points_px[present[chosen]] - corner[:, None, :]).reshape(-1, 10)
+    out[cy[chosen], cx[chosen], 1:] = (points_px[present[chosen]] - corner[:, None, :]).reshape(-1, 10)
     return out
 
 

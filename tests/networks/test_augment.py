@@ -1,4 +1,5 @@
-"""Photometric augmentation: changes appearance only, reproducibly."""
+"""Augmentation: photometric steps change appearance only, reproducibly; the view warp moves pixels
+as it moves points."""
 
 from dataclasses import replace
 
@@ -6,7 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from networks.augment import Augment, augment
+from assets.geometry import apply_homography
+from networks.augment import Augment, ViewWarp, augment, warp_image
 
 OFF = Augment(blur_probability=0, motion_blur_probability=0, colour_probability=0, noise_probability=0,
               gamma_probability=0, jpeg_probability=0)
@@ -102,3 +104,50 @@ def test_noise_differs_between_images_and_keeps_its_statistics():
     big = np.full((600, 600, 3), 128, np.uint8)  # larger than half the bank: drawn afresh
     c = augment(big, np.random.default_rng(3), config).astype(float) - 128
     assert abs(c.std() - 6.0) < 0.2
+
+
+def test_a_view_warp_moves_pixels_as_it_moves_points():
+    # a smooth blob's centroid in the warped image is the blob's centre mapped by the homography:
+    # warp_image and apply_homography share the pixel convention (centres at integer + 0.5)
+    rng = np.random.default_rng(0)
+    warp = ViewWarp(probability=1.0, scale=(0.8, 1.25), rotation_deg=30.0, squeeze=0.5)
+    yy, xx = np.mgrid[0:200, 0:300] + 0.5
+    checked = 0
+    while checked < 6:
+        centre = rng.uniform([60, 50], [240, 150])
+        blob = 255 * np.exp(-((xx - centre[0]) ** 2 + (yy - centre[1]) ** 2) / (2 * 6.0**2))
+        view = warp.homography(rng, (300, 200), (160, 120))
+        expected = apply_homography(view, centre[None])[0]
+        if not (25 < expected[0] < 135 and 25 < expected[1] < 95):
+            continue
+        out = warp_image(np.repeat(blob[..., None], 3, axis=2).astype(np.float32), view, (160, 120))[..., 0]
+        oy, ox = np.mgrid[0:120, 0:160] + 0.5
+        found = np.array([(out * ox).sum(), (out * oy).sum()]) / out.sum()
+        np.testing.assert_allclose(found, expected, atol=0.05)
+        checked += 1
+
+
+def test_a_view_warp_stays_inside_its_source_and_draws_its_ranges():
+    warp = ViewWarp(probability=1.0)
+    rng = np.random.default_rng(1)
+    scales, squeezes = [], []
+    for _ in range(200):
+        view = warp.homography(rng, (512, 512), (256, 256))
+        corners = np.array([[0, 0], [256, 0], [0, 256], [256, 256]], float)
+        source = apply_homography(np.linalg.inv(view), corners)
+        low, high = source.min(axis=0), source.max(axis=0)
+        for axis in range(2):  # inside the source where the output's footprint fits, else centred on it
+            if high[axis] - low[axis] <= 512:
+                assert low[axis] >= -1e-6 and high[axis] <= 512 + 1e-6
+            else:
+                assert (low[axis] + high[axis]) / 2 == pytest.approx(256)
+        singular = np.linalg.svd(view[:2, :2], compute_uv=False)
+        scales.append(singular[0])
+        squeezes.append(singular[1] / singular[0])
+    assert 0.75 - 1e-9 <= min(scales) and max(scales) <= 1.4 + 1e-9 and max(scales) > 1.3
+    assert min(squeezes) >= 0.6 - 1e-9 and min(squeezes) < 0.65
+    assert ViewWarp(probability=0.0).homography(rng, (512, 512), (256, 256)) is None
+    with pytest.raises(ValueError, match="squeeze"):
+        ViewWarp(squeeze=0.0)
+    with pytest.raises(ValueError, match="scale"):
+        ViewWarp(scale=(1.4, 0.75))

@@ -2,6 +2,7 @@
 images), the synthesizer, and their mixture."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -12,8 +13,9 @@ from torch.utils.data import DataLoader
 
 from assets.fileio import save_json, save_npz
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
-from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
-from networks.augment import Augment
+from assets.geometry import apply_homography
+from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from networks.augment import Augment, ViewWarp, warp_image
 from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids
 from networks.synth import PatternSynthesizer, SynthConfig
 
@@ -121,6 +123,41 @@ def test_localizer_crops_are_cut_on_the_cell_grid(folder):
     assert len(offsets) > 1
     with pytest.raises(ValueError, match="crop_px"):
         RenderedDataset(folder, "train", "localizer", crop_px=4)
+
+
+def test_a_view_warp_moves_the_image_and_its_targets_together(folder):
+    warp = ViewWarp(probability=1.0, scale=(0.8, 1.25), rotation_deg=20.0, squeeze=0.6)
+    data = RenderedDataset(folder, "train", "localizer", crop_px=96, seed=5, view_warp=warp)
+    plain = RenderedDataset(folder, "train", "localizer", crop_px=96, seed=5)
+    never = RenderedDataset(folder, "train", "localizer", crop_px=96, seed=5, view_warp=replace(warp, probability=0.0))
+    grid = np.stack(np.meshgrid(np.arange(12), np.arange(12)), axis=-1) * 8.0  # (row, col) -> cell corner (x, y)
+    found = 0
+    for i, entry in enumerate(_entries(folder, "train")):
+        item = data[i]
+        assert item["image"].shape == (3, 96, 96) and item["cells"].shape == (12, 12, 11)
+        assert torch.equal(item["image"], data[i]["image"])  # seeded per (seed, epoch, index)
+        assert torch.equal(never[i]["image"], plain[i]["image"])  # probability 0: the plain crop
+        # the item's view, drawn as the dataset draws it
+        view = warp.homography(np.random.default_rng([5, 0, i, 8]), (192, 128), (96, 96))
+        png = cv2.imread(str(folder / entry["image"]))[:, :, ::-1]
+        assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), warp_image(png, view, (96, 96)))
+        gt = ImageGroundTruth.load(folder / entry["gt"])
+        centres = apply_homography(view, gt.points_px[:, 0])
+        inside = ((centres >= 0) & (centres < 96)).all(axis=1) & gt.point_visible[:, 0]
+        cells = item["cells"].numpy()
+        present = cells[..., 0] > 0
+        # each present cell holds a visible marker's five points, moved by the view, and each
+        # visible marker whose centre lands inside the item has its cell
+        points = cells[present][:, 1:].reshape(-1, 5, 2) + grid[present][:, None, :]
+        moved = apply_homography(view, gt.points_px[inside])
+        assert present.sum() == inside.sum()
+        for p in points:
+            match = np.nanmax(np.abs(moved - p), axis=(1, 2)) < 1e-3
+            assert match.sum() == 1
+        found += int(present.sum())
+    assert found > 4
+    with pytest.raises(ValueError, match="view_warp"):
+        RenderedDataset(folder, "train", "recognizer", view_warp=warp)
 
 
 def test_crop_tasks_index_every_crop_of_the_split(folder, codebook):

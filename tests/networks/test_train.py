@@ -113,6 +113,12 @@ def test_resume_continues_exactly(dataset, tmp_path):
     for key, value in a["model"].items():
         assert torch.equal(value, b["model"][key]), key
     assert a["scheduler"]["last_epoch"] == b["scheduler"]["last_epoch"] == 4
+    # each call logs its start-up once, at its first step: the resumed call at step 3
+    records = [json.loads(line) for line in (tmp_path / "parts" / "log.jsonl").read_text().splitlines()]
+    startups = {r["step"]: r["startup"] for r in records if "startup" in r}
+    assert sorted(startups) == [1, 3]
+    for startup in startups.values():
+        assert startup["setup_s"] > 0 and 0 <= startup["first_batch_s"] <= startup["first_step_s"]
 
 
 def test_bad_input(dataset, tmp_path):
