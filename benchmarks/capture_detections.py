@@ -1,0 +1,90 @@
+"""Which markers of a capture does networks-mode reconstruction detect and identify?  The Detector's
+saved detections of a `reconstruction run --detections networks` against the capture's ground truth,
+by marker status: fully visible, partial with the centre visible (the localizer's target), partial
+with the centre hidden (never a localizer target).  Several runs side by side (e.g. two weight sets).
+
+    python benchmarks/capture_detections.py --capture .bench/cap/capture \
+        --runs seventh=.bench/cap/rec_nets eighth=.bench/cap/rec_nets8 [--radius 12]
+
+A ground-truth marker is found when a detection's centre lies within --radius px of its centre (the
+nearest), identified when that detection also has its ID; its visible crosspoints are counted as
+recovered when it is identified.  Prints a table and a `RESULT {json}` line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
+
+from assets.fileio import load_npz  # noqa: E402
+from assets.pattern.observation import ImageGroundTruth  # noqa: E402
+
+KINDS = ("fully visible", "partial, centre visible", "partial, centre hidden")
+
+
+def kinds(gt: ImageGroundTruth) -> dict[str, np.ndarray]:
+    centre = gt.point_visible[:, 0]
+    partial = gt.status == 1
+    return dict(zip(KINDS, (gt.status == 2, partial & centre, partial & ~centre)))
+
+
+def compare(run: Path, capture: Path, radius: float) -> dict[str, dict]:
+    files = sorted((run / "detections").glob("cam*/f*.npz"))
+    if not files:
+        raise FileNotFoundError(f"{run}: no detections/cam*/f*.npz (not a networks-mode reconstruction folder)")
+    counts = {kind: np.zeros(5) for kind in KINDS}
+    for path in files:
+        gt_path = capture / path.parent.name / f"{path.stem}_gt.npz"
+        if not gt_path.is_file():
+            raise FileNotFoundError(f"{gt_path}: the capture has no ground truth for {path}")
+        detected = load_npz(path, required=("points_px", "marker_id"))
+        gt = ImageGroundTruth.load(gt_path)
+        centres = gt.points_px[:, 0].astype(np.float64)
+        known = np.isfinite(centres).all(axis=1)
+        hit = np.zeros(gt.num_markers, bool)
+        right = np.zeros(gt.num_markers, bool)
+        if len(detected["marker_id"]):
+            distance, index = cKDTree(detected["points_px"][:, 0]).query(np.where(known[:, None], centres, -1e9),
+                                                                         distance_upper_bound=radius)
+            hit = np.isfinite(distance) & known
+            right = hit & (detected["marker_id"][np.minimum(index, len(detected["marker_id"]) - 1)] == gt.marker_id)
+        visible = gt.crosspoint_visible.sum(axis=(1, 2))
+        for kind, mask in kinds(gt).items():
+            counts[kind] += [mask.sum(), (hit & mask).sum(), (right & mask).sum(), visible[mask].sum(),
+                             visible[mask & right].sum()]
+    return {kind: {"markers": int(c[0]), "found": c[1] / max(c[0], 1), "identified": c[2] / max(c[0], 1),
+                   "visible_crosspoints": int(c[3]), "recovered": c[4] / max(c[3], 1)} for kind, c in counts.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--capture", type=Path, required=True, help="the capture folder (factory.dataset capture)")
+    parser.add_argument("--runs", nargs="+", required=True, help="NAME=FOLDER of networks-mode reconstructions")
+    parser.add_argument("--radius", type=float, default=12.0, help="match radius, pixels of the views")
+    args = parser.parse_args(argv)
+    runs = {}
+    for item in args.runs:
+        name, _, folder = item.partition("=")
+        if not folder:
+            parser.error(f"--runs takes NAME=FOLDER, got {item!r}")
+        runs[name] = compare(Path(folder), args.capture, args.radius)
+    print("| run | markers | count | found | ID right | visible crosspoints | of identified markers |")
+    print("|---|---|---|---|---|---|---|")
+    for name, rows in runs.items():
+        for kind, r in rows.items():
+            print(f"| {name} | {kind} | {r['markers']} | {r['found']:.2f} | {r['identified']:.2f} | "
+                  f"{r['visible_crosspoints']} | {r['recovered']:.2f} |")
+    print("RESULT " + json.dumps(runs))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
