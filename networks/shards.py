@@ -140,7 +140,7 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
         initargs = (task, spec.to_dict(), config.to_dict(), codebook, meta["marker_ids"], images_per_part,
                     crops_per_image)
         bar = tqdm(total=len(todo), desc=f"shards {task}", unit="part", disable=not progress)
-        with ProcessPoolExecutor(pool_size, mp_context=worker_context(__name__), initializer=_start_worker,
+        with ProcessPoolExecutor(pool_size, mp_context=worker_context("networks.shards"), initializer=_start_worker,
                                  initargs=initargs) as pool:
             pending, queue = set(), list(todo)
             while queue or pending:

@@ -122,7 +122,7 @@ def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoa
     which says why), each with one BLAS, OpenMP and OpenCV thread."""
     if num_workers == 0:
         return DataLoader(dataset, **kwargs)
-    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context=worker_context(__name__),
+    return DataLoader(dataset, num_workers=num_workers, multiprocessing_context=worker_context("networks.train"),
                       worker_init_fn=one_thread,
                       persistent_workers=True, **kwargs)
 
@@ -565,7 +565,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int)
     parser.add_argument("--num-workers", type=int, help="data loading processes")
     parser.add_argument("--image-size", type=int, help="side of synthesized localizer images, pixels")
-    parser.add_argument("--no-augment", action="store_true", help="train without augmentation (photometric, and the localizer's view warp)")
+    parser.add_argument("--no-augment", action="store_true",
+                        help="train without augmentation (photometric, and the localizer's view warp)")
     parser.add_argument("--no-view-warp", action="store_true",
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
     parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")

@@ -6,10 +6,17 @@ inherited by a fork can deadlock.  Spawned workers avoid both, but each imports 
 module and torch again: on the GPU machine 31 workers starting at once took 48 s before their first
 part (importing `networks.shards` alone takes 8 s there; RESULTS.md, issue 7), against 9 s for the
 part itself.  So workers come from a fork server (`worker_context`): one fresh interpreter, started
-inside `server_environment` (one BLAS / OpenMP thread, read at import), that imports the caller's
-main module and the named modules once and forks each worker from that clean state; each worker
-calls `one_thread` first.  Where there is no fork server (Windows), workers are spawned and take
-the caller's thread settings (set OMP_NUM_THREADS=1 and OPENBLAS_NUM_THREADS=1 there).
+inside `server_environment` (one BLAS / OpenMP thread, read at import), that imports torch, the
+caller's main module and the named modules once and forks each worker from that clean state; each
+worker calls `one_thread` first.  Where there is no fork server (Windows), workers are spawned and
+take the caller's thread settings (set OMP_NUM_THREADS=1 and OPENBLAS_NUM_THREADS=1 there).
+
+multiprocessing's own "__main__" preload does nothing (Python 3.11 and 3.12 pass the server no path
+of the main module), so the main module is preloaded by its name when it was run with `python -m`
+(`python -m networks.train`: without it every DataLoader worker imported torch and the trainer's
+modules anew, and the first batch came 30 s after the loop began on the GPU machine, against 3.5 s
+for workers of a preloaded server; RESULTS.md, issue 7); a script's own imports are covered by
+torch and the named modules.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import sys
 from multiprocessing import forkserver
 from multiprocessing.context import BaseContext
 
@@ -52,14 +60,25 @@ def server_environment():
                 os.environ[key] = value
 
 
+def preload_modules(*modules: str) -> list[str]:
+    """What the fork server imports before forking workers: torch, the main module by name when it
+    was run with `python -m` (not a package's __main__, whose import would run it), then `modules`
+    ("__main__" among them is dropped: multiprocessing's preload of it does nothing)."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    main = getattr(spec, "name", None)
+    named = [main] if main and main != "__main__" and not main.endswith(".__main__") else []
+    chosen = ["torch", *named, *(m for m in modules if m != "__main__")]
+    return list(dict.fromkeys(chosen))
+
+
 def worker_context(*modules: str) -> BaseContext:
     """The multiprocessing context for workers: the fork server (started now, in `server_environment`,
-    preloading the caller's main module and `modules`: the one holding the workers' functions), or
-    spawn where there is none.  The server is one per process: the first call's modules stay."""
+    preloading `preload_modules(*modules)`: `modules` name the ones holding the workers' functions),
+    or spawn where there is none.  The server is one per process: the first call's modules stay."""
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["__main__", *modules])
+    context.set_forkserver_preload(preload_modules(*modules))
     with server_environment():
         forkserver.ensure_running()
     return context
