@@ -1,20 +1,13 @@
 """The marker-shape measure of `benchmarks/foreshortening.py`: how oblique and how large a marker is."""
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_foreshortening", ROOT / "benchmarks" / "foreshortening.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(load_benchmark):
+    return load_benchmark("foreshortening")
 
 
 def _points(linear: np.ndarray, edge: float, offset=(100.0, 50.0)) -> np.ndarray:

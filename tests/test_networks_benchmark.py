@@ -1,19 +1,11 @@
 """The GPU placement of `benchmarks/networks.py`'s runs (which GPU each training process gets)."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_networks", ROOT / "benchmarks" / "networks.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(load_benchmark):
+    return load_benchmark("networks")
 
 
 MAIN3 = ["localizer_mix", "recognizer_jitter", "crosspoints_jitter"]
