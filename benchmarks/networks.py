@@ -42,8 +42,8 @@ returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes b
 call, and a path a call does not carry is removed from its working tree).  A later run starts from
 them with `--init <folder>`, where they still exist: they are too large for the repository (its
 working tree travels with every call), and a session may start from a new checkout without the
-ignored folders of the last (the seventh run's session did), so a session can count only on what it
-trains itself.
+ignored folders of the last (the seventh run's session did; the eighth run's kept them and trained
+on from the seventh's weights, 16 parts of data and weights carried in six 5-second calls).
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
