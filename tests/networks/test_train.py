@@ -20,7 +20,7 @@ from networks.config import TrainConfig
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
-from networks.train import MASKED_LOGIT, StepOrder, lr_factor, main, train
+from networks.train import FIT_SKIP_STEPS, MASKED_LOGIT, StepOrder, lr_factor, main, train
 from tests.networks.test_evaluate import write_factory_dataset
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
@@ -239,7 +239,9 @@ def test_the_schedule_fits_the_time_limit(dataset, tmp_path):
     result = train(config, dataset, out, device="cpu", spec=SPEC, progress=False, time_limit_s=8.0,
                    fit_to_time_limit=True)
     assert time.monotonic() - started < 8.0 + 5.0  # the limit, plus building the model and data
-    assert result["finished"] and 20 < result["steps"] < 1_000_000 and result["step"] == result["steps"]
+    # how many steps fit depends on the machine's load (20-40 on an idle 2-core machine, 17 while
+    # Blender rendered beside it): the plan is fitted, not a count
+    assert result["finished"] and FIT_SKIP_STEPS < result["steps"] < 1_000_000 and result["step"] == result["steps"]
     records = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
     last = [r for r in records if "lr" in r][-1]
     assert last["step"] == result["steps"] and last["lr"] == pytest.approx(config.lr * 0.01, rel=0.05)
