@@ -54,6 +54,22 @@ def kinds(gt: ImageGroundTruth) -> dict[str, np.ndarray]:
     return dict(zip(KINDS, (gt.status == 2, partial & centre, partial & ~centre)))
 
 
+def match_markers(gt: ImageGroundTruth, centres_px: np.ndarray, marker_id: np.ndarray, radius: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(found, identified) (M,) bool per ground-truth marker: a detected centre (N, 2) lies within
+    `radius` px of its centre (the nearest detection), and that detection's ID is its own."""
+    centres = gt.points_px[:, 0].astype(np.float64)
+    known = np.isfinite(centres).all(axis=1)
+    hit = np.zeros(gt.num_markers, bool)
+    right = np.zeros(gt.num_markers, bool)
+    if len(marker_id):
+        distance, index = cKDTree(centres_px).query(np.where(known[:, None], centres, -1e9),
+                                                    distance_upper_bound=radius)
+        hit = np.isfinite(distance) & known
+        right = hit & (np.asarray(marker_id)[np.minimum(index, len(marker_id) - 1)] == gt.marker_id)
+    return hit, right
+
+
 def compare(run: Path, capture: Path, radius: float) -> dict[str, dict]:
     files = sorted((run / "detections").glob("cam*/f*.npz"))
     if not files:
@@ -67,15 +83,7 @@ def compare(run: Path, capture: Path, radius: float) -> dict[str, dict]:
             raise FileNotFoundError(f"{gt_path}: the capture has no ground truth for {path}")
         detected = load_npz(path, required=("points_px", "marker_id"))
         gt = ImageGroundTruth.load(gt_path)
-        centres = gt.points_px[:, 0].astype(np.float64)
-        known = np.isfinite(centres).all(axis=1)
-        hit = np.zeros(gt.num_markers, bool)
-        right = np.zeros(gt.num_markers, bool)
-        if len(detected["marker_id"]):
-            distance, index = cKDTree(detected["points_px"][:, 0]).query(np.where(known[:, None], centres, -1e9),
-                                                                         distance_upper_bound=radius)
-            hit = np.isfinite(distance) & known
-            right = hit & (detected["marker_id"][np.minimum(index, len(detected["marker_id"]) - 1)] == gt.marker_id)
+        hit, right = match_markers(gt, detected["points_px"][:, 0], detected["marker_id"], radius)
         visible = gt.crosspoint_visible.sum(axis=(1, 2))
         ratio = ratios(gt.points_px)
         centre = (gt.status > 0) & gt.point_visible[:, 0] & np.isfinite(ratio)

@@ -27,11 +27,13 @@ sys.path.insert(0, str(ROOT))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy.spatial import cKDTree  # noqa: E402
 
 from assets.garments import load_template  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
 from networks.detector import Detector, DetectorConfig, usable_points  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from capture_detections import match_markers  # noqa: E402
 
 
 def images_and_truth(rendered: Path | None, capture: Path | None) -> tuple[list[tuple[Path, Path]], Path]:
@@ -78,15 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         found = right_total = 0
         for image, gt, points, index, ids in located:
             voted, _ = detector.vote([image], index, points, ids) if len(points) else (ids, None)
-            centres = gt.points_px[:, 0].astype(np.float64)
-            known = np.isfinite(centres).all(axis=1)
-            hit = np.zeros(gt.num_markers, bool)
-            right = np.zeros(gt.num_markers, bool)
-            if len(points):
-                distance, nearest = cKDTree(points[:, 0]).query(np.where(known[:, None], centres, -1e9),
-                                                                distance_upper_bound=radius)
-                hit = np.isfinite(distance) & known
-                right = hit & (voted[np.minimum(nearest, len(voted) - 1)] == gt.marker_id)
+            hit, right = match_markers(gt, points[:, 0], voted, radius)
             for k, mask in enumerate((gt.status == 2, (gt.status == 1) & gt.point_visible[:, 0])):
                 counts[k] += [mask.sum(), (right & mask).sum()]
             found += int(hit.sum())
