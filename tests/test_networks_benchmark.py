@@ -33,3 +33,13 @@ def test_comparison_runs_round_robin_and_spare_gpus_join_the_heaviest(bench):
     spare = bench.placement(MAIN3, 5)
     assert spare["crosspoints_jitter"] == [0, 3] and spare["recognizer_jitter"] == [1, 4]
     assert spare["localizer_mix"] == [2]
+
+
+def test_a_run_s_synth_weight_can_be_changed_for_one_call(bench):
+    runs = bench.with_synth_weight(bench.RUNS, "localizer_mix", 0.0)
+    assert runs["localizer_mix"][1] == 0.0 and bench.RUNS["localizer_mix"][1] == 0.5  # a new table
+    assert {k: v for k, v in runs.items() if k != "localizer_mix"} == {
+        k: v for k, v in bench.RUNS.items() if k != "localizer_mix"}
+    assert runs["localizer_mix"][::2] == bench.RUNS["localizer_mix"][::2]  # task, stop and shards kept
+    with pytest.raises(ValueError, match="synth weight"):
+        bench.with_synth_weight(bench.RUNS, "localizer_mix", 1.5)
