@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
+from networks.evaluate import read_manifest  # noqa: E402
 
 #: the printed square's corners TL, TR, BL, BR (unit edge), as `ImageGroundTruth.points_px[:, 1:]`
 SQUARE = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float64)
@@ -70,20 +71,22 @@ def measure(gts: list[ImageGroundTruth], scale: float = 1.0) -> dict:
     return rows
 
 
-def rendered_gts(folder: Path, split: str | None) -> list[ImageGroundTruth]:
-    manifest = folder / "manifest.jsonl"
-    if not manifest.is_file():
-        raise FileNotFoundError(f"{folder}: no manifest.jsonl (not a factory dataset folder)")
-    entries = [json.loads(line) for line in manifest.read_text().splitlines() if line.strip()]
-    names = [e["name"] for e in entries if split is None or e.get("split") == split]
-    return [ImageGroundTruth.load(folder / "gt" / f"{name}.npz") for name in names]
+#: the splits no run trains on
+HELDOUT = ("val", "test")
 
 
-def capture_gts(folder: Path) -> list[ImageGroundTruth]:
-    files = sorted(folder.glob("cam*/f*_gt.npz"))
-    if not files:
-        raise FileNotFoundError(f"{folder}: no cam*/f*_gt.npz (not a capture folder)")
-    return [ImageGroundTruth.load(f) for f in files]
+def rendered_pairs(folder: Path, splits: tuple[str, ...] | None = None) -> list[tuple[Path, Path]]:
+    """(image, ground truth) paths of a factory dataset folder's images of `splits` (None: all)."""
+    return [(folder / e["image"], folder / e["gt"]) for e in read_manifest(folder)
+            if splits is None or e["split"] in splits]
+
+
+def capture_pairs(folder: Path) -> list[tuple[Path, Path]]:
+    """(image, ground truth) paths of every view of a capture folder (``cam*/f*.png``)."""
+    pairs = [(p, p.with_name(f"{p.stem}_gt.npz")) for p in sorted(folder.glob("cam*/f*.png"))]
+    if not pairs:
+        raise FileNotFoundError(f"{folder}: no cam*/f*.png (not a capture folder)")
+    return pairs
 
 
 def synth_gts(count: int, overrides: dict) -> list[ImageGroundTruth]:
@@ -106,11 +109,14 @@ def main(argv: list[str] | None = None) -> int:
     sources = {}
     if args.synth:
         overrides = json.loads(args.synth_config)
-        sources[f"synth {json.dumps(overrides)}" if overrides else "synth (defaults)"] = measure(synth_gts(args.synth, overrides))
+        name = f"synth {json.dumps(overrides)}" if overrides else "synth (defaults)"
+        sources[name] = measure(synth_gts(args.synth, overrides))
     if args.rendered:
-        sources[f"rendered {args.rendered.name}"] = measure(rendered_gts(args.rendered, args.split))
+        pairs = rendered_pairs(args.rendered, None if args.split is None else (args.split,))
+        sources[f"rendered {args.rendered.name}"] = measure([ImageGroundTruth.load(gt) for _, gt in pairs])
     if args.capture:
-        sources[f"capture {args.capture.name} x{args.scale:g}"] = measure(capture_gts(args.capture), args.scale)
+        sources[f"capture {args.capture.name} x{args.scale:g}"] = measure(
+            [ImageGroundTruth.load(gt) for _, gt in capture_pairs(args.capture)], args.scale)
     if not sources:
         parser.error("give at least one of --synth, --rendered, --capture")
     print("| source | markers | count | ratio p5 / p25 / median | share < 0.6 | size p5 / median / p95 px |")

@@ -69,9 +69,12 @@ def main(argv: list[str] | None = None) -> int:
     # the fork server first: it is started once per process, so its row includes the server's start
     for context in ("fork server", "spawn", "fork"):
         for pin in ((False, True) if cuda else (False,)):
-            rows.append({"context": context, "pin_memory": pin, **first_batches(context, args.workers, args.batches, pin)})
-    machine = f"{platform.node()}, {torch.cuda.get_device_name() if cuda else 'CPU'}, {multiprocessing.cpu_count()} CPUs"
-    print(f"# DataLoader start, {time.strftime('%Y-%m-%d')}, {machine}, {args.workers} workers, torch {torch.__version__}")
+            times = first_batches(context, args.workers, args.batches, pin)
+            rows.append({"context": context, "pin_memory": pin, **times})
+    device = torch.cuda.get_device_name() if cuda else "CPU"
+    machine = f"{platform.node()}, {device}, {multiprocessing.cpu_count()} CPUs"
+    print(f"# DataLoader start, {time.strftime('%Y-%m-%d')}, {machine}, {args.workers} workers, "
+          f"torch {torch.__version__}")
     print("| workers from | pin memory | first batch s | one batch from every worker s | batch "
           f"{args.batches} s |\n|---|---|---|---|---|")
     for r in rows:

@@ -588,8 +588,9 @@ def _print_tables(result: dict) -> None:
             continue
         loss = "-" if r["first_loss"] is None else f"{r['first_loss']:.4g} -> {r['last_loss']:.4g}"
         gpus = ",".join(map(str, r.get("gpus") or [])) or "-"
-        start = r.get("startup") or {}
-        start = ", ".join(_number(start.get(k), ".1f") for k in ("setup_s", "first_batch_s", "first_step_s", "step_50_s"))
+        startup = r.get("startup") or {}
+        start = ", ".join(_number(startup.get(k), ".1f") for k in ("setup_s", "first_batch_s", "first_step_s",
+                                                                    "step_50_s"))
         print(f"| {name} | {weight} | {gpus} | {r.get('workers', '-')} | {r['step']} / {r['target']} | "
               f"{r['steps_this_call']}, {r['seconds']:.0f}, {r.get('steps_per_s', 0):.2f} | {start} | {loss} |")
     if result["mixes"]:

@@ -48,7 +48,8 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
         for name, mask in groups(gt).items():
             pick = np.flatnonzero(mask)
             if len(pick):
-                ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), gt.points_px[pick].astype(np.float64))
+                points = gt.points_px[pick].astype(np.float64)
+                ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), points)
                 counts[name][0] += len(pick)
                 counts[name][1] += int((ids == gt.marker_id[pick]).sum())
     return {name: {"markers": n, "top1": right / max(n, 1)} for name, (n, right) in counts.items()}

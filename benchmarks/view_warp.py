@@ -20,6 +20,7 @@ a table and a `RESULT {json}` line; writes results.json to --out.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import platform
 import shutil
@@ -36,32 +37,30 @@ import torch  # noqa: E402
 from assets.fileio import save_json, save_npz  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, localizer_targets  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
-from networks.evaluate import evaluate  # noqa: E402
+from networks.evaluate import evaluate, read_manifest  # noqa: E402
+
+# benchmarks/networks.py, whose held-out view of a rendered folder this benchmark shares (by path:
+# its module name is the networks package's)
+_spec = importlib.util.spec_from_file_location("bench_networks", ROOT / "benchmarks" / "networks.py")
+bench_networks = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench_networks)
 
 ARMS = {"no warp (baseline)": False, "view warp": True}
-FILES = ("images", "gt", "meta", "template.npz", "config.json", "splits.json")
+FILES = ("images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl")
 
 
-def localizer_folder(rendered: Path, out: Path, split: str | None = None) -> Path:
-    """A dataset folder in `out` for the localizer: the rendered folder's files linked, its manifest
-    (only `split`'s images, renamed to split 'heldout', when given) and samples holding the cells."""
-    name = "heldout" if split else "train"
-    view = out / name
+def localizer_folder(rendered: Path, out: Path) -> Path:
+    """A dataset folder `out/rendered` for the localizer: the rendered folder's files linked and
+    samples holding only the cells (`localizer_targets` of each image's ground truth)."""
+    view = out / "rendered"
     (view / "samples").mkdir(parents=True, exist_ok=True)
     for item in FILES:
         if not (view / item).exists():
             (view / item).symlink_to((rendered / item).resolve())
-    manifest = rendered / "manifest.jsonl"
-    if not manifest.is_file():
-        raise FileNotFoundError(f"{rendered}: no manifest.jsonl (not a factory dataset folder)")
-    entries = [json.loads(line) for line in manifest.read_text().splitlines() if line.strip()]
-    if split:
-        entries = [dict(e, split="heldout") for e in entries if e["split"] != "train"]
-    for e in entries:
+    for e in read_manifest(rendered):
         target = view / e["samples"]
         if not target.exists():
             save_npz(target, {"cells": localizer_targets(ImageGroundTruth.load(rendered / e["gt"]))})
-    (view / "manifest.jsonl").write_text("".join(json.dumps(e) + "\n" for e in entries))
     return view
 
 
@@ -87,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     started = time.perf_counter()
     train_view = localizer_folder(args.rendered, args.out)
-    heldout = localizer_folder(args.rendered, args.out, split="heldout")
+    heldout = bench_networks.heldout(train_view, args.out)  # its validation and test images
     processes = {}
     for arm, warp in ARMS.items():
         folder = args.out / ("warp" if warp else "plain")

@@ -34,16 +34,14 @@ from networks.detector import Detector, DetectorConfig, usable_points  # noqa: E
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from capture_detections import match_markers  # noqa: E402
+from foreshortening import HELDOUT, capture_pairs, rendered_pairs  # noqa: E402
 
 
 def images_and_truth(rendered: Path | None, capture: Path | None) -> tuple[list[tuple[Path, Path]], Path]:
     """(image, ground truth) pairs and the template of a rendered dataset's held-out split or a capture."""
     if rendered is not None:
-        entries = [json.loads(line) for line in (rendered / "manifest.jsonl").read_text().splitlines() if line.strip()]
-        pairs = [(rendered / e["image"], rendered / e["gt"]) for e in entries if e["split"] != "train"]
-        return pairs, rendered / "template.npz"
-    pairs = [(p, p.with_name(p.stem + "_gt.npz")) for p in sorted(capture.glob("cam*/f*.png"))]
-    return pairs, capture / "template.npz"
+        return rendered_pairs(rendered, HELDOUT), rendered / "template.npz"
+    return capture_pairs(capture), capture / "template.npz"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -43,9 +43,9 @@ from torch.utils.data import Dataset
 from tqdm import tqdm
 
 from assets.fileio import load_json, load_npz
+from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
-from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, crosspoint_markers, localizer_targets,
                                         marker_cells, recognizer_crops)
 from assets.pattern.spec import PatternSpec

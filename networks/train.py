@@ -123,8 +123,7 @@ def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoa
     if num_workers == 0:
         return DataLoader(dataset, **kwargs)
     return DataLoader(dataset, num_workers=num_workers, multiprocessing_context=worker_context("networks.train"),
-                      worker_init_fn=one_thread,
-                      persistent_workers=True, **kwargs)
+                      worker_init_fn=one_thread, persistent_workers=True, **kwargs)
 
 
 def init_weights(model: torch.nn.Module, config: TrainConfig, spec: PatternSpec, class_ids: np.ndarray | None

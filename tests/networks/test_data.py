@@ -16,7 +16,7 @@ from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, refe
 from assets.geometry import apply_homography
 from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
 from networks.augment import Augment, ViewWarp, warp_image
-from networks.data import MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids
+from networks.data import _VIEW, MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids
 from networks.synth import PatternSynthesizer, SynthConfig
 
 SPEC = PatternSpec(rows=8, cols=8, num_ids=512)
@@ -138,7 +138,7 @@ def test_a_view_warp_moves_the_image_and_its_targets_together(folder):
         assert torch.equal(item["image"], data[i]["image"])  # seeded per (seed, epoch, index)
         assert torch.equal(never[i]["image"], plain[i]["image"])  # probability 0: the plain crop
         # the item's view, drawn as the dataset draws it
-        view = warp.homography(np.random.default_rng([5, 0, i, 8]), (192, 128), (96, 96))
+        view = warp.homography(np.random.default_rng([5, 0, i, _VIEW]), (192, 128), (96, 96))
         png = cv2.imread(str(folder / entry["image"]))[:, :, ::-1]
         assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), warp_image(png, view, (96, 96)))
         gt = ImageGroundTruth.load(folder / entry["gt"])

@@ -5,8 +5,8 @@ import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import pytest
 
