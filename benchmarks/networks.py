@@ -9,12 +9,15 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    (`placement`: one GPU per main run while there are GPUs, spare GPUs join the heaviest main runs as
    DistributedDataParallel ranks through torchrun, the comparison runs share GPUs).  The main runs
    (`MAIN`, the default of --runs): localizer_mix (rendered train split + shards, synth weight 0.5),
-   recognizer_jitter and crosspoints_jitter (shards + rendered crops, synth weight 0.75, the crops
+   recognizer_partial and crosspoints_jitter (shards + rendered crops, synth weight 0.75, the crops
    cut from five points jittered by `CROP_JITTER_PX`, as the Detector cuts them from the
    localizer's: shards written so, rendered crops cut anew per item, `TrainConfig.crop_jitter_px`;
    in the fifth run the jittered recognizer reached a validation loss of 0.164 on exact rendered
-   crops against 0.263 for the exact-crop one at the same step) train until the budget's end.
-   Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops, and
+   crops against 0.263 for the exact-crop one at the same step; the recognizer's crops include
+   partial markers with a visible centre, `TrainConfig.recognizer_partial`, since the eighth run's
+   whole-marker recognizer read them 0.37 right) train until the budget's end.
+   Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops,
+   recognizer_jitter (jittered crops of whole markers only), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  Data workers
@@ -25,7 +28,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
 3. Evaluate each run's last.pt on the rendered dataset's validation and test images (`--rendered`, a
    factory dataset folder of Blender renders, read through a view in --out whose `samples/` are
    built there from the images and saved ground truth when the folder has none, so only images, gt,
-   the manifest and template.npz need to travel and the folder itself is left as it is).
+   the manifest and template.npz need to travel and the folder itself is left as it is); the three
+   main runs chained as `networks.Detector`; and each recognizer's top-1 given the true points,
+   whole against partial markers, beside the checkpoint the main recognizer started from (--init).
 4. Inference throughput of `networks.Detector` (the three main runs chained, float32) on synthesized
    images framed as the renders (markers scaled with the image side; the localizer sees them at the
    scale it was trained on, `DetectorConfig.localizer_scale` = 512 / side), on the GPU and on the CPU,
@@ -67,6 +72,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.append(str(ROOT / "benchmarks"))  # the other scripts, after the project (this file shadows networks/)
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -97,18 +103,22 @@ RUNS = {
     "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2, "localizer"),
     "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
     "recognizer_jitter": ("recognizer", 0.75, None, 6, "recognizer_jitter"),
+    "recognizer_partial": ("recognizer", 0.75, None, 6, "recognizer_partial"),
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
 }
-MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_jitter", "crosspoints": "crosspoints_jitter"}
+MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_jitter"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
 #: the median, 1.18 sigma for a 2D Gaussian
 CROP_JITTER_PX = 1.0
-#: shard folder -> (task, synthetic images (the crop tasks keep up to 32 crops of each), crop jitter px)
-SHARDS = {"localizer": ("localizer", 19200, 0.0), "recognizer": ("recognizer", 9600, 0.0),
-          "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX), "crosspoints": ("crosspoints", 4800, 0.0),
-          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX)}
+#: shard folder -> (task, synthetic images (the crop tasks keep up to 32 crops of each), crop jitter px,
+#: recognizer crops of partial markers too (`SynthConfig.recognizer_partial`, `TrainConfig.recognizer_partial`))
+SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "recognizer": ("recognizer", 9600, 0.0, False),
+          "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX, False),
+          "recognizer_partial": ("recognizer", 9600, CROP_JITTER_PX, True),
+          "crosspoints": ("crosspoints", 4800, 0.0, False),
+          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False)}
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
 #: localizer 15.3, recognizer 14.2, crosspoints 8.2 steps/s)
 GPU_COST = {"localizer": 1.0, "recognizer": 1.1, "crosspoints": 1.9}
@@ -202,9 +212,9 @@ def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: 
     counts = [SHARDS[f][1] for f in folders]
     started, results = time.perf_counter(), {}
     for k, folder in enumerate(folders):
-        task, count, jitter = SHARDS[folder]
+        task, count, jitter, partial = SHARDS[folder]
         left = seconds - (time.perf_counter() - started)
-        config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter)
+        config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter, recognizer_partial=partial)
         results[folder] = write_shards(out / "shards" / folder, task, spec, 4 if smoke else count, config, ids,
                                        workers, images_per_part=4 if smoke else 64,
                                        time_limit_s=max(left * count / sum(counts[k:]), 0.0), progress=False)
@@ -273,6 +283,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
     return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR, warmup_steps=WARMUP,
                        pretrained=None if start else pretrained.get(task), init=start,
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
+                       recognizer_partial=SHARDS[folder][3],
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight)
 
@@ -419,6 +430,29 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> d
     return results
 
 
+def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str] | None = None
+                         ) -> dict[str, dict]:
+    """The recognizers' top-1 given the true five points on the held-out renders, whole against partial
+    markers (`partial_ids.top1`): every recognizer run's last.pt, and the checkpoint the main one
+    started from (`--init`), so a run's change shows beside its start in the same call."""
+    from assets.garments import load_template
+    from networks.detector import Detector
+
+    from foreshortening import rendered_pairs  # benchmarks/ (this script's folder)
+    from partial_ids import top1
+
+    others = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "crosspoints")]
+    recognizers = {f"{name} (step {run_step(out / name / 'run')})": out / name / "run" / "last.pt"
+                   for name, (task, *_) in RUNS.items()
+                   if task == "recognizer" and (out / name / "run" / "last.pt").exists()}
+    if (init or {}).get(MAIN["recognizer"]):
+        recognizers[f"{MAIN['recognizer']}, its --init"] = Path(init[MAIN["recognizer"]])
+    tables = load_template(test / "template.npz").layout.tables()
+    pairs = rendered_pairs(test)
+    return {label: top1(Detector.from_checkpoints(others[0], path, others[1], device=device, tables=tables), pairs)
+            for label, path in recognizers.items()}
+
+
 def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False) -> list[dict]:
     """Detector images per second on `repeats` synthesized images of each size, framed as the renders
     (marker size grows with the image side; the localizer sees the image at 512 / side, the scale it
@@ -524,9 +558,10 @@ def main() -> None:
     train_s = time.perf_counter() - t0
     metrics = evaluate_runs(args.out, test, args.device)
     mixes = compare_mixes(args.out)
-    speed, chain = [], {}
+    speed, chain, partial_ids = [], {}, {}
     if all(name in metrics for name in MAIN.values()):
         chain = evaluate_chain(args.out, test, args.device, smoke)
+        partial_ids = evaluate_partial_ids(args.out, test, args.device, init)
         sizes = [int(v) for v in args.sizes.split(",") if v] if not smoke else [256]
         speed = throughput(args.out, args.device, tuple(sizes), 4 if args.device.startswith("cuda") else 1, smoke)
         cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
@@ -537,12 +572,12 @@ def main() -> None:
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
               "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP}
                            for t, (s, b) in SCHEDULE.items()},
-              "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2]}
-                       for name, (t, w, s, _, f) in RUNS.items()},
+              "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2],
+                              "recognizer_partial": SHARDS[f][3]} for name, (t, w, s, _, f) in RUNS.items()},
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "detector": chain,
-              "throughput": speed,
+              "partial_ids": partial_ids, "throughput": speed,
               "wall_s": time.monotonic() - started}
     save_json(args.out / "results.json", result)
     if args.export is not None:
@@ -622,6 +657,12 @@ def _print_tables(result: dict) -> None:
               f"{points} | {xp['visibility']['precision']:.3f} / {xp['visibility']['recall']:.3f} | "
               f"{_number(xp['error_px']['median'], '.3f')} / {_number(xp['error_px']['p95'], '.3f')} | "
               f"{d['seconds_per_image']:.3f} | {_stages(d, d['images'])} |")
+    if result.get("partial_ids"):
+        print(f"\n| recognizer, top-1 given the true points ({result['heldout_images']} held-out renders) "
+              "| markers | count | top-1 |\n|---|---|---|---|")
+        for label, groups in result["partial_ids"].items():
+            for group, r in groups.items():
+                print(f"| {label} | {group} | {r['markers']} | {r['top1']:.3f} |")
     print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
           "| first image: found / shown | stages s/image: localize, recognize, vote, complete, crosspoints "
           "|\n|---|---|---|---|---|---|---|")

@@ -1,8 +1,9 @@
 """How well does the Marker Recognizer read partial markers?  Its top-1 given the true five points, for
-markers with all five points visible against partial ones (centre visible, a point hidden, all five
-on the fabric), on a rendered dataset's held-out images and/or a capture's views.  The localizer and
-the votes take no part: this isolates the recognizer, whose training crops are whole markers only
-(`assets.pattern.observation.recognizer_crops`).
+markers with all five points visible against partial ones (the others of
+`assets.pattern.observation.recognizer_markers(partial=True)`: centre visible, a point hidden, a sane
+crop of five points on the fabric), on a rendered dataset's held-out images and/or a capture's views.
+The localizer and the votes take no part: this isolates the recognizer, whose training crops are whole
+markers only unless it was trained with `TrainConfig.recognizer_partial`.
 
     python benchmarks/partial_ids.py --checkpoints loc.pt recognizer_jitter.pt xp.pt --rendered .bench/rendered2 \
         [--capture .bench/cap8/capture --frames f000120]
@@ -25,7 +26,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from assets.garments import load_template  # noqa: E402
-from assets.pattern.observation import ImageGroundTruth  # noqa: E402
+from assets.pattern.observation import ImageGroundTruth, recognizer_markers  # noqa: E402
 from networks.detector import Detector  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -34,10 +35,13 @@ from vote_settings import images_and_truth  # noqa: E402
 GROUPS = ("all five points visible", "partial: centre visible, a point hidden")
 
 
-def groups(gt: ImageGroundTruth) -> dict[str, np.ndarray]:
-    on_fabric = np.isfinite(gt.points_px).all(axis=(1, 2)) & gt.point_visible[:, 0] & (gt.status > 0)
+def groups(gt: ImageGroundTruth, spec) -> dict[str, np.ndarray]:
+    """Per group, (M,) bool over `gt`'s markers: whole markers, and the partial ones the recognizer
+    trains on with `recognizer_partial` (`recognizer_markers`)."""
+    taken = np.zeros(len(gt.marker_id), bool)
+    taken[recognizer_markers(gt, spec, partial=True)] = True
     whole = gt.point_visible.all(axis=1)
-    return dict(zip(GROUPS, (on_fabric & whole, on_fabric & ~whole)))
+    return dict(zip(GROUPS, (taken & whole, taken & ~whole)))
 
 
 def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
@@ -45,7 +49,7 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
     for image_path, gt_path in pairs:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
         gt = ImageGroundTruth.load(gt_path)
-        for name, mask in groups(gt).items():
+        for name, mask in groups(gt, detector.spec).items():
             pick = np.flatnonzero(mask)
             if len(pick):
                 points = gt.points_px[pick].astype(np.float64)

@@ -57,6 +57,11 @@ class TrainConfig:
     crops.  view_warp (localizer, with augment): rendered training images are seen through a random
     zoom, rotation and compression (`networks.augment.ViewWarp`) with targets made anew, against
     learning the few rendered images by heart; not in the reference, which trained on many more.
+    recognizer_partial (recognizer): train on crops of partial markers with a visible centre as well
+    as whole ones (`assets.pattern.observation.recognizer_markers`; rendered crops cut from the
+    image, shards written with `networks.synth write --recognizer-partial`), since the Detector
+    recognizes every marker the localizer finds; validation stays on whole markers.  False: the
+    reference's crops, whole markers only.
     """
 
     task: str
@@ -81,6 +86,7 @@ class TrainConfig:
     init: str | None = None
     crop_jitter_px: float = 0.0
     view_warp: bool = True
+    recognizer_partial: bool = False
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:

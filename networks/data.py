@@ -47,7 +47,7 @@ from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, crosspoint_markers, localizer_targets,
-                                        marker_cells, recognizer_crops)
+                                        marker_cells, recognizer_crops, recognizer_markers)
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
@@ -185,11 +185,15 @@ class RenderedDataset(_Items, Dataset):
     epoch, index)), as the Detector cuts crops from the localizer's points; crosspoint targets follow
     the moved crop (`ImageGroundTruth.jittered`).  The markers are those of the stored crops, picked
     on the true points (`crosspoint_markers`' crop-sanity test); a jittered crosspoint crop that fails
-    that test (the Detector would not cut it) is cut from the true points.  0: the stored exact crops."""
+    that test (the Detector would not cut it) is cut from the true points.  0: the stored exact crops.
+    partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
+    (whole markers and partial ones with a visible centre), their crops cut from the image
+    (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
-                 crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None):
+                 crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
+                 partial_markers: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -206,28 +210,37 @@ class RenderedDataset(_Items, Dataset):
         if view_warp is not None and task != "localizer":
             raise ValueError(f"view_warp is for the localizer's images, not the {task} task's crops")
         self.view_warp = view_warp
+        if partial_markers and task != "recognizer":
+            raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
+        self.partial_markers = bool(partial_markers)
         self._markers: dict[int, dict[str, np.ndarray]] = {}
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
         if not self.entries:
             raise ValueError(f"{self.root}: no images in split {split!r}")
-        needed = ("samples",) if task != "localizer" else ("samples", "image") + (("gt",) if view_warp else ())
+        needed = ("samples", "image") + (("gt",) if view_warp or partial_markers else ())
+        if task != "localizer" and not partial_markers:
+            needed = ("samples",)
         missing = [e[k] for e in self.entries for k in needed if not (self.root / e[k]).is_file()]
         if missing:
             raise ValueError(f"{self.root}: {len(missing)} file(s) of the manifest are missing, e.g. {missing[:3]}")
+        self.spec = self.codebook = None
+        if task == "crosspoints" or self.crop_jitter_px > 0 or partial_markers:  # references, or crops cut anew
+            self.spec = spec if spec is not None else dataset_spec(self.root)
         if task == "localizer":
             self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
         else:
             key = _CROP_KEYS[task][1]
-            counts = [len(load_npz(self.root / e["samples"], only=(key,))[key])
-                      for e in tqdm(self.entries, desc=f"index {split} {task}", disable=len(self.entries) < 1000)]
+            entries = tqdm(self.entries, desc=f"index {split} {task}", disable=len(self.entries) < 1000)
+            if partial_markers:
+                counts = [len(recognizer_markers(ImageGroundTruth.load(self.root / e["gt"]), self.spec, True))
+                          for e in entries]
+            else:
+                counts = [len(load_npz(self.root / e["samples"], only=(key,))[key]) for e in entries]
             image = np.repeat(np.arange(len(self.entries)), counts)
             crop = np.arange(len(image)) - np.repeat(np.cumsum(counts) - counts, counts)
             self._index = np.stack([image, crop], axis=1).astype(np.int64)
-        self.spec = self.codebook = None
-        if task == "crosspoints" or self.crop_jitter_px > 0:  # references, or crops cut anew
-            self.spec = spec if spec is not None else dataset_spec(self.root)
         if task == "crosspoints":
             self.codebook = generate_codebook(self.spec)  # before DataLoader workers fork, so they share it
 
@@ -255,8 +268,10 @@ class RenderedDataset(_Items, Dataset):
                 cells = cells[i0:i0 + height // CELL, j0:j0 + width // CELL]
             return self._item(index, image=image, cells=cells)
         if self.task == "recognizer":
-            if self.crop_jitter_px > 0:
-                points = arrays["points_px"][crop] + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
+            if self._cut_anew:
+                points = arrays["points_px"][crop]
+                if self.crop_jitter_px > 0:
+                    points = points + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
                 cut = unwarp(arrays["image"], self.spec, RECOGNIZER_CROP, points)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
@@ -292,7 +307,7 @@ class RenderedDataset(_Items, Dataset):
                 raise ValueError(f"{path}: cells has shape {arrays['cells'].shape}, expected "
                                  f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
             return self._keep(image_index, arrays)
-        if self.crop_jitter_px > 0:
+        if self._cut_anew:
             return self._keep(image_index, self._jitter_source(image_index))
         arrays = load_npz(path, only=_CROP_KEYS[self.task])
         count = len(arrays[_CROP_KEYS[self.task][1]])
@@ -308,10 +323,17 @@ class RenderedDataset(_Items, Dataset):
             raise ValueError(f"{path}: " + "; ".join(problems))
         return self._keep(image_index, arrays)
 
+    @property
+    def _cut_anew(self) -> bool:
+        """Crops are cut from the image per item (crop jitter, or partial markers), not read stored."""
+        return self.crop_jitter_px > 0 or self.partial_markers
+
     def _jitter_source(self, image_index: int) -> dict[str, np.ndarray]:
-        """What jittered crops are cut from: the image, and the ground truth of the markers of its
+        """What crops cut anew are cut from: the image, and the ground truth of the markers of its
         stored crops (picked as `recognizer_crops` and `crosspoint_crops` pick them), checked against
-        the samples: the recognizer's five true points and IDs, the crosspoints' `ImageGroundTruth`."""
+        the samples: the recognizer's five true points and IDs, the crosspoints' `ImageGroundTruth`.
+        With partial_markers, the recognizer's markers of `recognizer_markers(partial=True)`, which
+        the stored crops (whole markers) do not hold."""
         entry = self.entries[image_index]
         if "gt" not in entry:
             raise ValueError(f"{self.root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' entry, which "
@@ -319,10 +341,10 @@ class RenderedDataset(_Items, Dataset):
         gt = ImageGroundTruth.load(self.root / entry["gt"])
         key = _CROP_KEYS[self.task][1]
         if self.task == "recognizer":
-            pick = np.flatnonzero(gt.point_visible.all(axis=1))
+            pick = recognizer_markers(gt, self.spec, self.partial_markers)
         else:
             pick = crosspoint_markers(gt, self.spec)[0]
-        stored = load_npz(self.root / entry["samples"], only=(key,))[key]
+        stored = gt.marker_id[pick] if self.partial_markers else load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
             raise ValueError(f"{self.root / entry['gt']}: its markers do not match the {self.task} crops of "
                              f"{self.root / entry['samples']}")
@@ -421,12 +443,13 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
                 index: int = 0) -> tuple[np.ndarray, ...]:
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
-    see them (the localizer finds those).  config.crop_jitter_px > 0: cut from jittered points
+    see them (the localizer finds those); recognizer crops are of whole markers only unless
+    config.recognizer_partial.  config.crop_jitter_px > 0: cut from jittered points
     (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
-        return recognizer_crops(image, gt, spec)
+        return recognizer_crops(image, gt, spec, partial=config is not None and config.recognizer_partial)
     made = crosspoint_crops(image, gt, spec)
     centre = spec.crosspoints_per_side // 2
     return tuple(a[made[3][:, centre, centre]] for a in made)

@@ -86,7 +86,8 @@ class SynthConfig:
     averaging; node_px: spacing of the nodes where F^-1 is solved.  crop_jitter_px: crop tasks cut
     their crops from five points moved by Gaussian noise of this standard deviation
     (`ImageGroundTruth.jittered`), as the Detector cuts them from the localizer's points (0: exact
-    points, the reference's crops).
+    points, the reference's crops).  recognizer_partial: recognizer crops of partial markers with a
+    visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones.
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -117,6 +118,7 @@ class SynthConfig:
     node_px: int = 8
     seed: int = 0
     crop_jitter_px: float = 0.0
+    recognizer_partial: bool = False
 
     def __post_init__(self) -> None:
         w, h = self.image_size

@@ -205,12 +205,14 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     size = (config.image_size, config.image_size) if task == "localizer" else None  # crops: the synthesizer's own
 
     jitter = config.crop_jitter_px if task != "localizer" else 0.0
+    partial = config.recognizer_partial and task == "recognizer"
 
     def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
               stored: bool = True, crop_jitter_px: float = 0.0) -> Dataset:
         if shards is None or not stored:
             synth_config = None if task == "localizer" else SynthConfig(image_size=(256, 256), centred=True,
-                                                                         crop_jitter_px=crop_jitter_px)
+                                                                         crop_jitter_px=crop_jitter_px,
+                                                                         recognizer_partial=partial)
             return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
                                 augment=with_augment, marker_ids=marker_ids)
         dataset = ShardDataset(shards, task, with_augment, spec, seed)
@@ -219,6 +221,11 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
             raise ValueError(f"{shards}: crops cut with a jitter of {written} px, but this run's crop_jitter_px is "
                              f"{crop_jitter_px}; write shards with --crop-jitter {crop_jitter_px} or train with "
                              f"--crop-jitter {written}")
+        written_partial = bool(dataset.meta["synth"].get("recognizer_partial", False))
+        if task == "recognizer" and written_partial != partial:
+            raise ValueError(f"{shards}: recognizer crops of {'whole and partial' if written_partial else 'whole'} "
+                             f"markers, but this run's recognizer_partial is {partial}; write shards "
+                             f"{'with' if partial else 'without'} --recognizer-partial")
         if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
                                                   else np.arange(spec.num_ids), marker_ids).all():
             raise ValueError(f"{shards}: the shards hold marker IDs outside the {len(marker_ids)} of this run; "
@@ -235,7 +242,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
-                               crop_jitter_px=jitter, view_warp=view_warp)
+                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
@@ -528,6 +535,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "view_warp": False if args.no_view_warp else None,
+                 "recognizer_partial": True if args.recognizer_partial else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
     if args.pretrained is not None:
@@ -568,6 +576,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="train without augmentation (photometric, and the localizer's view warp)")
     parser.add_argument("--no-view-warp", action="store_true",
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
+    parser.add_argument("--recognizer-partial", action="store_true",
+                        help="recognizer: train on crops of partial markers with a visible centre too (shards need "
+                        "the same: networks.synth write --recognizer-partial)")
     parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")

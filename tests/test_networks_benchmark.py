@@ -8,7 +8,7 @@ def bench(load_benchmark):
     return load_benchmark("networks")
 
 
-MAIN3 = ["localizer_mix", "recognizer_jitter", "crosspoints_jitter"]
+MAIN3 = ["localizer_mix", "recognizer_partial", "crosspoints_jitter"]
 
 
 def test_no_gpu_is_one_process_each(bench):
@@ -22,7 +22,7 @@ def test_one_gpu_is_shared(bench):
 def test_two_gpus_give_the_crosspoint_run_one_to_itself(bench):
     placed = bench.placement(MAIN3, 2)
     assert placed["crosspoints_jitter"] == [0]
-    assert placed["recognizer_jitter"] == placed["localizer_mix"] == [1]
+    assert placed["recognizer_partial"] == placed["localizer_mix"] == [1]
     assert list(placed) == MAIN3  # the caller's order
 
 
@@ -31,7 +31,7 @@ def test_comparison_runs_round_robin_and_spare_gpus_join_the_heaviest(bench):
     assert sorted(g for name in MAIN3 for g in placed[name]) == [0, 1, 2]
     assert placed["localizer_synth"] == [0]
     spare = bench.placement(MAIN3, 5)
-    assert spare["crosspoints_jitter"] == [0, 3] and spare["recognizer_jitter"] == [1, 4]
+    assert spare["crosspoints_jitter"] == [0, 3] and spare["recognizer_partial"] == [1, 4]
     assert spare["localizer_mix"] == [2]
 
 

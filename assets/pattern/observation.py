@@ -158,14 +158,31 @@ def marker_cells(width: int, height: int, points_px: np.ndarray, present: np.nda
     return out
 
 
-def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:
+def recognizer_markers(gt: ImageGroundTruth, spec: PatternSpec, partial: bool = False) -> np.ndarray:
+    """(N,) int64 indices into `gt` of the markers that get a Marker Recognizer crop: those whose five
+    localization points are visible (the reference's crops); partial: also partial markers whose
+    centre is visible (the localizer finds those, so the Detector recognizes them) and whose crop is
+    sane (`crosspoint_markers`: five points on the fabric, in front of the camera, a homography
+    that describes a marker), in index order."""
+    whole = gt.point_visible.all(axis=1)
+    if not partial:
+        return np.flatnonzero(whole)
+    keep = whole.copy()
+    sane = crosspoint_markers(gt, spec)[0]
+    keep[sane[gt.point_visible[sane, 0]]] = True
+    return np.flatnonzero(keep)
+
+
+def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, partial: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Marker recognizer samples: (crops (N, 96, 96, C) of the image's dtype, marker IDs (N,) int32)
-    for every marker whose five localization points are visible, unwarped by `RECOGNIZER_CROP`.
+    of the markers of `recognizer_markers` (every marker whose five localization points are visible;
+    partial: partial markers with a visible centre too), unwarped by `RECOGNIZER_CROP`.
 
     spec: the garment's pattern spec (`surface.spec`; the panels' specs differ only in their tiling,
     which crops do not depend on)."""
     image = _image(image, gt)
-    pick = np.flatnonzero(gt.point_visible.all(axis=1))
+    pick = recognizer_markers(gt, spec, partial)
     return _unwarp(image, spec, RECOGNIZER_CROP, gt.points_px[pick]), gt.marker_id[pick]
 
 

@@ -1,5 +1,5 @@
-"""Crosspoint crop targets (`assets.pattern.observation`): which markers get a crop, and that every
-visible crosspoint target lies in its crop."""
+"""Crop targets (`assets.pattern.observation`): which markers get a recognizer or crosspoint crop, and
+that every visible crosspoint target lies in its crop."""
 
 import numpy as np
 import pytest
@@ -11,6 +11,8 @@ from assets.pattern.observation import (
     crosspoint_crops,
     crosspoint_markers,
     is_convex_layout,
+    recognizer_crops,
+    recognizer_markers,
     sane_crop_homography,
     training_samples,
 )
@@ -98,3 +100,25 @@ def test_sane_crop_homography_rejects_each_degenerate_fit():
     assert sane_crop_homography(SPEC, CROSSPOINT_CROP, points[3:4], homography[3:4], max_fit_cells=10.0)[0]
     nan = np.full((1, 5, 2), np.nan)
     assert not sane_crop_homography(SPEC, CROSSPOINT_CROP, nan, np.full((1, 3, 3), np.nan))[0]
+
+
+def test_partial_recognizer_crops_add_partial_markers_with_a_visible_centre_and_a_sane_crop(markers):
+    crosspoints, visible = markers
+    rc = localization_rc(SPEC)
+    flat = flat_marker()
+    # whole; a corner hidden; the centre hidden; folded (centre hidden); edge-on with a corner hidden
+    crosspoints = np.stack([flat, flat, flat, crosspoints[2], crosspoints[3]])
+    seen = np.ones((5, K, K), bool)
+    seen[1, rc[1, 0], rc[1, 1]] = False
+    seen[2, rc[0, 0], rc[0, 1]] = False
+    seen[3] = visible[2]
+    seen[4, rc[4, 0], rc[4, 1]] = False
+    gt = ground_truth(crosspoints, seen)
+    np.testing.assert_array_equal(recognizer_markers(gt, SPEC), [0])
+    np.testing.assert_array_equal(recognizer_markers(gt, SPEC, partial=True), [0, 1])
+    image = np.random.default_rng(0).integers(0, 256, (256, 256, 3), np.uint8)
+    crops, ids = recognizer_crops(image, gt, SPEC, partial=True)
+    np.testing.assert_array_equal(ids, [0, 1])
+    # the partial marker's crop is its five points' unwarp, as the whole one's (the same points)
+    assert crops.shape == (2, 96, 96, 3) and np.array_equal(crops[0], crops[1])
+    assert np.array_equal(crops[:1], recognizer_crops(image, gt, SPEC)[0])

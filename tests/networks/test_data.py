@@ -14,9 +14,11 @@ from torch.utils.data import DataLoader
 from assets.fileio import save_json, save_npz
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
 from assets.geometry import apply_homography
-from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops,
+                                        recognizer_markers)
 from networks.augment import Augment, ViewWarp, warp_image
-from networks.data import _VIEW, MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids
+from networks.data import (_VIEW, MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids,
+                           synth_crops)
 from networks.synth import PatternSynthesizer, SynthConfig
 
 SPEC = PatternSpec(rows=8, cols=8, num_ids=512)
@@ -205,6 +207,40 @@ def test_jittered_recognizer_crops_are_cut_anew_from_moved_points(folder):
     assert not torch.equal(jittered[0]["crop"], RenderedDataset(folder, "train", "recognizer", crop_jitter_px=1.5)[0]["crop"])
     with pytest.raises(ValueError, match="only for the crop tasks"):
         RenderedDataset(folder, "train", "localizer", crop_jitter_px=1.0)
+
+
+
+def test_partial_marker_items_add_the_partial_markers_crops_cut_from_the_image(folder):
+    whole = RenderedDataset(folder, "train", "recognizer")
+    partial = RenderedDataset(folder, "train", "recognizer", partial_markers=True)
+    expected, stored = [], {}
+    for e in _entries(folder, "train"):
+        gt = ImageGroundTruth.load(folder / e["gt"])
+        expected.extend(gt.marker_id[recognizer_markers(gt, SPEC, partial=True)])
+        crops = np.load(folder / e["samples"])
+        stored.update({(e["name"], int(m)): c for m, c in zip(crops["recognizer_ids"], crops["recognizer_crops"])})
+    assert len(whole) < len(partial) == len(expected)  # the image borders cut some markers
+    assert [int(partial[i]["marker_id"]) for i in range(len(partial))] == [int(m) for m in expected]
+    # whole markers' crops are the stored ones (the same unwarp of the same points and PNG)
+    names = [partial.entries[i]["name"] for i in partial._index[:, 0]]
+    same = [np.array_equal(partial[i]["crop"].permute(1, 2, 0).numpy(), stored[(n, int(partial[i]["marker_id"]))])
+            for i, n in enumerate(names) if (n, int(partial[i]["marker_id"])) in stored]
+    assert len(same) == len(whole) and all(same)
+    with pytest.raises(ValueError, match="partial_markers is for the recognizer"):
+        RenderedDataset(folder, "train", "crosspoints", partial_markers=True)
+
+
+def test_synthesized_recognizer_crops_take_partial_markers_when_configured(codebook):
+    config = SynthConfig(image_size=(128, 128), marker_px=(40, 56), boundary_probability=1.0)
+    synth = PatternSynthesizer(SPEC, config, codebook)
+    counts = np.zeros(2, int)
+    for index in range(4):
+        image, gt = synth.sample(index)
+        for k, partial in enumerate((False, True)):
+            crops, ids = synth_crops("recognizer", image, gt, SPEC, config.replace(recognizer_partial=partial), index)
+            np.testing.assert_array_equal(ids, gt.marker_id[recognizer_markers(gt, SPEC, partial)])
+            counts[k] += len(ids)
+    assert 0 < counts[0] < counts[1]
 
 
 def _at(crop: torch.Tensor, xy: np.ndarray) -> np.ndarray:

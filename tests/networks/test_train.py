@@ -304,3 +304,16 @@ def test_the_recognizer_trains_on_jittered_crops_from_shards_written_so(dataset,
               shards=shards, progress=False)
     with pytest.raises(ValueError, match="crop_jitter_px must be in"):
         config.replace(crop_jitter_px=-1.0)
+
+
+def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset, tmp_path):
+    shards = tmp_path / "shards"
+    write_shards(shards, "recognizer", SPEC, count=2, config=SynthConfig(image_size=(128, 128), recognizer_partial=True),
+                 images_per_part=2, progress=False)
+    config = _config("recognizer", synth_weight=0.5, steps=2, recognizer_partial=True)
+    result = train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, shards=shards, progress=False)
+    assert result["step"] == 2
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["recognizer_partial"] is True
+    with pytest.raises(ValueError, match="whole and partial.*without --recognizer-partial"):
+        train(config.replace(recognizer_partial=False), dataset, tmp_path / "whole", device="cpu", spec=SPEC,
+              shards=shards, progress=False)
