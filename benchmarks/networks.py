@@ -435,8 +435,7 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
     """The recognizers' top-1 given the true five points on the held-out renders, whole against partial
     markers (`partial_ids.top1`): every recognizer run's last.pt, and the checkpoint the main one
     started from (`--init`), so a run's change shows beside its start in the same call."""
-    from assets.garments import load_template
-    from networks.detector import Detector
+    from networks.evaluate_detector import load_detector  # the garment's tables without assets.garments (triangle)
 
     from foreshortening import rendered_pairs  # benchmarks/ (this script's folder)
     from partial_ids import top1
@@ -447,9 +446,8 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
                    if task == "recognizer" and (out / name / "run" / "last.pt").exists()}
     if (init or {}).get(MAIN["recognizer"]):
         recognizers[f"{MAIN['recognizer']}, its --init"] = Path(init[MAIN["recognizer"]])
-    tables = load_template(test / "template.npz").layout.tables()
     pairs = rendered_pairs(test)
-    return {label: top1(Detector.from_checkpoints(others[0], path, others[1], device=device, tables=tables), pairs)
+    return {label: top1(load_detector(others[0], path, others[1], test, device=device), pairs)
             for label, path in recognizers.items()}
 
 

@@ -25,12 +25,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from assets.garments import load_template  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, recognizer_markers  # noqa: E402
 from networks.detector import Detector  # noqa: E402
 
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from vote_settings import images_and_truth  # noqa: E402
 
 GROUPS = ("all five points visible", "partial: centre visible, a point hidden")
 
@@ -68,6 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", default="", help="only these capture frames (comma-separated stems, e.g. f000120)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
+    from assets.garments import load_template  # needs triangle: here only, so top1 runs on the GPU machine
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from vote_settings import images_and_truth
+
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
     sources = {}
