@@ -443,13 +443,13 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
                 index: int = 0) -> tuple[np.ndarray, ...]:
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
-    see them (the localizer finds those); recognizer crops are of whole markers only unless
-    config.recognizer_partial.  config.crop_jitter_px > 0: cut from jittered points
+    see them (the localizer finds those); recognizer crops of partial markers too unless
+    config.recognizer_partial is False (config None: the defaults).  config.crop_jitter_px > 0: cut from jittered points
     (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
-        return recognizer_crops(image, gt, spec, partial=config is not None and config.recognizer_partial)
+        return recognizer_crops(image, gt, spec, partial=(config or SynthConfig()).recognizer_partial)
     made = crosspoint_crops(image, gt, spec)
     centre = spec.crosspoints_per_side // 2
     return tuple(a[made[3][:, centre, centre]] for a in made)

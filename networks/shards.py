@@ -198,8 +198,9 @@ def main(argv: list[str] | None = None) -> int:
     write.add_argument("--crop-jitter", type=float, metavar="PX", help="crop tasks: cut crops from five points "
                        "jittered by Gaussian noise of this standard deviation, as the Detector cuts them from the "
                        "localizer's (SynthConfig.crop_jitter_px; default 0: exact points)")
-    write.add_argument("--recognizer-partial", action="store_true", help="recognizer: crops of partial markers "
-                       "with a visible centre as well as whole ones (SynthConfig.recognizer_partial)")
+    write.add_argument("--whole-markers-only", action="store_true", help="recognizer: crops of whole markers only, "
+                       "the reference's (default: partial markers with a visible centre too; "
+                       "SynthConfig.recognizer_partial)")
     write.add_argument("--images-per-part", type=int, default=64)
     write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
     write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
@@ -215,8 +216,8 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(seed=args.seed)
         if args.crop_jitter is not None:
             config = config.replace(crop_jitter_px=args.crop_jitter)
-        if args.recognizer_partial:
-            config = config.replace(recognizer_partial=True)
+        if args.whole_markers_only:
+            config = config.replace(recognizer_partial=False)
         if args.pattern is not None:
             spec = PatternSpec.load(args.pattern)
         else:

@@ -87,7 +87,8 @@ class SynthConfig:
     their crops from five points moved by Gaussian noise of this standard deviation
     (`ImageGroundTruth.jittered`), as the Detector cuts them from the localizer's points (0: exact
     points, the reference's crops).  recognizer_partial: recognizer crops of partial markers with a
-    visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones.
+    visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones
+    (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -118,7 +119,7 @@ class SynthConfig:
     node_px: int = 8
     seed: int = 0
     crop_jitter_px: float = 0.0
-    recognizer_partial: bool = False
+    recognizer_partial: bool = True
 
     def __post_init__(self) -> None:
         w, h = self.image_size

@@ -225,7 +225,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
         if task == "recognizer" and written_partial != partial:
             raise ValueError(f"{shards}: recognizer crops of {'whole and partial' if written_partial else 'whole'} "
                              f"markers, but this run's recognizer_partial is {partial}; write shards "
-                             f"{'with' if partial else 'without'} --recognizer-partial")
+                             f"{'without' if partial else 'with'} --whole-markers-only")
         if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
                                                   else np.arange(spec.num_ids), marker_ids).all():
             raise ValueError(f"{shards}: the shards hold marker IDs outside the {len(marker_ids)} of this run; "
@@ -535,7 +535,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "view_warp": False if args.no_view_warp else None,
-                 "recognizer_partial": True if args.recognizer_partial else None,
+                 "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
     if args.pretrained is not None:
@@ -576,9 +576,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="train without augmentation (photometric, and the localizer's view warp)")
     parser.add_argument("--no-view-warp", action="store_true",
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
-    parser.add_argument("--recognizer-partial", action="store_true",
-                        help="recognizer: train on crops of partial markers with a visible centre too (shards need "
-                        "the same: networks.synth write --recognizer-partial)")
+    parser.add_argument("--whole-markers-only", action="store_true",
+                        help="recognizer: train on crops of whole markers only, the reference's (default: partial "
+                        "markers with a visible centre too; shards need the same: networks.synth write "
+                        "--whole-markers-only)")
     parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")

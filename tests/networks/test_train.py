@@ -73,8 +73,9 @@ def test_step_order_and_schedule():
 @pytest.mark.parametrize("task,steps", [("localizer", 4), ("recognizer", 3), ("crosspoints", 3)])
 def test_a_few_steps_lower_the_loss(task, steps, dataset, few_crops, tmp_path):
     # batch 1 of one image, or batch 2 of a training set of one or two crops: every step sees the
-    # whole training set, so the loss must fall
-    config = _config(task, steps=steps, batch_size=1 if task == "localizer" else 2)
+    # whole training set, so the loss must fall (the recognizer's: the one whole marker's crop; the
+    # partial markers of its image would make more)
+    config = _config(task, steps=steps, batch_size=1 if task == "localizer" else 2, recognizer_partial=False)
     data = few_crops if task == "crosspoints" else dataset
     result = train(config, data, tmp_path, device="cpu", spec=SPEC, progress=False)
     losses = _losses(tmp_path)
@@ -314,6 +315,13 @@ def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset
     result = train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, shards=shards, progress=False)
     assert result["step"] == 2
     assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["recognizer_partial"] is True
-    with pytest.raises(ValueError, match="whole and partial.*without --recognizer-partial"):
+    with pytest.raises(ValueError, match="whole and partial.*write shards with --whole-markers-only"):
         train(config.replace(recognizer_partial=False), dataset, tmp_path / "whole", device="cpu", spec=SPEC,
               shards=shards, progress=False)
+
+
+def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
+    saved = _config("recognizer").to_dict()
+    del saved["recognizer_partial"]
+    assert TrainConfig.from_dict(saved).recognizer_partial is False
+    assert TrainConfig("recognizer").recognizer_partial is True
