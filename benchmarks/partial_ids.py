@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from assets.pattern.observation import ImageGroundTruth, recognizer_markers  # noqa: E402
-from networks.detector import Detector  # noqa: E402
+from networks.detector import Detector, DetectorConfig  # noqa: E402
 
 
 GROUPS = ("all five points visible", "partial: centre visible, a point hidden")
@@ -56,6 +56,40 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
     return {name: {"markers": n, "top1": right / max(n, 1)} for name, (n, right) in counts.items()}
 
 
+#: the chain's groups: the two above, and partial markers with a visible centre whose five points do
+#: not give a sane crop (a point off the fabric or behind the camera, or a fold: the recognizer never
+#: trains on them)
+CHAIN_GROUPS = GROUPS + ("partial: centre visible, no sane crop",)
+
+
+def chain(detector: Detector, pairs: list[tuple[Path, Path]], radius: float) -> dict[str, dict]:
+    """Where the chain loses markers: per group (`CHAIN_GROUPS`), the share the localizer finds (a
+    localized centre within `radius` px, `capture_detections.match_markers`), and the share identified
+    on the localizer's own points by the recognizer alone, and after the neighbours' ID votes."""
+    from capture_detections import match_markers  # benchmarks/, on the path from main
+    from networks.detector import usable_points
+
+    counts = {name: np.zeros(4, np.int64) for name in CHAIN_GROUPS}  # markers, found, right alone, right voted
+    for image_path, gt_path in pairs:
+        image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+        gt = ImageGroundTruth.load(gt_path)
+        (points, _), = detector.localize([image])
+        points = points.astype(np.float64)
+        points = points[usable_points(detector.spec, points)]
+        index = np.zeros(len(points), np.int64)
+        ids, _ = detector.recognize([image], index, points) if len(points) else (np.zeros(0, np.int64), None)
+        voted, _ = detector.vote([image], index, points, ids) if len(points) else (ids, None)
+        hit, alone = match_markers(gt, points[:, 0], ids, radius)
+        _, after = match_markers(gt, points[:, 0], voted, radius)
+        masks = groups(gt, detector.spec)
+        masks[CHAIN_GROUPS[2]] = (gt.status > 0) & gt.point_visible[:, 0] & ~gt.point_visible.all(axis=1) & \
+            ~masks[GROUPS[1]]
+        for name, mask in masks.items():
+            counts[name] += [mask.sum(), (hit & mask).sum(), (alone & mask).sum(), (after & mask).sum()]
+    return {name: {"markers": int(n), "found": f / max(n, 1), "right_alone": a / max(n, 1), "right_voted": v / max(n, 1)}
+            for name, (n, f, a, v) in counts.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoints", nargs=3, type=Path, required=True, metavar=("LOC", "REC", "XP"),
@@ -63,6 +97,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rendered", type=Path, help="a factory dataset folder (its validation and test images)")
     parser.add_argument("--capture", type=Path, help="a capture folder")
     parser.add_argument("--frames", default="", help="only these capture frames (comma-separated stems, e.g. f000120)")
+    parser.add_argument("--chain", action="store_true", help="also where the chain loses them: found by the "
+                        "localizer, identified on its points alone and after the ID votes")
+    parser.add_argument("--localizer-scale", type=float, help="with --chain (default 1 on renders, 0.3 on a capture)")
+    parser.add_argument("--radius", type=float, help="with --chain: match radius px (default 4 on renders, 12 on a "
+                        "capture)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
     from assets.garments import load_template  # needs triangle: here only, so top1 runs on the GPU machine
@@ -72,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources = {}
+    sources, chains = {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
@@ -80,15 +119,28 @@ def main(argv: list[str] | None = None) -> int:
         if capture is not None and args.frames:
             wanted = set(args.frames.split(","))
             pairs = [p for p in pairs if p[0].stem in wanted]
+        scale = args.localizer_scale or (1.0 if rendered is not None else 0.3)
         detector = Detector.from_checkpoints(*args.checkpoints, device=args.device,
-                                             tables=load_template(template).layout.tables())
-        sources[f"{label} ({len(pairs)} images)"] = top1(detector, pairs)
+                                             tables=load_template(template).layout.tables(),
+                                             config=DetectorConfig(localizer_scale=scale))
+        source = f"{label} ({len(pairs)} images)"
+        sources[source] = top1(detector, pairs)
+        if args.chain:
+            chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
     print(f"# recognizer top-1 given the true points, {args.checkpoints[1].name}")
     print("| images | markers | count | top-1 |\n|---|---|---|---|")
     for source, rows in sources.items():
         for name, r in rows.items():
             print(f"| {source} | {name} | {r['markers']} | {r['top1']:.3f} |")
-    print("RESULT " + json.dumps(sources))
+    if chains:
+        print(f"\n# the chain: {', '.join(p.name for p in args.checkpoints)}")
+        print("| images | markers | count | found | identified, recognizer alone | identified after the votes "
+              "|\n|---|---|---|---|---|---|")
+        for source, rows in chains.items():
+            for name, r in rows.items():
+                print(f"| {source} | {name} | {r['markers']} | {r['found']:.3f} | {r['right_alone']:.3f} | "
+                      f"{r['right_voted']:.3f} |")
+    print("RESULT " + json.dumps({"top1": sources, "chain": chains}))
     return 0
 
 
