@@ -1,7 +1,8 @@
 """How well does the Marker Recognizer read partial markers?  Its top-1 given the true five points, for
 markers with all five points visible against partial ones (the others of
 `assets.pattern.observation.recognizer_markers(partial=True)`: centre visible, a point hidden, a sane
-crop of five points on the fabric), on a rendered dataset's held-out images and/or a capture's views.
+crop of five points in front of the camera, a point off the fabric completed from the marker's
+crosspoints, `completed_points`), on a rendered dataset's held-out images and/or a capture's views.
 The localizer and the votes take no part: this isolates the recognizer, whose training crops are whole
 markers only unless it was trained with `TrainConfig.recognizer_partial`.
 
@@ -25,7 +26,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from assets.pattern.observation import ImageGroundTruth, recognizer_markers  # noqa: E402
+from assets.pattern.observation import ImageGroundTruth, completed_points, recognizer_markers  # noqa: E402
 from networks.detector import Detector, DetectorConfig  # noqa: E402
 
 
@@ -46,10 +47,11 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
     for image_path, gt_path in pairs:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
         gt = ImageGroundTruth.load(gt_path)
+        completed = completed_points(gt)  # what the crops are cut from (a point off the fabric completed)
         for name, mask in groups(gt, detector.spec).items():
             pick = np.flatnonzero(mask)
             if len(pick):
-                points = gt.points_px[pick].astype(np.float64)
+                points = completed[pick].astype(np.float64)
                 ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), points)
                 counts[name][0] += len(pick)
                 counts[name][1] += int((ids == gt.marker_id[pick]).sum())

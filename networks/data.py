@@ -46,8 +46,8 @@ from assets.fileio import load_json, load_npz
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
-from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, crosspoint_markers, localizer_targets,
-                                        marker_cells, recognizer_crops, recognizer_markers)
+from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
+                                        localizer_targets, marker_cells, recognizer_crops, recognizer_markers)
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
@@ -350,16 +350,18 @@ class RenderedDataset(_Items, Dataset):
                              f"{self.root / entry['samples']}")
         image = _read_png(self.root / entry["image"])
         if self.task == "recognizer":
-            return {"image": image, "points_px": gt.points_px[pick].astype(np.float64), key: stored}
+            points = completed_points(gt) if self.partial_markers else gt.points_px  # whole markers: the same
+            return {"image": image, "points_px": points[pick].astype(np.float64), key: stored}
         return {"image": image, "gt": gt.select(pick), key: stored}
 
     def _warped_cells(self, image_index: int, view: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         """The localizer's cell targets of an image seen through `view` (source -> item pixels) as an
-        item of `size` (width, height), from the image's ground-truth points (kept per worker)."""
+        item of `size` (width, height), from the image's ground-truth points, points off the fabric
+        completed as `localizer_targets` completes them (kept per worker, without the crosspoints)."""
         if image_index not in self._markers:
-            entry = self.entries[image_index]
-            self._markers[image_index] = load_npz(self.root / entry["gt"],
-                                                  only=("points_px", "point_visible", "points_depth", "status"))
+            gt = ImageGroundTruth.load(self.root / self.entries[image_index]["gt"])
+            self._markers[image_index] = {"points_px": completed_points(gt), "point_visible": gt.point_visible,
+                                          "points_depth": gt.points_depth, "status": gt.status}
         markers = self._markers[image_index]
         points = apply_homography(view, markers["points_px"]).astype(np.float32)  # NaN (off the fabric) stays NaN
         with np.errstate(invalid="ignore"):

@@ -36,7 +36,7 @@ import numpy as np
 
 from assets.arrays import check_fields
 from assets.fileio import load_npz, save_npz
-from assets.geometry import apply_homography
+from assets.geometry import apply_homography, fit_homography
 from assets.pattern.crops import (
     CROSSPOINT_CROP,
     RECOGNIZER_CROP,
@@ -46,6 +46,7 @@ from assets.pattern.crops import (
     unwarp,
 )
 from assets.pattern.spec import PatternSpec
+from assets.pattern.table import grid_localization_rc
 
 #: a marker gets a crosspoint crop only when the homography fitted to its five localization points
 #: puts each of them within this many cells (a quarter of the 24 per marker edge) of its place in the
@@ -53,6 +54,9 @@ from assets.pattern.spec import PatternSpec
 #: 99th percentile, synthetic ones within 7.9 (6.8 at the 99.9th); partial markers folded over or seen
 #: edge-on miss by tens to thousands of cells.
 MAX_CROP_FIT_CELLS = 6.0
+#: a marker's localization point off the fabric is completed (`completed_points`) from a homography
+#: fitted to at least this many of its crosspoints on the fabric
+MIN_COMPLETION_CROSSPOINTS = 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,16 +127,44 @@ class ImageGroundTruth:
             raise ValueError(f"{path}: {exc}") from exc
 
 
+def completed_points(gt: ImageGroundTruth) -> np.ndarray:
+    """(M, 5, 2) float32: the five localization points, each point off the fabric (NaN in
+    `points_px`: a partial marker cut by the garment's edge) put where the marker's plane extends it,
+    by the least-squares homography from the marker's crosspoint grid to its projected crosspoints
+    on the fabric (at least `MIN_COMPLETION_CROSSPOINTS`; with fewer, the point stays NaN).  Points
+    on the fabric are kept.  What a localizer can predict for a cut marker's missing corner, and
+    what the recognizer's crop of it is cut from (the fabric's edge and what lies beyond it)."""
+    points = np.array(gt.points_px, dtype=np.float32)
+    missing = np.flatnonzero(~np.isfinite(points).all(axis=(1, 2)))
+    if len(missing) == 0:
+        return points
+    k = gt.crosspoints_px.shape[1]
+    rows, cols = np.meshgrid(np.arange(k, dtype=np.float64), np.arange(k, dtype=np.float64), indexing="ij")
+    grid = np.stack([cols, rows], axis=-1).reshape(-1, 2)
+    five = grid_localization_rc(k - 1)[:, ::-1].astype(np.float64)  # (col, row) = grid (x, y)
+    for m in missing:
+        projected = gt.crosspoints_px[m].reshape(-1, 2).astype(np.float64)
+        on = np.isfinite(projected).all(axis=1)
+        if on.sum() < MIN_COMPLETION_CROSSPOINTS:
+            continue
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            fitted = apply_homography(fit_homography(grid[on], projected[on]), five)
+        gap = ~np.isfinite(points[m]).all(axis=1)
+        points[m, gap] = fitted[gap]
+    return points
+
+
 def localizer_targets(gt: ImageGroundTruth, cell: int = 8) -> np.ndarray:
     """The marker localizer's dense target (H // cell, W // cell, 11) float32.
 
     Channel 0: 1 in the cell containing the centre of a present marker (status > 0, centre visible),
     else 0.  Channels 1-10: its centre, TL, TR, BL, BR as (x, y) pixels relative to the cell's
-    top-left corner (the centre's offsets lie in [0, cell)); NaN for a point off the fabric (a
-    partial marker's missing corner); 0 in empty cells.  Where two centres share a cell, the marker
+    top-left corner (the centre's offsets lie in [0, cell)); a point off the fabric (a partial
+    marker's missing corner) where the marker's plane extends it (`completed_points`), NaN when its
+    on-fabric part is too small to say; 0 in empty cells.  Where two centres share a cell, the marker
     nearer the camera wins."""
     present = (gt.status > 0) & gt.point_visible[:, 0]
-    return marker_cells(gt.width, gt.height, gt.points_px, present, gt.points_depth[:, 0], cell)
+    return marker_cells(gt.width, gt.height, completed_points(gt), present, gt.points_depth[:, 0], cell)
 
 
 def marker_cells(width: int, height: int, points_px: np.ndarray, present: np.ndarray, depth: np.ndarray,
@@ -162,14 +194,22 @@ def recognizer_markers(gt: ImageGroundTruth, spec: PatternSpec, partial: bool = 
     """(N,) int64 indices into `gt` of the markers that get a Marker Recognizer crop: those whose five
     localization points are visible (the reference's crops); partial: also partial markers whose
     centre is visible (the localizer finds those, so the Detector recognizes them) and whose crop is
-    sane (`crosspoint_markers`: five points on the fabric, in front of the camera, a homography
-    that describes a marker), in index order."""
+    sane: their five `completed_points` (a point off the fabric completed from the marker's
+    crosspoints) are in front of the camera and give a homography that describes a marker
+    (`sane_crop_homography`), in index order.  Their crops are cut from `completed_points`."""
     whole = gt.point_visible.all(axis=1)
     if not partial:
         return np.flatnonzero(whole)
+    points = completed_points(gt).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        in_front = ((gt.points_depth > 0) | np.isnan(gt.points_depth)).all(axis=1)  # NaN: off the fabric
+    candidate = np.flatnonzero(~whole & (gt.status > 0) & gt.point_visible[:, 0] & in_front
+                               & np.isfinite(points).all(axis=(1, 2)))
     keep = whole.copy()
-    sane = crosspoint_markers(gt, spec)[0]
-    keep[sane[gt.point_visible[sane, 0]]] = True
+    if len(candidate):
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            homography = crop_homography(spec, CROSSPOINT_CROP, points[candidate])
+        keep[candidate[sane_crop_homography(spec, CROSSPOINT_CROP, points[candidate], homography)]] = True
     return np.flatnonzero(keep)
 
 
@@ -183,7 +223,8 @@ def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec,
     which crops do not depend on)."""
     image = _image(image, gt)
     pick = recognizer_markers(gt, spec, partial)
-    return _unwarp(image, spec, RECOGNIZER_CROP, gt.points_px[pick]), gt.marker_id[pick]
+    points = completed_points(gt)[pick] if partial else gt.points_px[pick]
+    return _unwarp(image, spec, RECOGNIZER_CROP, points), gt.marker_id[pick]
 
 
 def crosspoint_crops(

@@ -28,7 +28,12 @@ LOCALIZATION_POINTS = ("centre", "TL", "TR", "BL", "BR")
 
 def localization_rc(spec: PatternSpec) -> np.ndarray:
     """(5, 2) int local crosspoint (row, col) of centre, TL, TR, BL, BR in a marker's own frame."""
-    n = spec.cells_per_side
+    return grid_localization_rc(spec.cells_per_side)
+
+
+def grid_localization_rc(cells_per_side: int) -> np.ndarray:
+    """`localization_rc` of a marker of `cells_per_side` cells (crosspoints_per_side - 1)."""
+    n = int(cells_per_side)
     return np.array([[n // 2, n // 2], [0, 0], [0, n], [n, 0], [n, n]], dtype=np.int64)
 
 

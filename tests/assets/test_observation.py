@@ -1,16 +1,21 @@
 """Crop targets (`assets.pattern.observation`): which markers get a recognizer or crosspoint crop, and
 that every visible crosspoint target lies in its crop."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from assets.geometry import apply_homography
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, crop_homography, localization_rc
 from assets.pattern.observation import (
+    MIN_COMPLETION_CROSSPOINTS,
     ImageGroundTruth,
+    completed_points,
     crosspoint_crops,
     crosspoint_markers,
     is_convex_layout,
+    localizer_targets,
     recognizer_crops,
     recognizer_markers,
     sane_crop_homography,
@@ -122,3 +127,34 @@ def test_partial_recognizer_crops_add_partial_markers_with_a_visible_centre_and_
     # the partial marker's crop is its five points' unwarp, as the whole one's (the same points)
     assert crops.shape == (2, 96, 96, 3) and np.array_equal(crops[0], crops[1])
     assert np.array_equal(crops[:1], recognizer_crops(image, gt, SPEC)[0])
+
+
+def test_a_corner_off_the_fabric_is_completed_from_the_marker_s_crosspoints():
+    rc = localization_rc(SPEC)
+    flat = flat_marker()
+    u, v = np.meshgrid(np.arange(K), np.arange(K))
+    crosspoints = np.stack([flat, flat, flat])
+    visible = np.ones((3, K, K), bool)
+    cut = (u + v) < 10  # the garment's edge cuts the top-left corner off: TL off the fabric
+    crosspoints[1][cut] = np.nan
+    visible[1][cut] = False
+    # the same cut, with only the centre's neighbourhood left on the fabric: too little to complete
+    little = np.abs(u - 12) + np.abs(v - 12) > 1
+    crosspoints[2][little] = np.nan
+    visible[2][little] = False
+    gt = ground_truth(crosspoints, visible)
+    depth = gt.points_depth.copy()
+    depth[~np.isfinite(gt.points_px).all(axis=2)] = np.nan
+    gt = dataclasses.replace(gt, points_depth=depth)  # NaN off the fabric, as the factory saves it
+    assert np.isnan(gt.points_px[1, 1]).all() and MIN_COMPLETION_CROSSPOINTS > 5
+    points = completed_points(gt)
+    # the flat marker's plane: its crosspoints' homography puts TL exactly where the uncut one has it
+    np.testing.assert_allclose(points[1], flat[rc[:, 0], rc[:, 1]], atol=1e-3)
+    np.testing.assert_array_equal(points[0], gt.points_px[0])  # nothing missing, nothing moved
+    assert np.isnan(points[2, 1:]).all()  # five crosspoints on the fabric are too few
+    cells = localizer_targets(gt)
+    cx, cy = np.floor(gt.points_px[1, 0] / 8).astype(int)
+    np.testing.assert_allclose(cells[cy, cx, 1:].reshape(5, 2) + [cx * 8, cy * 8], points[1], atol=1e-3)
+    np.testing.assert_array_equal(recognizer_markers(gt, SPEC, partial=True), [0, 1])
+    crops, ids = recognizer_crops(np.zeros((256, 256, 3), np.uint8), gt, SPEC, partial=True)
+    assert crops.shape == (2, 96, 96, 3) and list(ids) == [0, 1]
