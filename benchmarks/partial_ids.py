@@ -88,8 +88,8 @@ def chain(detector: Detector, pairs: list[tuple[Path, Path]], radius: float) -> 
             ~masks[GROUPS[1]]
         for name, mask in masks.items():
             counts[name] += [mask.sum(), (hit & mask).sum(), (alone & mask).sum(), (after & mask).sum()]
-    return {name: {"markers": int(n), "found": f / max(n, 1), "right_alone": a / max(n, 1), "right_voted": v / max(n, 1)}
-            for name, (n, f, a, v) in counts.items()}
+    return {name: {"markers": int(n), "found": f / max(n, 1), "right_alone": a / max(n, 1),
+                   "right_voted": v / max(n, 1)} for name, (n, f, a, v) in counts.items()}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -344,7 +344,10 @@ class RenderedDataset(_Items, Dataset):
             pick = recognizer_markers(gt, self.spec, self.partial_markers)
         else:
             pick = crosspoint_markers(gt, self.spec)[0]
-        stored = gt.marker_id[pick] if self.partial_markers else load_npz(self.root / entry["samples"], only=(key,))[key]
+        if self.partial_markers:  # not the stored crops' markers (whole ones only)
+            stored = gt.marker_id[pick]
+        else:
+            stored = load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
             raise ValueError(f"{self.root / entry['gt']}: its markers do not match the {self.task} crops of "
                              f"{self.root / entry['samples']}")

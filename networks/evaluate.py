@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from assets.fileio import load_npz, save_json
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
-from assets.pattern.observation import ImageGroundTruth, crosspoint_markers
+from assets.pattern.observation import ImageGroundTruth, completed_points, crosspoint_markers
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
 from networks.data import _manifest as read_manifest
@@ -95,7 +95,7 @@ def _crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: np.ndarray,
         raise ValueError(f"{source}: its markers do not match the crosspoint crops of the sample "
                          f"({len(pick)} usable markers, {len(marker_id)} crops); build samples/ again with "
                          "assets.pattern.observation.training_samples")
-    return gt.points_px[pick], gt.crosspoints_px[pick]
+    return completed_points(gt)[pick], gt.crosspoints_px[pick]
 
 
 def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32

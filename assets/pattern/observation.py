@@ -103,13 +103,14 @@ class ImageGroundTruth:
         deviation `sigma_px` pixels, where a Marker Localizer's errors put them; crosspoints,
         visibility and status stay the truth.  Crops cut from the copy (`recognizer_crops`,
         `crosspoint_crops`) are the slightly misaligned crops the Detector cuts, and crosspoint
-        targets follow the moved crop.  sigma_px 0: self."""
+        targets follow the moved crop.  Points off the fabric are completed first
+        (`completed_points`), so a cut marker's completed corner moves too.  sigma_px 0: self."""
         if not sigma_px >= 0:
             raise ValueError(f"jittered: sigma_px must be >= 0, got {sigma_px}")
         if sigma_px == 0:
             return self
         noise = rng.normal(0.0, sigma_px, self.points_px.shape).astype(np.float32)
-        return replace(self, points_px=self.points_px + noise)
+        return replace(self, points_px=completed_points(self) + noise)
 
     def save(self, path: str | Path) -> None:
         """Write the markers with status > 0 and the image size to an npz, atomically."""
@@ -194,22 +195,15 @@ def recognizer_markers(gt: ImageGroundTruth, spec: PatternSpec, partial: bool = 
     """(N,) int64 indices into `gt` of the markers that get a Marker Recognizer crop: those whose five
     localization points are visible (the reference's crops); partial: also partial markers whose
     centre is visible (the localizer finds those, so the Detector recognizes them) and whose crop is
-    sane: their five `completed_points` (a point off the fabric completed from the marker's
-    crosspoints) are in front of the camera and give a homography that describes a marker
-    (`sane_crop_homography`), in index order.  Their crops are cut from `completed_points`."""
+    sane (`crosspoint_markers`: five `completed_points` in front of the camera, a point off the
+    fabric completed from the marker's crosspoints, giving a homography that describes a marker), in
+    index order.  Their crops are cut from `completed_points`."""
     whole = gt.point_visible.all(axis=1)
     if not partial:
         return np.flatnonzero(whole)
-    points = completed_points(gt).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        in_front = ((gt.points_depth > 0) | np.isnan(gt.points_depth)).all(axis=1)  # NaN: off the fabric
-    candidate = np.flatnonzero(~whole & (gt.status > 0) & gt.point_visible[:, 0] & in_front
-                               & np.isfinite(points).all(axis=(1, 2)))
     keep = whole.copy()
-    if len(candidate):
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            homography = crop_homography(spec, CROSSPOINT_CROP, points[candidate])
-        keep[candidate[sane_crop_homography(spec, CROSSPOINT_CROP, points[candidate], homography)]] = True
+    sane = crosspoint_markers(gt, spec)[0]
+    keep[sane[gt.point_visible[sane, 0]]] = True
     return np.flatnonzero(keep)
 
 
@@ -242,7 +236,7 @@ def crosspoint_crops(
         raise ValueError(f"spec has {spec.crosspoints_per_side} crosspoints per side, the ground truth "
                          f"{gt.crosspoints_px.shape[1]}")
     pick, homography = crosspoint_markers(gt, spec)
-    crops = _unwarp(image, spec, CROSSPOINT_CROP, gt.points_px[pick])
+    crops = _unwarp(image, spec, CROSSPOINT_CROP, completed_points(gt)[pick])
     k = spec.crosspoints_per_side
     projected = gt.crosspoints_px[pick].astype(np.float64).reshape(len(pick), k * k, 2)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -254,18 +248,22 @@ def crosspoint_crops(
 def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: float = MAX_CROP_FIT_CELLS
                        ) -> tuple[np.ndarray, np.ndarray]:
     """The markers that get a crosspoint crop: (indices (N,) int64 into `gt`, their crop homographies
-    (N, 3, 3) float64 image -> `CROSSPOINT_CROP` pixels, `crop_homography` of their five points).
+    (N, 3, 3) float64 image -> `CROSSPOINT_CROP` pixels, `crop_homography` of their five
+    `completed_points`).
 
-    A marker qualifies when its status is > 0, its five localization points are on the fabric and in
+    A marker qualifies when its status is > 0, its five localization points are known (on the
+    fabric, or off it and completed from its crosspoints: a marker cut by the garment's edge) and in
     front of the camera (the crop follows their projections even where they are occluded) and their
     homography is sane (`sane_crop_homography`): a partial marker folded over or seen edge-on gives
     a degenerate fit that maps its visible crosspoints anywhere, up to millions of pixels away."""
+    completed = completed_points(gt)
     with np.errstate(invalid="ignore"):
-        usable = np.isfinite(gt.points_px).all(axis=(1, 2)) & (gt.points_depth > 0).all(axis=1)
+        in_front = ((gt.points_depth > 0) | np.isnan(gt.points_depth)).all(axis=1)  # NaN: off the fabric
+        usable = np.isfinite(completed).all(axis=(1, 2)) & in_front
     pick = np.flatnonzero((gt.status > 0) & usable)
     if len(pick) == 0:
         return pick, np.zeros((0, 3, 3))
-    points = gt.points_px[pick].astype(np.float64)
+    points = completed[pick].astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         homography = crop_homography(spec, CROSSPOINT_CROP, points)
     sane = sane_crop_homography(spec, CROSSPOINT_CROP, points, homography, max_fit_cells)

@@ -158,3 +158,12 @@ def test_a_corner_off_the_fabric_is_completed_from_the_marker_s_crosspoints():
     np.testing.assert_array_equal(recognizer_markers(gt, SPEC, partial=True), [0, 1])
     crops, ids = recognizer_crops(np.zeros((256, 256, 3), np.uint8), gt, SPEC, partial=True)
     assert crops.shape == (2, 96, 96, 3) and list(ids) == [0, 1]
+    # the cut marker gets a crosspoint crop too: its targets on the fabric are exact, off it NaN
+    _, xp_ids, xy, seen = crosspoint_crops(np.zeros((256, 256, 3), np.uint8), gt, SPEC)
+    assert list(xp_ids) == [0, 1]
+    canonical = crop_crosspoints_px(SPEC, CROSSPOINT_CROP)
+    np.testing.assert_allclose(xy[1][~cut], canonical[~cut], atol=1e-3)
+    assert np.isnan(xy[1][cut]).all() and not seen[1][cut].any()
+    # jittered crops move the completed corner with the others
+    moved = gt.jittered(0.5, np.random.default_rng(0)).points_px
+    assert np.isfinite(moved[1]).all() and 0 < np.abs(moved[1] - points[1]).max() < 3

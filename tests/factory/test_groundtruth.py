@@ -20,7 +20,13 @@ from assets.pattern import (
     render_region,
 )
 from assets.pattern.raster import pixels_per_metre
-from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.observation import (
+    MIN_COMPLETION_CROSSPOINTS,
+    ImageGroundTruth,
+    crosspoint_crops,
+    localizer_targets,
+    recognizer_crops,
+)
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 from tests.assets.garment_fixtures import tube
@@ -238,7 +244,12 @@ def test_crosspoint_crop_coordinates_of_a_flat_marker_are_the_canonical_ones(hou
         image = np.zeros((128, 128, 3), np.uint8)
     crops, ids, xy, visible = crosspoint_crops(image, gt, surface.spec)
     rc = localization_rc(SPEC)
-    expect = (gt.status > 0) & (surface.xp_face[:, rc[:, 0], rc[:, 1]] >= 0).all(axis=1)
+    # the markers whose five points lie on the fabric, and the cut ones whose missing points are
+    # completed from their crosspoints on it (`completed_points`)
+    on_fabric = surface.xp_face >= 0
+    expect = (gt.status > 0) & ((on_fabric[:, rc[:, 0], rc[:, 1]]).all(axis=1)
+                                | (on_fabric.sum(axis=(1, 2)) >= MIN_COMPLETION_CROSSPOINTS))
+    assert (expect & ~(on_fabric[:, rc[:, 0], rc[:, 1]]).all(axis=1)).any() or oblique  # cut markers among them
     np.testing.assert_array_equal(ids, np.flatnonzero(expect))
     assert crops.shape == (len(ids), 112, 112, 3) and xy.shape == (len(ids), 25, 25, 2) and len(ids) >= 4
     np.testing.assert_array_equal(visible, gt.crosspoint_visible[ids])

@@ -309,8 +309,8 @@ def test_the_recognizer_trains_on_jittered_crops_from_shards_written_so(dataset,
 
 def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset, tmp_path):
     shards = tmp_path / "shards"
-    write_shards(shards, "recognizer", SPEC, count=2, config=SynthConfig(image_size=(128, 128), recognizer_partial=True),
-                 images_per_part=2, progress=False)
+    write_shards(shards, "recognizer", SPEC, count=2,
+                 config=SynthConfig(image_size=(128, 128), recognizer_partial=True), images_per_part=2, progress=False)
     config = _config("recognizer", synth_weight=0.5, steps=2, recognizer_partial=True)
     result = train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, shards=shards, progress=False)
     assert result["step"] == 2
