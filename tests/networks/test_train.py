@@ -237,11 +237,13 @@ def test_the_schedule_fits_the_time_limit(dataset, tmp_path):
     config = _config("localizer", steps=1_000_000, batch_size=1, warmup_steps=2, min_lr_ratio=0.01, log_every=1)
     out = tmp_path / "run"
     started = time.monotonic()
-    result = train(config, dataset, out, device="cpu", spec=SPEC, progress=False, time_limit_s=8.0,
+    # 20 s: the fit needs FIT_SKIP_STEPS steps and a probe before the limit (10 steps took over 8 s
+    # while a test run and a benchmark shared the 2 cores, and the old 8 s limit failed)
+    result = train(config, dataset, out, device="cpu", spec=SPEC, progress=False, time_limit_s=20.0,
                    fit_to_time_limit=True)
-    assert time.monotonic() - started < 8.0 + 5.0  # the limit, plus building the model and data
-    # how many steps fit depends on the machine's load (20-40 on an idle 2-core machine, 17 while
-    # Blender rendered beside it): the plan is fitted, not a count
+    assert time.monotonic() - started < 20.0 + 10.0  # the limit, plus building the model and data
+    # how many steps fit depends on the machine's load (20-40 in 8 s on an idle 2-core machine, 17
+    # while Blender rendered beside it): the plan is fitted, not a count
     assert result["finished"] and FIT_SKIP_STEPS < result["steps"] < 1_000_000 and result["step"] == result["steps"]
     records = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
     last = [r for r in records if "lr" in r][-1]
