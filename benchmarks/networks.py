@@ -51,7 +51,9 @@ ignored folders of the last (the seventh run's session did; the eighth run's kep
 on from the seventh's weights, 16 parts of data and weights carried in six 5-second calls).
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
-shards and the runs to `--out`.  The rendered dataset must use the codebook this machine generates:
+shards and the runs to `--out`.  `results.json` is written after training and after each evaluation
+stage (`Stages`); a stage that fails leaves its traceback under "errors", the later ones still run, and
+the call exits with an error at the end.  The rendered dataset must use the codebook this machine generates:
 `--codebook-hash` (the hash printed on the machine that rendered it) stops the run early otherwise.
 `--device cpu --max-steps N` is a smoke run (tiny shards and batches, runs one after another).
 """
@@ -68,6 +70,7 @@ import subprocess
 import sys
 import tarfile
 import time
+import traceback
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -554,17 +557,6 @@ def main() -> None:
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
                          not args.no_ddp, pretrained, init)
     train_s = time.perf_counter() - t0
-    metrics = evaluate_runs(args.out, test, args.device)
-    mixes = compare_mixes(args.out)
-    speed, chain, partial_ids = [], {}, {}
-    if all(name in metrics for name in MAIN.values()):
-        chain = evaluate_chain(args.out, test, args.device, smoke)
-        partial_ids = evaluate_partial_ids(args.out, test, args.device, init)
-        sizes = [int(v) for v in args.sizes.split(",") if v] if not smoke else [256]
-        speed = throughput(args.out, args.device, tuple(sizes), 4 if args.device.startswith("cuda") else 1, smoke)
-        cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
-        if args.device.startswith("cuda") and cpu_sizes and deadline - time.monotonic() > 45:
-            speed += throughput(args.out, "cpu", tuple(cpu_sizes), 1)
     gpu = f"{torch.cuda.device_count()} x {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
@@ -574,14 +566,48 @@ def main() -> None:
                               "recognizer_partial": SHARDS[f][3]} for name, (t, w, s, _, f) in RUNS.items()},
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
-              "train_wall_s": train_s, "training": training, "mixes": mixes, "metrics": metrics, "detector": chain,
-              "partial_ids": partial_ids, "throughput": speed,
-              "wall_s": time.monotonic() - started}
-    save_json(args.out / "results.json", result)
+              "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},
+              "partial_ids": {}, "throughput": [], "errors": {}}
+    stage = Stages(result, args.out / "results.json", started)
+    stage("metrics", evaluate_runs, args.out, test, args.device)
+    stage("mixes", compare_mixes, args.out)
+    if all(name in result["metrics"] for name in MAIN.values()):
+        stage("detector", evaluate_chain, args.out, test, args.device, smoke)
+        stage("partial_ids", evaluate_partial_ids, args.out, test, args.device, init)
+        sizes = [int(v) for v in args.sizes.split(",") if v] if not smoke else [256]
+        stage("throughput", throughput, args.out, args.device, tuple(sizes),
+              4 if args.device.startswith("cuda") else 1, smoke)
+        cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
+        if args.device.startswith("cuda") and cpu_sizes and deadline - time.monotonic() > 45:
+            stage("throughput", lambda: result["throughput"] + throughput(args.out, "cpu", tuple(cpu_sizes), 1))
     if args.export is not None:
         export(args.out, args.export, args.export_weights)
+    for name, error in result["errors"].items():
+        print(f"stage {name} failed (the others ran; results.json has the traceback):\n{error}", file=sys.stderr)
     _print_tables(result)
     print("RESULT " + json.dumps(result, default=float))
+    if result["errors"]:
+        sys.exit(f"{len(result['errors'])} stage(s) failed: {', '.join(result['errors'])}")
+
+
+class Stages:
+    """The evaluation stages after training, each kept apart: `stage(key, fn, *args)` stores fn's
+    value as result[key], or, when it raises, its traceback in result["errors"][key] and goes on;
+    results.json is written after every stage, so a late failure loses nothing done before it (the
+    ninth run lost its shard and run tables to a failure in its last stage)."""
+
+    def __init__(self, result: dict, path: Path, started: float) -> None:
+        self.result, self.path, self.started = result, path, started
+        result["wall_s"] = time.monotonic() - started
+        save_json(path, result)
+
+    def __call__(self, key: str, fn, *args) -> None:
+        try:
+            self.result[key] = fn(*args)
+        except Exception:  # noqa: BLE001 - any failure of one stage is recorded, the next still runs
+            self.result["errors"][key] = traceback.format_exc()
+        self.result["wall_s"] = time.monotonic() - self.started
+        save_json(self.path, self.result)
 
 
 def export(out: Path, to: Path, weights: bool = False) -> None:

@@ -1,4 +1,7 @@
-"""The GPU placement of `benchmarks/networks.py`'s runs (which GPU each training process gets)."""
+"""`benchmarks/networks.py`: the GPU placement of its runs (which GPU each training process gets), its
+run table for one call, and its evaluation stages kept apart."""
+
+import json
 
 import pytest
 
@@ -43,3 +46,15 @@ def test_a_run_s_synth_weight_can_be_changed_for_one_call(bench):
     assert runs["localizer_mix"][::2] == bench.RUNS["localizer_mix"][::2]  # task, stop and shards kept
     with pytest.raises(ValueError, match="synth weight"):
         bench.with_synth_weight(bench.RUNS, "localizer_mix", 1.5)
+
+
+def test_a_failing_stage_is_recorded_and_the_next_still_runs(bench, tmp_path):
+    result = {"errors": {}}
+    path = tmp_path / "results.json"
+    stage = bench.Stages(result, path, started=0.0)
+    assert json.loads(path.read_text())["errors"] == {}  # written before the first stage
+    stage("detector", lambda: 1 / 0)
+    stage("throughput", lambda rows: rows + [{"images_per_s": 2.0}], [])
+    saved = json.loads(path.read_text())
+    assert "ZeroDivisionError" in saved["errors"]["detector"] and "detector" not in saved
+    assert saved["throughput"] == [{"images_per_s": 2.0}] and saved["wall_s"] > 0
