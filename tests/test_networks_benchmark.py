@@ -2,8 +2,13 @@
 run table for one call, and its evaluation stages kept apart."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
+
+PROJECT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -58,3 +63,18 @@ def test_a_failing_stage_is_recorded_and_the_next_still_runs(bench, tmp_path):
     saved = json.loads(path.read_text())
     assert "ZeroDivisionError" in saved["errors"]["detector"] and "detector" not in saved
     assert saved["throughput"] == [{"images_per_s": 2.0}] and saved["wall_s"] > 0
+
+
+def test_the_gpu_machine_s_imports_need_no_triangle():
+    """The GPU machine runs the benchmark from the working tree without the project's own install, and
+    lacks `triangle` (the ninth run's evaluation stopped on it): the benchmark and the scripts its
+    evaluation loads import without it."""
+    code = ("import sys; sys.modules['triangle'] = None; sys.path[:0] = ['.', 'benchmarks']\n"
+            "import importlib.util\n"
+            "spec = importlib.util.spec_from_file_location('bench_networks', 'benchmarks/networks.py')\n"
+            "spec.loader.exec_module(importlib.util.module_from_spec(spec))\n"
+            "import partial_ids, foreshortening, networks.evaluate_detector\n"
+            "print('assets.garments' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], cwd=PROJECT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "False"
