@@ -28,7 +28,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
 3. Evaluate each run's last.pt on the rendered dataset's validation and test images (`--rendered`, a
    factory dataset folder of Blender renders, read through a view in --out whose `samples/` are
    built there from the images and saved ground truth when the folder has none, so only images, gt,
-   the manifest and template.npz need to travel and the folder itself is left as it is); the three
+   the manifest and template.npz need to travel and the folder itself is left as it is), and each
+   checkpoint the runs started from (--init) beside them, the call's baseline; the three
    main runs chained as `networks.Detector`; and each recognizer's top-1 given the true points,
    whole against partial markers, beside the checkpoint the main recognizer started from (--init).
 4. Inference throughput of `networks.Detector` (the three main runs chained, float32) on synthesized
@@ -406,6 +407,12 @@ def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
     return metrics
 
 
+def evaluate_inits(init: dict[str, str], test: Path, device: str) -> dict[str, dict]:
+    """Each checkpoint a run started from (`--init`) on the same held-out renders: the baseline of
+    this call's training, measured beside it."""
+    return {name: evaluate(path, test, split="heldout", device=device, progress=False) for name, path in init.items()}
+
+
 def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> dict[str, dict]:
     """`networks.evaluate_detector` of the three main runs chained, on the held-out renders, with the
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
@@ -567,10 +574,12 @@ def main() -> None:
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},
-              "partial_ids": {}, "throughput": [], "errors": {}}
+              "init_metrics": {}, "partial_ids": {}, "throughput": [], "errors": {}}
     stage = Stages(result, args.out / "results.json", started)
     stage("metrics", evaluate_runs, args.out, test, args.device)
     stage("mixes", compare_mixes, args.out)
+    if init:
+        stage("init_metrics", evaluate_inits, init, test, args.device)
     if all(name in result["metrics"] for name in MAIN.values()):
         stage("detector", evaluate_chain, args.out, test, args.device, smoke)
         stage("partial_ids", evaluate_partial_ids, args.out, test, args.device, init)
@@ -661,7 +670,8 @@ def _print_tables(result: dict) -> None:
             print(f"| {name} ({RUNS[name][1]} synth) | {m['step']} | {m['loss']['total']:.4g} | {a['precision']:.3f} | "
                   f"{a['recall']:.3f} | {a['f1']:.3f} | {full} | {a['error_px']['centre']['median']:.2f} |")
     print(f"\n| metric ({result['heldout_images']} held-out Blender renders) | value |\n|---|---|")
-    for name, m in result["metrics"].items():
+    inits = {f"{name}, its --init": m for name, m in result.get("init_metrics", {}).items()}
+    for name, m in {**result["metrics"], **inits}.items():
         for key, value in _flatten(m):
             if isinstance(value, float) and not key.endswith("step"):
                 print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
