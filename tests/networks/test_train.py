@@ -163,15 +163,21 @@ def test_ctrl_c_writes_last_checkpoint(dataset, tmp_path):
     out = tmp_path / "run"
     command = [sys.executable, "-m", "networks.train", "localizer", "--data", str(dataset), "--out", str(out),
                "--config", str(tmp_path / "config.json"), "--pattern", str(pattern), "--device", "cpu", "--quiet"]
+    # PYTHONFAULTHANDLER: a trainer that does not stop is sent SIGABRT and prints every thread's stack
     process = subprocess.Popen(command, cwd=PROJECT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+                               env={**os.environ, "OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"})
     try:
         deadline = time.monotonic() + 40
         while not (out / "log.jsonl").exists() and time.monotonic() < deadline and process.poll() is None:
             time.sleep(0.2)
         assert (out / "log.jsonl").exists(), process.communicate(timeout=5)
         process.send_signal(signal.SIGINT)
-        _, err = process.communicate(timeout=30)
+        try:
+            _, err = process.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.send_signal(signal.SIGABRT)
+            _, err = process.communicate(timeout=10)
+            pytest.fail(f"the trainer did not stop within 30 s of SIGINT; its stacks:\n{err.decode()}")
     finally:
         if process.poll() is None:
             process.kill()
