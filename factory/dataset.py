@@ -4,6 +4,7 @@
     python -m factory.dataset build ... --shard 0/4          # a deterministic quarter of the images
     python -m factory.dataset capture --garment shirt --motion walk --frames 12 --cameras 8 --out out/cap
     python -m factory.dataset preview out/ds --out out/ds/contact_sheet.png
+    python -m factory.dataset merge out/all out/ds --train out/ds_more   # more training images (`factory.merge`)
 
 Training dataset (`build`), as in the reference: one fixed camera; per simulation frame
 `variations` images (5), each with a random rotation about the vertical and a small tilt and
@@ -501,6 +502,7 @@ def _render_settings(args: argparse.Namespace) -> RenderSettings:
 
 def main(argv: list[str] | None = None) -> int:
     import factory.build  # it imports this module: imported when the CLI runs, not at import time
+    import factory.merge
     from assets.cli import run_cli
 
     parser = argparse.ArgumentParser(prog="python -m factory.dataset", description=__doc__,
@@ -545,6 +547,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="a finished `factory.simulate` folder made with the same options")
     c.add_argument("--out", type=Path, required=True)
     _add_render_args(c, "1920x1080")
+    m = sub.add_parser("merge", help="merge dataset folders into one (more training images beside a held-out split)",
+                       description=factory.merge.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    m.add_argument("out", type=Path, help="the merged dataset folder")
+    m.add_argument("sources", type=Path, nargs="*", help="dataset folders whose splits are kept")
+    m.add_argument("--train", type=Path, action="append", default=[], metavar="SRC",
+                   help="a dataset folder whose images all go to the train split (repeatable)")
     v = sub.add_parser("preview", help="contact sheet of a dataset or capture folder")
     v.add_argument("folder", type=Path)
     v.add_argument("--out", type=Path, required=True)
@@ -578,6 +586,10 @@ def main(argv: list[str] | None = None) -> int:
                              level_mm=args.level, motion_speed=args.speed)
             print(f"capture in {folder}: cameras.json, garment.npz, {args.cameras} camera folders; "
                   f"contact sheet {folder / 'contact_sheet.png'}")
+        elif args.command == "merge":
+            sources = [factory.merge.Source(f) for f in args.sources] + [factory.merge.Source(f, True) for f in args.train]
+            manifest = factory.merge.merge(args.out, sources)
+            print(f"{len(manifest.read_text().splitlines())} images in {manifest}")
         else:
             print(preview(args.folder, args.out, args.count))
 

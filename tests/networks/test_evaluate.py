@@ -33,12 +33,14 @@ SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
 
 
 def write_factory_dataset(root: Path, spec: PatternSpec, splits: dict[str, int], size: int = 128, seed: int = 0,
-                          keep=lambda recognizer_crops, crosspoint_crops: recognizer_crops >= 1) -> Path:
+                          keep=lambda recognizer_crops, crosspoint_crops: recognizer_crops >= 1,
+                          motion: str = "synth") -> Path:
     """A dataset folder with the files `factory.build.build` writes that the networks read:
     manifest.jsonl, splits.json, config.json, images/<name>.png, gt/<name>.npz, samples/<name>.npz.
     Images come from the synthesizer; `splits` gives the image count per split; synthetic samples are
     taken in order when keep(number of recognizer crops, number of crosspoint crops) holds (default:
-    the image shows a fully visible marker, so it has crops of both kinds)."""
+    the image shows a fully visible marker, so it has crops of both kinds); `motion` names the images
+    and their frames."""
     synth = PatternSynthesizer(spec, SynthConfig(image_size=(size, size), marker_px=(56.0, 72.0), occluders=(0, 1),
                                                  seed=seed))
     lines, frames, index = [], {}, 0
@@ -50,7 +52,7 @@ def write_factory_dataset(root: Path, spec: PatternSpec, splits: dict[str, int],
                 image, gt = synth.sample(index)
                 rec, rec_ids = recognizer_crops(image, gt, spec)
                 xp, xp_ids, xp_xy, xp_vis = crosspoint_crops(image, gt, spec)
-            name = f"synth_f{index:06d}_v0"
+            name = f"{motion}_f{index:06d}_v0"
             save_npz(root / "samples" / f"{name}.npz", {
                 "cells": localizer_targets(gt), "recognizer_crops": rec, "recognizer_ids": rec_ids,
                 "crosspoint_crops": xp, "crosspoint_ids": xp_ids, "crosspoint_xy": xp_xy,
@@ -58,15 +60,15 @@ def write_factory_dataset(root: Path, spec: PatternSpec, splits: dict[str, int],
             gt.save(root / "gt" / f"{name}.npz")
             (root / "images").mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(root / "images" / f"{name}.png"), image[:, :, ::-1])
-            meta = {"name": name, "split": split, "motion": "synth", "frame": index, "variation": 0,
+            meta = {"name": name, "split": split, "motion": motion, "frame": index, "variation": 0,
                     "image": f"images/{name}.png", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
                     "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum())}
             save_json(root / "meta" / f"{name}.json", meta)
             lines.append(json.dumps(meta, sort_keys=True))
-            frames.setdefault(split, []).append(f"synth/{index}")
+            frames.setdefault(split, []).append(f"{motion}/{index}")
     (root / "manifest.jsonl").write_text("".join(line + "\n" for line in lines))
     save_json(root / "splits.json", {s: frames.get(s, []) for s in ("train", "val", "test")})
-    save_json(root / "config.json", {"garment": "none", "motions": ["synth"], "seed": seed})
+    save_json(root / "config.json", {"garment": "none", "motions": [motion], "seed": seed})
     return root
 
 

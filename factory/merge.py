@@ -1,0 +1,119 @@
+"""Merge factory datasets into one folder: `python -m factory.dataset merge OUT SRC [SRC ...]`.
+
+Datasets built apart (other frames, motions, seeds, machines) become one set the networks read as
+one: `networks.train --data OUT`, `benchmarks/networks.py --rendered OUT`.  Each image keeps its
+name, files and record; `--train SRC` puts every image of that source in the train split (more
+training images beside a set whose held-out split stays as it was, so results stay comparable).
+
+Refused, naming the files:
+- sources whose `template.npz` differ (another garment, level or pattern: their marker IDs and
+  ground truth do not mean the same);
+- an image name in two sources;
+- a simulation frame (motion/frame) in two splits, which would put the same garment geometry in
+  training and in evaluation.
+
+OUT gets `template.npz` and `texture.png` (from the first source), `images/`, `gt/`, `samples/` (where
+a source has them: built from the images otherwise, as `networks` does), `meta/`, `manifest.jsonl`,
+`splits.json` and `config.json` (`{"merged": [per source: its folder, config, image count, train]}`),
+not the sources' simulations, scenes and render jobs.  Files are hard links where the file system
+allows, copies otherwise; each is written atomically and an image's record last, so an interrupted
+merge is finished by running it again, and a second run with other sources is refused.
+"""
+
+from __future__ import annotations
+
+import filecmp
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from assets.fileio import atomic_path, load_json, save_json
+from factory.build import write_manifest
+from factory.dataset import SPLITS
+
+#: an image record's fields that name its files
+FILE_FIELDS = ("image", "depth", "camera", "gt", "samples")
+#: the folder-level files taken from the first source
+SHARED_FILES = ("template.npz", "texture.png")
+
+
+@dataclass(frozen=True)
+class Source:
+    """One dataset folder to merge; train: all its images go to the train split."""
+    folder: Path
+    train: bool = False
+
+
+def _records(folder: Path) -> list[dict]:
+    """The finished images' records (`meta/<name>.json`, as `factory.build.write_manifest` lists them)."""
+    if not (folder / "template.npz").is_file() or not (folder / "meta").is_dir():
+        raise ValueError(f"{folder}: not a factory dataset folder (no template.npz or meta/)")
+    records = [load_json(p) for p in sorted((folder / "meta").glob("*.json"))]
+    if not records:
+        raise ValueError(f"{folder}: no finished image (meta/ is empty)")
+    return records
+
+
+def _place(source: Path, target: Path) -> None:
+    """`target` as a hard link to `source`, or a copy where linking fails (another file system)."""
+    if target.exists():
+        if not filecmp.cmp(source, target, shallow=False):
+            raise ValueError(f"{target} exists and differs from {source}")
+        return
+    with atomic_path(target) as tmp:
+        tmp.unlink()
+        try:
+            os.link(source, tmp)
+        except OSError:
+            shutil.copy2(source, tmp)
+
+
+def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path:
+    """Merge `sources` into the folder `out` (layout above); returns its manifest.jsonl."""
+    out = Path(out)
+    if len(sources) < 1:
+        raise ValueError("merge needs at least one source dataset folder")
+    first = sources[0].folder / "template.npz"
+    plan, names, frames = [], {}, {}
+    for source in sources:
+        records = _records(source.folder)
+        template = source.folder / "template.npz"
+        if not filecmp.cmp(first, template, shallow=False):
+            raise ValueError(f"{template} differs from {first}: another garment, level or pattern, whose marker IDs "
+                             "and ground truth do not mean the same")
+        for record in records:
+            record = {**record, "split": "train"} if source.train else record
+            name = record["name"]
+            if name in names:
+                raise ValueError(f"image {name} is in both {names[name]} and {source.folder}: merge datasets built "
+                                 "with other frames or motions")
+            names[name] = source.folder
+            frame = f"{record['motion']}/{record['frame']}"
+            split, where = frames.setdefault(frame, (record["split"], source.folder))
+            if split != record["split"]:
+                raise ValueError(f"simulation frame {frame} is {split} in {where} and {record['split']} in "
+                                 f"{source.folder}: the same garment geometry would be trained on and evaluated")
+            plan.append((source.folder, record))
+    config = {"merged": [{"folder": str(s.folder.resolve()), "train": s.train, "images": sum(f == s.folder for f, _ in plan),
+                          "config": load_json(s.folder / "config.json") if (s.folder / "config.json").is_file() else None}
+                         for s in sources]}
+    if (out / "config.json").is_file() and load_json(out / "config.json") != config:
+        raise ValueError(f"{out / 'config.json'}: {out} holds another dataset or merge; merge into a new folder")
+    out.mkdir(parents=True, exist_ok=True)
+    save_json(out / "config.json", config)
+    for name in SHARED_FILES:
+        if (sources[0].folder / name).is_file():
+            _place(sources[0].folder / name, out / name)
+    for folder, record in tqdm(plan, desc="merge", unit="image", disable=not progress):
+        for field in FILE_FIELDS:
+            if field in record and (folder / record[field]).is_file():
+                _place(folder / record[field], out / record[field])
+        meta = out / "meta" / f"{record['name']}.json"
+        if not meta.exists() or load_json(meta) != record:
+            save_json(meta, record)
+    splits = {s: sorted({f for f, (split, _) in frames.items() if split == s}) for s in SPLITS}
+    save_json(out / "splits.json", splits)
+    return write_manifest(out)

@@ -1,0 +1,83 @@
+"""`factory.merge`: dataset folders merged into one that the networks read as one."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from assets.fileio import load_json, save_json, save_npz
+from assets.pattern import PatternSpec
+from factory.dataset import main
+from factory.merge import Source, merge
+from networks.data import RenderedDataset
+from tests.networks.test_evaluate import write_factory_dataset
+
+SPEC = PatternSpec(rows=4, cols=4)
+
+
+def _dataset(folder, splits, motion):
+    write_factory_dataset(folder, SPEC, splits, motion=motion)
+    layout = {"spec": SPEC.to_dict(), "panels": []}
+    save_npz(folder / "template.npz", {"layout_json": np.frombuffer(json.dumps(layout).encode(), np.uint8)})
+    return folder
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    root = tmp_path_factory.mktemp("merge")
+    held = _dataset(root / "held", {"train": 1, "val": 1, "test": 1}, "synth")
+    more = _dataset(root / "more", {"train": 1, "test": 1}, "extra")
+    shutil.copy2(held / "template.npz", more / "template.npz")  # the same garment
+    return held, more
+
+
+def _manifest(folder):
+    return {e["name"]: e for e in map(json.loads, (folder / "manifest.jsonl").read_text().splitlines())}
+
+
+def test_merged_images_keep_their_files_and_the_train_source_trains(sources, tmp_path):
+    held, more = sources
+    out = tmp_path / "all"
+    assert main(["merge", str(out), str(held), "--train", str(more)]) == 0
+    merged, before, extra = _manifest(out), _manifest(held), _manifest(more)
+    assert set(merged) == set(before) | set(extra)
+    for name, entry in before.items():
+        assert merged[name] == entry  # splits kept
+    assert {merged[name]["split"] for name in extra} == {"train"}
+    for name, entry in merged.items():
+        source = held if name in before else more
+        for field in ("image", "gt", "samples"):
+            assert (out / entry[field]).read_bytes() == (source / entry[field]).read_bytes()
+    splits = load_json(out / "splits.json")
+    assert sorted(splits["train"]) == sorted(f"{e['motion']}/{e['frame']}" for e in merged.values()
+                                             if e["split"] == "train")
+    assert [s["train"] for s in load_json(out / "config.json")["merged"]] == [False, True]
+    trained = RenderedDataset(out, "train", "localizer", spec=SPEC)
+    assert len(trained) == 1 + len(extra)
+    assert trained[len(trained) - 1]["image"].shape[-2:] == (128, 128)
+    manifest = (out / "manifest.jsonl").read_bytes()
+    merge(out, [Source(held), Source(more, train=True)], progress=False)  # again: nothing changes
+    assert (out / "manifest.jsonl").read_bytes() == manifest
+    with pytest.raises(ValueError, match="holds another dataset"):
+        merge(out, [Source(held)], progress=False)
+    assert (out / "manifest.jsonl").read_bytes() == manifest
+
+
+def test_merging_what_does_not_belong_together_is_refused(sources, tmp_path):
+    held, more = sources
+    with pytest.raises(ValueError, match="is in both"):
+        merge(tmp_path / "twice", [Source(held), Source(held, train=True)], progress=False)
+    other = shutil.copytree(more, tmp_path / "other")
+    save_npz(other / "template.npz", {"layout_json": np.frombuffer(b"{}", np.uint8)})
+    with pytest.raises(ValueError, match="template.npz differs"):
+        merge(tmp_path / "garments", [Source(held), Source(other)], progress=False)
+    leak = shutil.copytree(more, tmp_path / "leak")
+    test_frame = next(e for e in _manifest(held).values() if e["split"] == "test")
+    meta = sorted((leak / "meta").glob("*.json"))[0]
+    save_json(meta, {**load_json(meta), "motion": test_frame["motion"], "frame": test_frame["frame"]})
+    with pytest.raises(ValueError, match=f"{test_frame['motion']}/{test_frame['frame']} is test"):
+        merge(tmp_path / "leaky", [Source(held), Source(leak, train=True)], progress=False)
+    assert not (tmp_path / "leaky").exists()  # refused before anything is written
+    with pytest.raises(ValueError, match="not a factory dataset"):
+        merge(tmp_path / "none", [Source(tmp_path)], progress=False)
