@@ -1,6 +1,7 @@
 """Shared fixtures: small real pattern specs and tables (generated, never mocked)."""
 
 import importlib.util
+import signal
 from pathlib import Path
 
 import pytest
@@ -37,3 +38,26 @@ def load_benchmark():
         return loaded[name]
 
     return load
+
+
+def _sigint_state() -> tuple[object, bool]:
+    return signal.getsignal(signal.SIGINT), signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+#: SIGINT's handler and whether it is blocked, as this process started
+SIGINT_AT_START = _sigint_state()
+
+
+@pytest.fixture(autouse=True)
+def _sigint_left_as_found():
+    """A test (its fixtures included) that leaves SIGINT ignored, handled otherwise or blocked in this
+    process fails: every process started later inherits that, and a trainer or a job the add-on
+    cancels by SIGINT would then not stop (the Ctrl-C test's full-suite failures)."""
+    yield
+    now = _sigint_state()
+    if now != SIGINT_AT_START:
+        handler, blocked = SIGINT_AT_START
+        signal.signal(signal.SIGINT, handler)
+        signal.pthread_sigmask(signal.SIG_BLOCK if blocked else signal.SIG_UNBLOCK, [signal.SIGINT])
+        pytest.fail(f"SIGINT is left with handler {now[0]!r}, blocked {now[1]} (at the start: {handler!r}, "
+                    f"blocked {blocked})")
