@@ -72,6 +72,7 @@ import sys
 import tarfile
 import time
 import traceback
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,9 +135,16 @@ CHECKPOINT_EVERY = 2000
 RESERVE_S, START_S = 210.0, 45.0
 
 
-def prepare(root: Path, out: Path) -> tuple[Path, int]:
+def _build_samples(view: Path, entry: dict, spec) -> None:
+    """samples/<name>.npz of one manifest entry of `view`, from its image and ground truth."""
+    image = cv2.imread(str(view / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+    save_npz(view / entry["samples"], training_samples(image, ImageGroundTruth.load(view / entry["gt"]), spec))
+
+
+def prepare(root: Path, out: Path, cores: int = 1) -> tuple[Path, int]:
     """(a copy of the rendered dataset folder in `out`, samples built): its files copied, and
-    `samples/<name>.npz` built in the copy for every manifest entry when the folder has none.
+    `samples/<name>.npz` built in the copy (on `cores` processes) for every manifest entry when the
+    folder has none.
     Copied, not linked: on the device machine the working tree is replaced by each call, and a call
     that does not carry the folder removes it there, so links into it break under a running
     benchmark (the sixth networks run lost its evaluation so)."""
@@ -154,16 +162,15 @@ def prepare(root: Path, out: Path) -> tuple[Path, int]:
         else:
             shutil.copy2(source, target)
     spec = dataset_spec(view)
-    made = 0
-    for line in (view / "manifest.jsonl").read_text().splitlines():
-        entry = json.loads(line)
-        target = view / entry["samples"]
-        if target.exists():
-            continue
-        image = cv2.imread(str(view / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
-        save_npz(target, training_samples(image, ImageGroundTruth.load(view / entry["gt"]), spec))
-        made += 1
-    return view, made
+    entries = [json.loads(line) for line in (view / "manifest.jsonl").read_text().splitlines() if line]
+    todo = [e for e in entries if not (view / e["samples"]).exists()]
+    if cores > 1 and len(todo) > 1:
+        with ProcessPoolExecutor(min(cores, len(todo))) as pool:
+            list(pool.map(_build_samples, [view] * len(todo), todo, [spec] * len(todo), chunksize=4))
+    else:
+        for entry in todo:
+            _build_samples(view, entry, spec)
+    return view, len(todo)
 
 
 def heldout(root: Path, out: Path, limit: int | None = None, markers: int | None = None) -> Path:
@@ -552,7 +559,7 @@ def main() -> None:
     if args.codebook_hash and here != args.codebook_hash:
         sys.exit(f"codebook differs from the rendering machine's ({here} vs {args.codebook_hash}): the rendered "
                  "IDs would not be this machine's IDs")
-    rendered, rebuilt = prepare(args.rendered, args.out)
+    rendered, rebuilt = prepare(args.rendered, args.out, 1 if smoke else args.cores)
     test = heldout(rendered, args.out, args.eval_images, markers=8 if smoke else None)
     shards = make_shards(args.out, rendered, max(1, args.cores - 1) if not smoke else 1,
                          min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke,

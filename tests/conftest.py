@@ -2,6 +2,7 @@
 
 import importlib.util
 import signal
+import sys
 from pathlib import Path
 
 import pytest
@@ -33,6 +34,7 @@ def load_benchmark():
         if name not in loaded:
             spec = importlib.util.spec_from_file_location(f"bench_{name}", root / f"{name}.py")
             module = importlib.util.module_from_spec(spec)
+            sys.modules[spec.name] = module  # its functions pickle by name (a process pool's tasks)
             spec.loader.exec_module(module)
             loaded[name] = module
         return loaded[name]

@@ -2,10 +2,12 @@
 run table for one call, and its evaluation stages kept apart."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -63,6 +65,27 @@ def test_a_failing_stage_is_recorded_and_the_next_still_runs(bench, tmp_path):
     saved = json.loads(path.read_text())
     assert "ZeroDivisionError" in saved["errors"]["detector"] and "detector" not in saved
     assert saved["throughput"] == [{"images_per_s": 2.0}] and saved["wall_s"] > 0
+
+
+def test_prepare_builds_the_samples_a_dataset_travelled_without_on_several_cores(bench, tmp_path):
+    from assets.fileio import load_npz, save_npz
+    from assets.pattern import PatternSpec
+    from tests.networks.test_evaluate import write_factory_dataset
+
+    spec = PatternSpec(rows=4, cols=4)
+    built = write_factory_dataset(tmp_path / "built", spec, {"train": 2, "val": 1, "test": 1})
+    layout = {"spec": spec.to_dict(), "panels": []}
+    save_npz(built / "template.npz", {"layout_json": np.frombuffer(json.dumps(layout).encode(), np.uint8)})
+    travelled = tmp_path / "travelled"
+    shutil.copytree(built, travelled, ignore=shutil.ignore_patterns("samples"))
+    view, made = bench.prepare(travelled, tmp_path / "out", cores=2)
+    assert made == 4 and not (travelled / "samples").exists()  # built in the copy, the folder left as it is
+    for path in sorted((built / "samples").glob("*.npz")):
+        expected, rebuilt = load_npz(path), load_npz(view / "samples" / path.name)
+        assert expected.keys() == rebuilt.keys()
+        for key in expected:
+            np.testing.assert_array_equal(rebuilt[key], expected[key], err_msg=f"{path.name}: {key}")
+    assert bench.prepare(travelled, tmp_path / "out", cores=2)[1] == 0  # a second call builds nothing
 
 
 def test_the_gpu_machine_s_imports_need_no_triangle():
