@@ -175,9 +175,12 @@ def test_ctrl_c_writes_last_checkpoint(dataset, tmp_path):
         try:
             _, err = process.communicate(timeout=30)
         except subprocess.TimeoutExpired:
+            status = [line for line in Path(f"/proc/{process.pid}/status").read_text().splitlines()
+                      if line.startswith(("SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt", "Cpus_allowed_list"))]
             process.send_signal(signal.SIGABRT)
             _, err = process.communicate(timeout=10)
-            pytest.fail(f"the trainer did not stop within 30 s of SIGINT; its stacks:\n{err.decode()}")
+            pytest.fail(f"the trainer did not stop within 30 s of SIGINT; its signal state "
+                        f"{'; '.join(status)}; its stacks:\n{err.decode()}")
     finally:
         if process.poll() is None:
             process.kill()
