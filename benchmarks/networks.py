@@ -87,9 +87,10 @@ from assets.fileio import save_json, save_npz  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, training_samples  # noqa: E402
 from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
-from networks.data import dataset_spec, garment_marker_ids  # noqa: E402
+from networks.data import dataset_spec, garment_marker_ids, write_training_samples  # noqa: E402
 from networks.evaluate import evaluate  # noqa: E402
 from networks.shards import write_shards  # noqa: E402
+from networks.workers import one_thread, worker_context  # noqa: E402
 from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 
 #: per task: (planned steps over all calls, batch size); Adam at LR with WARMUP steps, cosine decay to
@@ -135,12 +136,6 @@ CHECKPOINT_EVERY = 2000
 RESERVE_S, START_S = 210.0, 45.0
 
 
-def _build_samples(view: Path, entry: dict, spec) -> None:
-    """samples/<name>.npz of one manifest entry of `view`, from its image and ground truth."""
-    image = cv2.imread(str(view / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
-    save_npz(view / entry["samples"], training_samples(image, ImageGroundTruth.load(view / entry["gt"]), spec))
-
-
 def prepare(root: Path, out: Path, cores: int = 1) -> tuple[Path, int]:
     """(a copy of the rendered dataset folder in `out`, samples built): its files copied, and
     `samples/<name>.npz` built in the copy (on `cores` processes) for every manifest entry when the
@@ -165,11 +160,14 @@ def prepare(root: Path, out: Path, cores: int = 1) -> tuple[Path, int]:
     entries = [json.loads(line) for line in (view / "manifest.jsonl").read_text().splitlines() if line]
     todo = [e for e in entries if not (view / e["samples"]).exists()]
     if cores > 1 and len(todo) > 1:
-        with ProcessPoolExecutor(min(cores, len(todo))) as pool:
-            list(pool.map(_build_samples, [view] * len(todo), todo, [spec] * len(todo), chunksize=4))
+        # one thread each, from the fork server (`networks.workers`): forked from here, each process
+        # ran every core's BLAS and OpenCV threads (load 2,800 on 64 cores, nothing built in a minute)
+        with ProcessPoolExecutor(min(cores, len(todo)), mp_context=worker_context("networks.data"),
+                                 initializer=one_thread) as pool:
+            list(pool.map(write_training_samples, [view] * len(todo), todo, [spec] * len(todo), chunksize=4))
     else:
         for entry in todo:
-            _build_samples(view, entry, spec)
+            write_training_samples(view, entry, spec)
     return view, len(todo)
 
 

@@ -42,12 +42,13 @@ import torch
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from assets.fileio import load_json, load_npz
+from assets.fileio import load_json, load_npz, save_npz
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
-                                        localizer_targets, marker_cells, recognizer_crops, recognizer_markers)
+                                        localizer_targets, marker_cells, recognizer_crops, recognizer_markers,
+                                        training_samples)
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
@@ -593,6 +594,13 @@ def _manifest(root: Path) -> list[dict]:
             raise ValueError(f"{path}:{number}: missing field(s) {', '.join(missing)}")
         entries.append(entry)
     return entries
+
+
+def write_training_samples(root: Path, entry: dict, spec: PatternSpec) -> None:
+    """`root / entry["samples"]` (`training_samples`: cells and crops) from the manifest entry's image and
+    ground truth, for a dataset folder that travelled without its samples/."""
+    image = _read_png(root / entry["image"])
+    save_npz(root / entry["samples"], training_samples(image, ImageGroundTruth.load(root / entry["gt"]), spec))
 
 
 def _read_png(path: Path) -> np.ndarray:
