@@ -39,6 +39,7 @@ import argparse
 import json
 import logging
 import math
+import signal
 import sys
 import time
 from pathlib import Path
@@ -589,6 +590,10 @@ def main(argv: list[str] | None = None) -> int:
                         "schedule ends within --time-limit, at the step rate measured early in the run")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
+    # Ctrl-C (SIGINT) writes last.pt and stops, also where the trainer started with SIGINT ignored: a
+    # shell starts `cmd &` so (and `nohup`'d benchmarks pass it on), and benchmarks/networks.py stops a
+    # run past its budget with SIGINT; an ignored one left such a run training and the caller waiting
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def action() -> None:
         ranks = Ranks.from_environment()

@@ -53,8 +53,8 @@ SIGINT_AT_START = _sigint_state()
 @pytest.fixture(autouse=True)
 def _sigint_left_as_found():
     """A test (its fixtures included) that leaves SIGINT ignored, handled otherwise or blocked in this
-    process fails: every process started later inherits that, and a trainer or a job the add-on
-    cancels by SIGINT would then not stop (the Ctrl-C test's full-suite failures)."""
+    process fails: every process started later inherits an ignored or blocked SIGINT, and a job the
+    add-on cancels by SIGINT would then not stop."""
     yield
     now = _sigint_state()
     if now != SIGINT_AT_START:
