@@ -33,11 +33,11 @@ from networks.detector import Detector, DetectorConfig  # noqa: E402
 GROUPS = ("all five points visible", "partial: centre visible, a point hidden")
 
 
-def groups(gt: ImageGroundTruth, spec) -> dict[str, np.ndarray]:
+def groups(gt: ImageGroundTruth, spec, completed: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per group, (M,) bool over `gt`'s markers: whole markers, and the partial ones the recognizer
-    trains on with `recognizer_partial` (`recognizer_markers`)."""
+    trains on with `recognizer_partial` (`recognizer_markers`; completed: `completed_points(gt)`)."""
     taken = np.zeros(len(gt.marker_id), bool)
-    taken[recognizer_markers(gt, spec, partial=True)] = True
+    taken[recognizer_markers(gt, spec, True, completed)] = True
     whole = gt.point_visible.all(axis=1)
     return dict(zip(GROUPS, (taken & whole, taken & ~whole)))
 
@@ -48,7 +48,7 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
         gt = ImageGroundTruth.load(gt_path)
         completed = completed_points(gt)  # what the crops are cut from (a point off the fabric completed)
-        for name, mask in groups(gt, detector.spec).items():
+        for name, mask in groups(gt, detector.spec, completed).items():
             pick = np.flatnonzero(mask)
             if len(pick):
                 points = completed[pick].astype(np.float64)
@@ -59,8 +59,8 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
 
 
 #: the chain's groups: the two above, and partial markers with a visible centre whose five points do
-#: not give a sane crop (a point off the fabric or behind the camera, or a fold: the recognizer never
-#: trains on them)
+#: not give a sane crop (folded, seen edge-on, behind the camera, or cut with too little of it on the
+#: fabric to complete: the recognizer never trains on them)
 CHAIN_GROUPS = GROUPS + ("partial: centre visible, no sane crop",)
 
 

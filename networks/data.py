@@ -220,9 +220,8 @@ class RenderedDataset(_Items, Dataset):
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
         if not self.entries:
             raise ValueError(f"{self.root}: no images in split {split!r}")
-        needed = ("samples", "image") + (("gt",) if view_warp or partial_markers else ())
-        if task != "localizer" and not partial_markers:
-            needed = ("samples",)
+        needed = ["samples"] + (["image"] if task == "localizer" or partial_markers else []) + \
+            (["gt"] if view_warp or partial_markers else [])
         missing = [e[k] for e in self.entries for k in needed if not (self.root / e[k]).is_file()]
         if missing:
             raise ValueError(f"{self.root}: {len(missing)} file(s) of the manifest are missing, e.g. {missing[:3]}")
@@ -341,21 +340,21 @@ class RenderedDataset(_Items, Dataset):
                              "crop jitter cuts its crops from")
         gt = ImageGroundTruth.load(self.root / entry["gt"])
         key = _CROP_KEYS[self.task][1]
+        image = _read_png(self.root / entry["image"])
+        if self.partial_markers:  # not the stored crops' markers (whole ones only): nothing to check against
+            completed = completed_points(gt)
+            pick = recognizer_markers(gt, self.spec, True, completed)
+            return {"image": image, "points_px": completed[pick].astype(np.float64), key: gt.marker_id[pick]}
         if self.task == "recognizer":
-            pick = recognizer_markers(gt, self.spec, self.partial_markers)
+            pick = recognizer_markers(gt, self.spec)
         else:
             pick = crosspoint_markers(gt, self.spec)[0]
-        if self.partial_markers:  # not the stored crops' markers (whole ones only)
-            stored = gt.marker_id[pick]
-        else:
-            stored = load_npz(self.root / entry["samples"], only=(key,))[key]
+        stored = load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
             raise ValueError(f"{self.root / entry['gt']}: its markers do not match the {self.task} crops of "
                              f"{self.root / entry['samples']}")
-        image = _read_png(self.root / entry["image"])
         if self.task == "recognizer":
-            points = completed_points(gt) if self.partial_markers else gt.points_px  # whole markers: the same
-            return {"image": image, "points_px": points[pick].astype(np.float64), key: stored}
+            return {"image": image, "points_px": gt.points_px[pick].astype(np.float64), key: stored}
         return {"image": image, "gt": gt.select(pick), key: stored}
 
     def _warped_cells(self, image_index: int, view: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -450,8 +449,8 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
     see them (the localizer finds those); recognizer crops of partial markers too unless
-    config.recognizer_partial is False (config None: the defaults).  config.crop_jitter_px > 0: cut from jittered points
-    (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
+    config.recognizer_partial is False (config None: the defaults).  config.crop_jitter_px > 0: cut
+    from jittered points (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":

@@ -191,18 +191,20 @@ def marker_cells(width: int, height: int, points_px: np.ndarray, present: np.nda
     return out
 
 
-def recognizer_markers(gt: ImageGroundTruth, spec: PatternSpec, partial: bool = False) -> np.ndarray:
+def recognizer_markers(gt: ImageGroundTruth, spec: PatternSpec, partial: bool = False,
+                       completed: np.ndarray | None = None) -> np.ndarray:
     """(N,) int64 indices into `gt` of the markers that get a Marker Recognizer crop: those whose five
     localization points are visible (the reference's crops); partial: also partial markers whose
     centre is visible (the localizer finds those, so the Detector recognizes them) and whose crop is
     sane (`crosspoint_markers`: five `completed_points` in front of the camera, a point off the
     fabric completed from the marker's crosspoints, giving a homography that describes a marker), in
-    index order.  Their crops are cut from `completed_points`."""
+    index order.  Their crops are cut from `completed_points` (completed: those, when the caller has
+    them)."""
     whole = gt.point_visible.all(axis=1)
     if not partial:
         return np.flatnonzero(whole)
     keep = whole.copy()
-    sane = crosspoint_markers(gt, spec)[0]
+    sane = crosspoint_markers(gt, spec, completed=completed)[0]
     keep[sane[gt.point_visible[sane, 0]]] = True
     return np.flatnonzero(keep)
 
@@ -216,9 +218,12 @@ def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec,
     spec: the garment's pattern spec (`surface.spec`; the panels' specs differ only in their tiling,
     which crops do not depend on)."""
     image = _image(image, gt)
-    pick = recognizer_markers(gt, spec, partial)
-    points = completed_points(gt)[pick] if partial else gt.points_px[pick]
-    return _unwarp(image, spec, RECOGNIZER_CROP, points), gt.marker_id[pick]
+    if not partial:
+        pick = recognizer_markers(gt, spec)
+        return _unwarp(image, spec, RECOGNIZER_CROP, gt.points_px[pick]), gt.marker_id[pick]
+    completed = completed_points(gt)
+    pick = recognizer_markers(gt, spec, partial, completed)
+    return _unwarp(image, spec, RECOGNIZER_CROP, completed[pick]), gt.marker_id[pick]
 
 
 def crosspoint_crops(
@@ -235,8 +240,9 @@ def crosspoint_crops(
     if gt.crosspoints_px.shape[1] != spec.crosspoints_per_side:
         raise ValueError(f"spec has {spec.crosspoints_per_side} crosspoints per side, the ground truth "
                          f"{gt.crosspoints_px.shape[1]}")
-    pick, homography = crosspoint_markers(gt, spec)
-    crops = _unwarp(image, spec, CROSSPOINT_CROP, completed_points(gt)[pick])
+    completed = completed_points(gt)
+    pick, homography = crosspoint_markers(gt, spec, completed=completed)
+    crops = _unwarp(image, spec, CROSSPOINT_CROP, completed[pick])
     k = spec.crosspoints_per_side
     projected = gt.crosspoints_px[pick].astype(np.float64).reshape(len(pick), k * k, 2)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -245,8 +251,8 @@ def crosspoint_crops(
     return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick] & inside
 
 
-def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: float = MAX_CROP_FIT_CELLS
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: float = MAX_CROP_FIT_CELLS,
+                       completed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The markers that get a crosspoint crop: (indices (N,) int64 into `gt`, their crop homographies
     (N, 3, 3) float64 image -> `CROSSPOINT_CROP` pixels, `crop_homography` of their five
     `completed_points`).
@@ -255,8 +261,9 @@ def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: f
     fabric, or off it and completed from its crosspoints: a marker cut by the garment's edge) and in
     front of the camera (the crop follows their projections even where they are occluded) and their
     homography is sane (`sane_crop_homography`): a partial marker folded over or seen edge-on gives
-    a degenerate fit that maps its visible crosspoints anywhere, up to millions of pixels away."""
-    completed = completed_points(gt)
+    a degenerate fit that maps its visible crosspoints anywhere, up to millions of pixels away.
+    completed: `completed_points(gt)` when the caller has them (they are computed otherwise)."""
+    completed = completed_points(gt) if completed is None else completed
     with np.errstate(invalid="ignore"):
         in_front = ((gt.points_depth > 0) | np.isnan(gt.points_depth)).all(axis=1)  # NaN: off the fabric
         usable = np.isfinite(completed).all(axis=(1, 2)) & in_front
