@@ -214,30 +214,36 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
-        self._markers: dict[int, dict[str, np.ndarray]] = {}
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
         if not self.entries:
             raise ValueError(f"{self.root}: no images in split {split!r}")
-        needed = ["samples"] + (["image"] if task == "localizer" or partial_markers else []) + \
-            (["gt"] if view_warp or partial_markers else [])
-        missing = [e[k] for e in self.entries for k in needed if not (self.root / e[k]).is_file()]
+        needed = ["samples"] + (["image"] if task == "localizer" or self._cut_anew else []) + \
+            (["gt"] if view_warp or self._cut_anew else [])
+        missing = [e.get(k, f"{e.get('name')} has no {k!r} entry") for e in self.entries for k in needed
+                   if k not in e or not (self.root / e[k]).is_file()]
         if missing:
             raise ValueError(f"{self.root}: {len(missing)} file(s) of the manifest are missing, e.g. {missing[:3]}")
         self.spec = self.codebook = None
         if task == "crosspoints" or self.crop_jitter_px > 0 or partial_markers:  # references, or crops cut anew
             self.spec = spec if spec is not None else dataset_spec(self.root)
+        # what per-image work the items need (completed points, the markers' picks) is done here, once,
+        # before DataLoader workers fork: done per worker and image, it starved the tenth GPU run (a
+        # mixed batch draws its rendered items from random images, so the workers' caches rarely hit)
+        self._sources: list[dict[str, np.ndarray]] = []
+        quiet = len(self.entries) < (50 if self._cut_anew or view_warp else 1000)
+        entries = tqdm(range(len(self.entries)), desc=f"index {split} {task}", disable=quiet)
         if task == "localizer":
             self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
+            self._markers = {i: self._warp_markers(i) for i in entries} if view_warp is not None else {}
         else:
             key = _CROP_KEYS[task][1]
-            entries = tqdm(self.entries, desc=f"index {split} {task}", disable=len(self.entries) < 1000)
-            if partial_markers:
-                counts = [len(recognizer_markers(ImageGroundTruth.load(self.root / e["gt"]), self.spec, True))
-                          for e in entries]
+            if self._cut_anew:
+                self._sources = [self._marker_source(i) for i in entries]
+                counts = [len(source[key]) for source in self._sources]
             else:
-                counts = [len(load_npz(self.root / e["samples"], only=(key,))[key]) for e in entries]
+                counts = [len(load_npz(self.root / self.entries[i]["samples"], only=(key,))[key]) for i in entries]
             image = np.repeat(np.arange(len(self.entries)), counts)
             crop = np.arange(len(image)) - np.repeat(np.cumsum(counts) - counts, counts)
             self._index = np.stack([image, crop], axis=1).astype(np.int64)
@@ -328,43 +334,47 @@ class RenderedDataset(_Items, Dataset):
         """Crops are cut from the image per item (crop jitter, or partial markers), not read stored."""
         return self.crop_jitter_px > 0 or self.partial_markers
 
-    def _jitter_source(self, image_index: int) -> dict[str, np.ndarray]:
-        """What crops cut anew are cut from: the image, and the ground truth of the markers of its
-        stored crops (picked as `recognizer_crops` and `crosspoint_crops` pick them), checked against
-        the samples: the recognizer's five true points and IDs, the crosspoints' `ImageGroundTruth`.
-        With partial_markers, the recognizer's markers of `recognizer_markers(partial=True)`, which
-        the stored crops (whole markers) do not hold."""
+    def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
+        """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
+        crop (`recognizer_markers`; with partial_markers, `completed_points`) or the crosspoint network's
+        markers (`pick`, indices into gt/<name>.npz: `crosspoint_markers`), with their IDs.  Without
+        partial_markers they are checked against the samples' stored crops: the markers of those."""
         entry = self.entries[image_index]
-        if "gt" not in entry:
-            raise ValueError(f"{self.root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' entry, which "
-                             "crop jitter cuts its crops from")
         gt = ImageGroundTruth.load(self.root / entry["gt"])
         key = _CROP_KEYS[self.task][1]
-        image = _read_png(self.root / entry["image"])
-        if self.partial_markers:  # not the stored crops' markers (whole ones only): nothing to check against
+        if self.partial_markers:  # the stored crops hold whole markers only: nothing to check against
             completed = completed_points(gt)
             pick = recognizer_markers(gt, self.spec, True, completed)
-            return {"image": image, "points_px": completed[pick].astype(np.float64), key: gt.marker_id[pick]}
-        if self.task == "recognizer":
-            pick = recognizer_markers(gt, self.spec)
-        else:
-            pick = crosspoint_markers(gt, self.spec)[0]
+            return {"points_px": completed[pick].astype(np.float64), key: gt.marker_id[pick]}
+        pick = recognizer_markers(gt, self.spec) if self.task == "recognizer" else crosspoint_markers(gt, self.spec)[0]
         stored = load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
             raise ValueError(f"{self.root / entry['gt']}: its markers do not match the {self.task} crops of "
                              f"{self.root / entry['samples']}")
         if self.task == "recognizer":
-            return {"image": image, "points_px": gt.points_px[pick].astype(np.float64), key: stored}
-        return {"image": image, "gt": gt.select(pick), key: stored}
+            return {"points_px": gt.points_px[pick].astype(np.float64), key: stored}
+        return {"pick": pick, key: stored}
+
+    def _jitter_source(self, image_index: int) -> dict[str, np.ndarray]:
+        """An image's pixels with its `_marker_source` (the crosspoint network's: its markers'
+        ground truth)."""
+        entry, source = self.entries[image_index], self._sources[image_index]
+        image = _read_png(self.root / entry["image"])
+        if self.task == "recognizer":
+            return {"image": image, **source}
+        gt = ImageGroundTruth.load(self.root / entry["gt"]).select(source["pick"])
+        return {"image": image, "gt": gt, **source}
+
+    def _warp_markers(self, image_index: int) -> dict[str, np.ndarray]:
+        """An image's markers as the view warp's cells need them: points off the fabric completed as
+        `localizer_targets` completes them (without the crosspoints)."""
+        gt = ImageGroundTruth.load(self.root / self.entries[image_index]["gt"])
+        return {"points_px": completed_points(gt), "point_visible": gt.point_visible,
+                "points_depth": gt.points_depth, "status": gt.status}
 
     def _warped_cells(self, image_index: int, view: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         """The localizer's cell targets of an image seen through `view` (source -> item pixels) as an
-        item of `size` (width, height), from the image's ground-truth points, points off the fabric
-        completed as `localizer_targets` completes them (kept per worker, without the crosspoints)."""
-        if image_index not in self._markers:
-            gt = ImageGroundTruth.load(self.root / self.entries[image_index]["gt"])
-            self._markers[image_index] = {"points_px": completed_points(gt), "point_visible": gt.point_visible,
-                                          "points_depth": gt.points_depth, "status": gt.status}
+        item of `size` (width, height), from the image's ground-truth points (`_warp_markers`)."""
         markers = self._markers[image_index]
         points = apply_homography(view, markers["points_px"]).astype(np.float32)  # NaN (off the fabric) stays NaN
         with np.errstate(invalid="ignore"):

@@ -2,6 +2,7 @@
 images), the synthesizer, and their mixture."""
 
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -228,6 +229,35 @@ def test_partial_marker_items_add_the_partial_markers_crops_cut_from_the_image(f
     assert len(same) == len(whole) and all(same)
     with pytest.raises(ValueError, match="partial_markers is for the recognizer"):
         RenderedDataset(folder, "train", "crosspoints", partial_markers=True)
+
+
+def test_per_image_marker_work_is_done_once_when_the_dataset_is_made_and_stale_samples_are_refused_then(
+        folder, tmp_path, monkeypatch):
+    import networks.data as data
+
+    made = {task: RenderedDataset(folder, "train", task, crop_jitter_px=1.0) for task in ("recognizer", "crosspoints")}
+    made["partial"] = RenderedDataset(folder, "train", "recognizer", partial_markers=True)
+    made["warp"] = RenderedDataset(folder, "train", "localizer", view_warp=ViewWarp(probability=1.0), crop_px=64)
+    expected = {name: [d[i] for i in range(0, len(d), max(1, len(d) // 5))] for name, d in made.items()}
+
+    def refused(*_, **__):
+        raise AssertionError("per-image marker work in an item")
+
+    for name in ("completed_points", "crosspoint_markers", "recognizer_markers"):
+        monkeypatch.setattr(data, name, refused)  # the items (what a worker does) no longer need them
+    for name, dataset in made.items():
+        dataset._cache.clear()
+        got = [dataset[i] for i in range(0, len(dataset), max(1, len(dataset) // 5))]
+        for a, b in zip(got, expected[name]):
+            assert all(np.array_equal(a[k].numpy(), b[k].numpy(), equal_nan=a[k].is_floating_point()) for k in a), name
+    monkeypatch.undo()
+    stale = shutil.copytree(folder, tmp_path / "stale")
+    entry = _entries(stale, "train")[0]
+    arrays = dict(np.load(stale / entry["samples"]))
+    arrays["crosspoint_ids"] = arrays["crosspoint_ids"][1:]  # samples built before the markers changed
+    np.savez(stale / entry["samples"], **arrays)
+    with pytest.raises(ValueError, match="do not match the crosspoints crops"):
+        RenderedDataset(stale, "train", "crosspoints", crop_jitter_px=1.0)  # at once, not in a worker
 
 
 def test_synthesized_recognizer_crops_take_partial_markers_when_configured(codebook):
