@@ -16,6 +16,8 @@ runs on the device machine's Python as well as here).
 
 A device session's weights, for instance (`benchmarks/networks.py --export-weights`):
 
+    (a benchmark started in the background does not keep the machine: it goes back 30 s after a call
+    returns, so the wait calls follow one another with nothing in between; the tenth run lost one so)
     call 2 (on the machine):  python3 benchmarks/device_files.py wait /tmp/bn/export/results.json --timeout 570
                               python3 benchmarks/device_files.py pack /tmp/bn/export/weights /tmp/parts
                               python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 0-2
