@@ -72,6 +72,10 @@ VAL_SEED_OFFSET = 1_000_003
 #: cuDNN's algorithm search are behind by then) over this share of the time limit, and the schedule
 #: is planned to end at this share of the time left (validations and checkpoints vary the pace)
 FIT_SKIP_STEPS, FIT_PROBE_SHARE, FIT_MARGIN = 10, 0.05, 0.93
+#: ... and fitted once more, at the rate measured over this share of the time limit after the first
+#: fit: a first probe inside a slow start (caches filling, other runs starting) planned the tenth GPU
+#: run's localizer at a third of its steady rate, and its GPU idled for the last 10 minutes
+FIT_REFIT_SHARE = 0.2
 
 
 class StepOrder(Dataset):
@@ -312,7 +316,8 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
     or after that many seconds, writing `last.pt` (resume later).  Ctrl-C writes `last.pt` and
     re-raises.  fit_to_time_limit: shorten the schedule (`config.steps`, so the cosine decay) to end
     within time_limit_s at the step rate measured early in this call (`FIT_SKIP_STEPS`,
-    `FIT_PROBE_SHARE`, `FIT_MARGIN`), never lengthening it; the fitted steps are saved with the run's
+    `FIT_PROBE_SHARE`, `FIT_MARGIN`) and again at the steady rate (`FIT_REFIT_SHARE`), never beyond
+    config.steps; the fitted steps are saved with the run's
     config, so a resumed run keeps them.  Returns {"step", "finished", "best_val_loss", "last", "best",
     "val", "steps"} (the last validation metrics, or None; the planned steps).  With
     config.num_workers > 0 the data-loading workers come from a fork server (`data_loader`): a
@@ -437,24 +442,27 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     # are the single-process ones even when the ranks' counts differ
     count_mean = (lambda count: mean_over_ranks(count, ranks)) if ranks.distributed else None
     started = time.monotonic()
-    probe = (step + FIT_SKIP_STEPS, None) if fit_to_time_limit else None  # (first step timed, its clock)
+    # fit_to_time_limit: (first step timed, its clock, the share of the time limit it is timed over)
+    probe = (step + FIT_SKIP_STEPS, None, FIT_PROBE_SHARE) if fit_to_time_limit else None
+    longest = config.steps  # a fit never plans beyond the configured schedule
 
     def fit_schedule() -> None:
         """Plan `config.steps` to end within the time limit at the rate measured since the probe began
-        (the same number on every rank: their plans are averaged)."""
+        (the same number on every rank: their plans are averaged); after the first fit, time the
+        steps again (`FIT_REFIT_SHARE`) and fit once more."""
         nonlocal config, stop, probe
-        first, clock = probe
+        first, clock, share = probe
         now = time.monotonic()
         rate = (step - first) / max(now - clock, 1e-9)
         planned = step + rate * (time_limit_s - (now - started)) * FIT_MARGIN
         planned = int(mean_over_ranks(torch.tensor([planned], dtype=torch.float64, device=device), ranks).item())
-        planned = max(step + 1, min(config.steps, planned))
+        planned = max(step + 1, min(longest, planned))
         log.info("%s: %.2f steps/s; the schedule is fitted to the time limit: %d steps (was %d)",
                  config.task, rate, planned, config.steps)
         config = config.replace(steps=planned)
-        stop = min(stop, planned)
+        stop = planned if until_step is None else min(until_step, planned)
         bar.total = planned
-        probe = None
+        probe = (step, now, FIT_REFIT_SHARE) if share == FIT_PROBE_SHARE else None
         if ranks.main:
             config.save(out / "config.json")
 
@@ -497,10 +505,10 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
                                                     ranks, device):
                 log.info("time limit of %.0f s reached at step %d", time_limit_s, step)
                 break
-            if probe is not None:  # fit_to_time_limit: time the steps from probe[0], then fit once
+            if probe is not None:  # fit_to_time_limit: time the steps from probe[0], then fit
                 if probe[1] is None:
-                    probe = (step, time.monotonic()) if step >= probe[0] else probe
-                elif any_rank(ranks.main and time.monotonic() - probe[1] >= FIT_PROBE_SHARE * time_limit_s,
+                    probe = (step, time.monotonic(), probe[2]) if step >= probe[0] else probe
+                elif any_rank(ranks.main and time.monotonic() - probe[1] >= probe[2] * time_limit_s,
                               ranks, device):
                     fit_schedule()
             if step >= stop:

@@ -2,6 +2,7 @@
 run continues exactly as the uninterrupted one; the CLI, Ctrl-C and bad input."""
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -240,9 +241,11 @@ def test_the_localizer_trains_on_shards_mixed_with_rendered_crops(dataset, tmp_p
               progress=False)
 
 
-def test_the_schedule_fits_the_time_limit(dataset, tmp_path):
-    """A run planned far too long, fitted to a few seconds: it finishes its (shortened) schedule inside
-    the limit with the learning rate decayed to its floor, and a resumed run keeps the fitted steps."""
+def test_the_schedule_fits_the_time_limit(dataset, tmp_path, caplog):
+    """A run planned far too long, fitted to a few seconds (twice: early, then at the steady rate): it
+    finishes its (shortened) schedule inside the limit with the learning rate decayed to its floor,
+    and a resumed run keeps the fitted steps."""
+    caplog.set_level(logging.INFO, logger="networks.train")
     config = _config("localizer", steps=1_000_000, batch_size=1, warmup_steps=2, min_lr_ratio=0.01, log_every=1)
     out = tmp_path / "run"
     started = time.monotonic()
@@ -254,6 +257,8 @@ def test_the_schedule_fits_the_time_limit(dataset, tmp_path):
     # how many steps fit depends on the machine's load (20-40 in 8 s on an idle 2-core machine, 17
     # while Blender rendered beside it): the plan is fitted, not a count
     assert result["finished"] and FIT_SKIP_STEPS < result["steps"] < 1_000_000 and result["step"] == result["steps"]
+    fits = [r.getMessage() for r in caplog.records if "fitted to the time limit" in r.getMessage()]
+    assert len(fits) == 2 and fits[1].endswith(f"{result['steps']} steps (was {fits[0].split()[-4]})"), fits
     records = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
     last = [r for r in records if "lr" in r][-1]
     assert last["step"] == result["steps"] and last["lr"] == pytest.approx(config.lr * 0.01, rel=0.05)
