@@ -23,7 +23,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  Data workers
    are sized to the cores.  The schedule's planned steps are long (the learning rate stays near its
    peak); `--final` has each main run fit its schedule to end within this call (`networks.train
-   --fit-time-limit`: the step rate measured early in the call), so its cosine decay completes; one
+   --fit-time-limit`: the step rate measured early in the call, then again), so its cosine decay completes; one
    `--final` call on a fresh folder is a whole benchmark.
 3. Evaluate each run's last.pt on the rendered dataset's validation and test images (`--rendered`, a
    factory dataset folder of Blender renders, read through a view in --out whose `samples/` are
@@ -525,7 +525,7 @@ def main() -> None:
     parser.add_argument("--runs", default=",".join(MAIN.values()),
                         help=f"runs to train this call (of {', '.join(RUNS)}; default the main runs)")
     parser.add_argument("--final", action="store_true", help="the last call: each main run fits its schedule "
-                        "to end within this call (at the step rate measured early in it)")
+                        "to end within this call (at the step rate measured early in it, then again)")
     parser.add_argument("--no-ddp", action="store_true", help="one GPU per run: spare GPUs are left idle")
     parser.add_argument("--pretrained", type=Path, help="a folder of torchvision ImageNet ResNet files "
                         "(resnet18-*.pth, resnet50-*.pth) to start new runs from; default: from scratch")

@@ -595,7 +595,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--until-step", type=int, help="stop at this step (writes last.pt; resume later)")
     parser.add_argument("--time-limit", type=float, help="stop after this many seconds (writes last.pt)")
     parser.add_argument("--fit-time-limit", action="store_true", help="shorten --steps so that the learning-rate "
-                        "schedule ends within --time-limit, at the step rate measured early in the run")
+                        "schedule ends within --time-limit, at the step rate measured early in the run and again at "
+                        "its steady rate")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     # Ctrl-C (SIGINT) writes last.pt and stops, also where the trainer started with SIGINT ignored: a
