@@ -599,10 +599,6 @@ def main(argv: list[str] | None = None) -> int:
                         "its steady rate")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
-    # Ctrl-C (SIGINT) writes last.pt and stops, also where the trainer started with SIGINT ignored: a
-    # shell starts `cmd &` so (and `nohup`'d benchmarks pass it on), and benchmarks/networks.py stops a
-    # run past its budget with SIGINT; an ignored one left such a run training and the caller waiting
-    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def action() -> None:
         ranks = Ranks.from_environment()
@@ -628,5 +624,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    # Ctrl-C (SIGINT) writes last.pt and stops, also where the trainer started with SIGINT ignored: a
+    # shell starts `cmd &` so (and `nohup`'d benchmarks pass it on), and benchmarks/networks.py stops a
+    # run past its budget with SIGINT; an ignored one left such a run training and the caller waiting.
+    # Here only: a program calling main() keeps its own handler.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     sys.exit(main())
 
