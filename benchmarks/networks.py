@@ -62,6 +62,7 @@ the call exits with an error at the end.  The rendered dataset must use the code
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
@@ -164,7 +165,7 @@ def prepare(root: Path, out: Path, cores: int = 1) -> tuple[Path, int]:
         # ran every core's BLAS and OpenCV threads (load 2,800 on 64 cores, nothing built in a minute)
         with ProcessPoolExecutor(min(cores, len(todo)), mp_context=worker_context("networks.data"),
                                  initializer=one_thread) as pool:
-            list(pool.map(write_training_samples, [view] * len(todo), todo, [spec] * len(todo), chunksize=4))
+            list(pool.map(functools.partial(write_training_samples, view, spec=spec), todo, chunksize=4))
     else:
         for entry in todo:
             write_training_samples(view, entry, spec)

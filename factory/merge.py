@@ -59,8 +59,8 @@ def _records(folder: Path) -> list[dict]:
 
 def _place(source: Path, target: Path) -> None:
     """`target` as a hard link to `source`, or a copy where linking fails (another file system)."""
-    if target.exists():
-        if not filecmp.cmp(source, target, shallow=False):
+    if target.exists():  # a rerun: the same file (linked), or one with the same bytes (copied)
+        if not (os.path.samefile(source, target) or filecmp.cmp(source, target, shallow=False)):
             raise ValueError(f"{target} exists and differs from {source}")
         return
     with atomic_path(target) as tmp:
@@ -77,7 +77,7 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
     if len(sources) < 1:
         raise ValueError("merge needs at least one source dataset folder")
     first = sources[0].folder / "template.npz"
-    plan, names, frames = [], {}, {}
+    plan, names, frames, counts = [], {}, {}, []
     for source in sources:
         records = _records(source.folder)
         template = source.folder / "template.npz"
@@ -97,9 +97,10 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
                 raise ValueError(f"simulation frame {frame} is {split} in {where} and {record['split']} in "
                                  f"{source.folder}: the same garment geometry would be trained on and evaluated")
             plan.append((source.folder, record))
-    config = {"merged": [{"folder": str(s.folder.resolve()), "train": s.train, "images": sum(f == s.folder for f, _ in plan),
+        counts.append(len(records))
+    config = {"merged": [{"folder": str(s.folder.resolve()), "train": s.train, "images": count,
                           "config": load_json(s.folder / "config.json") if (s.folder / "config.json").is_file() else None}
-                         for s in sources]}
+                         for s, count in zip(sources, counts)]}
     if (out / "config.json").is_file() and load_json(out / "config.json") != config:
         raise ValueError(f"{out / 'config.json'}: {out} holds another dataset or merge; merge into a new folder")
     out.mkdir(parents=True, exist_ok=True)

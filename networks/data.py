@@ -226,7 +226,7 @@ class RenderedDataset(_Items, Dataset):
         if missing:
             raise ValueError(f"{self.root}: {len(missing)} file(s) of the manifest are missing, e.g. {missing[:3]}")
         self.spec = self.codebook = None
-        if task == "crosspoints" or self.crop_jitter_px > 0 or partial_markers:  # references, or crops cut anew
+        if task == "crosspoints" or self._cut_anew:  # references, or crops cut anew
             self.spec = spec if spec is not None else dataset_spec(self.root)
         # what per-image work the items need (completed points, the markers' picks) is done here, once,
         # before DataLoader workers fork: done per worker and image, it starved the tenth GPU run (a
