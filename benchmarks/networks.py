@@ -655,8 +655,9 @@ def _print_tables(result: dict) -> None:
     print("\n| run | synth weight | GPUs | workers per rank | step / target | this call: steps, s, steps/s "
           "| start-up s: setup, first batch, first step, step 50 | loss first -> last |")
     print("|---|---|---|---|---|---|---|---|")
+    weights = {name: run["synth_weight"] for name, run in result["runs"].items()}  # this call's, not the defaults
     for name, r in result["training"].items():
-        weight = RUNS[name][1]
+        weight = weights[name]
         if "error" in r:
             print(f"| {name} | {weight} | | | failed: {r['error'][-300:]!r} | | | |")
             continue
@@ -673,7 +674,7 @@ def _print_tables(result: dict) -> None:
         for name, m in result["mixes"].items():
             a = m["all"]
             full = f"{m['full']['recall']:.3f}" if "full" in m else "-"
-            print(f"| {name} ({RUNS[name][1]} synth) | {m['step']} | {m['loss']['total']:.4g} | {a['precision']:.3f} | "
+            print(f"| {name} ({weights[name]} synth) | {m['step']} | {m['loss']['total']:.4g} | {a['precision']:.3f} | "
                   f"{a['recall']:.3f} | {a['f1']:.3f} | {full} | {a['error_px']['centre']['median']:.2f} |")
     print(f"\n| metric ({result['heldout_images']} held-out Blender renders) | value |\n|---|---|")
     inits = {f"{name}, its --init": m for name, m in result.get("init_metrics", {}).items()}

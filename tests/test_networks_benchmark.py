@@ -101,3 +101,16 @@ def test_the_gpu_machine_s_imports_need_no_triangle():
     done = subprocess.run([sys.executable, "-c", code], cwd=PROJECT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip() == "False"
+
+
+def test_the_run_table_shows_the_call_s_synth_weight_not_the_default(bench, capsys):
+    """Tables printed again from a results.json (as for RESULTS.md) show the weight the call trained
+    with: the eleventh run's localizer trained on renders only and its table said 0.5."""
+    row = {"step": 10, "target": 10, "steps_this_call": 10, "seconds": 1.0, "steps_per_s": 10.0, "workers": 2,
+           "first_loss": 2.0, "last_loss": 1.0, "gpus": [0]}
+    result = {"date": "2026-11-26", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {},
+              "runs": {"localizer_mix": {"synth_weight": 0.0}}, "training": {"localizer_mix": row},
+              "heldout_images": 0, "metrics": {}, "detector": {}, "throughput": []}
+    assert bench.RUNS["localizer_mix"][1] != 0.0
+    bench._print_tables(result)
+    assert "| localizer_mix | 0.0 | 0 | 2 | 10 / 10 |" in capsys.readouterr().out
