@@ -463,7 +463,7 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
     if (init or {}).get(MAIN["recognizer"]):
         recognizers[f"{MAIN['recognizer']}, its --init"] = Path(init[MAIN["recognizer"]])
     pairs = rendered_pairs(test)
-    return {label: top1(load_detector(others[0], path, others[1], test, device=device), pairs)
+    return {label: top1(load_detector(others[0], path, others[1], test, device=device), pairs)[0]
             for label, path in recognizers.items()}
 
 

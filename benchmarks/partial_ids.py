@@ -42,8 +42,21 @@ def groups(gt: ImageGroundTruth, spec, completed: np.ndarray | None = None) -> d
     return dict(zip(GROUPS, (taken & whole, taken & ~whole)))
 
 
-def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
+#: marker size bins, px (`foreshortening.marker_shape`: the square root of its area in the image)
+SIZES = (0.0, 12.0, 16.0, 24.0, 32.0, np.inf)
+
+
+def size_bin(low: float, high: float) -> str:
+    return f"size {low:.0f}-{high:.0f} px" if np.isfinite(high) else f"size >= {low:.0f} px"
+
+
+def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, dict], dict[str, dict]]:
+    """Per group, markers and top-1 given the true points; and the same per group and marker size
+    (`SIZES`): the recognizer's misses by how large the marker is in the image."""
+    from foreshortening import marker_shape  # benchmarks/, on the path from main and networks.py
+
     counts = {name: [0, 0] for name in GROUPS}
+    bins = {(name, size_bin(lo, hi)): [0, 0] for name in GROUPS for lo, hi in zip(SIZES[:-1], SIZES[1:])}
     for image_path, gt_path in pairs:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
         gt = ImageGroundTruth.load(gt_path)
@@ -53,10 +66,18 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
             if len(pick):
                 points = completed[pick].astype(np.float64)
                 ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), points)
+                right = ids == gt.marker_id[pick]
                 counts[name][0] += len(pick)
-                counts[name][1] += int((ids == gt.marker_id[pick]).sum())
-    return {name: {"markers": n, "top1": right / max(n, 1)} for name, (n, right) in counts.items()}
-
+                counts[name][1] += int(right.sum())
+                which = np.digitize(marker_shape(points)[1], SIZES[1:-1])  # crops' points are finite
+                for k, (lo, hi) in enumerate(zip(SIZES[:-1], SIZES[1:])):
+                    bins[name, size_bin(lo, hi)][0] += int((which == k).sum())
+                    bins[name, size_bin(lo, hi)][1] += int(right[which == k].sum())
+    by_size: dict[str, dict] = {name: {} for name in GROUPS}
+    for (name, label), (n, right) in bins.items():
+        if n:
+            by_size[name][label] = {"markers": n, "top1": right / n}
+    return {name: {"markers": n, "top1": right / max(n, 1)} for name, (n, right) in counts.items()}, by_size
 
 #: the chain's groups: the two above, and partial markers with a visible centre whose five points do
 #: not give a sane crop (folded, seen edge-on, behind the camera, or cut with too little of it on the
@@ -113,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources, chains = {}, {}
+    sources, sizes, chains = {}, {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
@@ -126,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
                                              tables=load_template(template).layout.tables(),
                                              config=DetectorConfig(localizer_scale=scale))
         source = f"{label} ({len(pairs)} images)"
-        sources[source] = top1(detector, pairs)
+        sources[source], sizes[source] = top1(detector, pairs)
         if args.chain:
             chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
     print(f"# recognizer top-1 given the true points, {args.checkpoints[1].name}")
@@ -134,6 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     for source, rows in sources.items():
         for name, r in rows.items():
             print(f"| {source} | {name} | {r['markers']} | {r['top1']:.3f} |")
+    print("\n# the same by marker size in the image (the square root of its area)")
+    print("| images | markers | size | count | top-1 |\n|---|---|---|---|---|")
+    for source, rows in sizes.items():
+        for name, by_size in rows.items():
+            for label, r in by_size.items():
+                print(f"| {source} | {name} | {label} | {r['markers']} | {r['top1']:.3f} |")
     if chains:
         print(f"\n# the chain: {', '.join(p.name for p in args.checkpoints)}")
         print("| images | markers | count | found | identified, recognizer alone | identified after the votes "
@@ -142,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
             for name, r in rows.items():
                 print(f"| {source} | {name} | {r['markers']} | {r['found']:.3f} | {r['right_alone']:.3f} | "
                       f"{r['right_voted']:.3f} |")
-    print("RESULT " + json.dumps({"top1": sources, "chain": chains}))
+    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains}))
     return 0
 
 

@@ -86,16 +86,38 @@ def split_entries(root: str | Path, split: str) -> list[dict]:
     return chosen
 
 
-def _crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: np.ndarray, source: Path
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def crosspoint_crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: np.ndarray, source: Path
+                           ) -> tuple[np.ndarray, np.ndarray]:
     """Five image points and image crosspoints of each crosspoint crop, picked as
-    `assets.pattern.observation.crosspoint_crops` picks them (`crosspoint_markers`)."""
+    `assets.pattern.observation.crosspoint_crops` picks them (`crosspoint_markers`); `marker_id`: the
+    crops' IDs, checked against that pick (`source` names the ground truth in the error)."""
     pick, _ = crosspoint_markers(gt, spec)
     if not np.array_equal(gt.marker_id[pick], marker_id):
         raise ValueError(f"{source}: its markers do not match the crosspoint crops of the sample "
                          f"({len(pick)} usable markers, {len(marker_id)} crops); build samples/ again with "
                          "assets.pattern.observation.training_samples")
     return completed_points(gt)[pick], gt.crosspoints_px[pick]
+
+
+def crosspoint_arrays(spec: PatternSpec, codebook: np.ndarray, crops: np.ndarray, marker_id: np.ndarray,
+                      xy: np.ndarray, visible: np.ndarray) -> dict[str, np.ndarray]:
+    """A crosspoint crop set (`crosspoint_crops`' four arrays) as `crop_batches` takes it, with each
+    ID's reference texture."""
+    ids = np.asarray(marker_id, np.int64)
+    return {"crop": crops, "reference": reference_textures(spec, codebook[ids], CROSSPOINT_CROP),
+            "xy": np.asarray(xy, np.float32), "visible": np.asarray(visible, bool)}
+
+
+def crop_batches(arrays: dict[str, np.ndarray], batch_size: int = 32) -> Iterator[dict]:
+    """Batches of tensors of equal-length arrays (crops and references (N, H, W, C) become (B, C, H, W)),
+    as the datasets' items collated."""
+    for start in range(0, len(arrays["crop"]), batch_size):
+        part = {k: v[start:start + batch_size] for k, v in arrays.items()}
+        batch = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in part.items()}
+        for key in ("crop", "reference"):
+            if key in batch:
+                batch[key] = batch[key].permute(0, 3, 1, 2).contiguous()
+        yield batch
 
 
 def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32
@@ -126,20 +148,12 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
         if task == "recognizer":
             arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
         else:
-            ids = samples["crosspoint_ids"].astype(np.int64)
-            arrays = {"crop": samples["crosspoint_crops"],
-                      "reference": reference_textures(spec, codebook[ids], CROSSPOINT_CROP),
-                      "xy": samples["crosspoint_xy"].astype(np.float32),
-                      "visible": samples["crosspoint_visible"].astype(bool)}
+            arrays = crosspoint_arrays(spec, codebook, samples["crosspoint_crops"], samples["crosspoint_ids"],
+                                       samples["crosspoint_xy"], samples["crosspoint_visible"])
             if gt is not None:
-                arrays["points_px"], arrays["gt_xy_image"] = _crop_points(gt, spec, samples["crosspoint_ids"], gt_path)
-        for start in range(0, len(arrays["crop"]), batch_size):
-            part = {k: v[start:start + batch_size] for k, v in arrays.items()}
-            batch = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in part.items()}
-            for key in ("crop", "reference"):
-                if key in batch:
-                    batch[key] = batch[key].permute(0, 3, 1, 2).contiguous()
-            yield batch
+                arrays["points_px"], arrays["gt_xy_image"] = crosspoint_crop_points(
+                    gt, spec, samples["crosspoint_ids"], gt_path)
+        yield from crop_batches(arrays, batch_size)
 
 
 # ---- running a model -------------------------------------------------------------------------------
