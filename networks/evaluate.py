@@ -124,7 +124,9 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                    ) -> Iterator[dict]:
     """Batches of the split's samples as the datasets' items collated (`networks.tasks`), with the
     ground truth the metrics need beside them: localizer batches carry "gt_full" (per image (M,)
-    bool, matching `cells_to_markers`), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
+    bool, matching `cells_to_markers`) and "gt_ignore" (per image (L, 2) centres of the markers the
+    image shows that are not targets: `localizer_metrics` counts a prediction on one as neither
+    true nor false), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
     (B, K, K, 2) image pixels when `gt/<name>.npz` exists.  Localizer batches hold one image each."""
     root = Path(root)
     codebook = generate_codebook(spec) if task == "crosspoints" else None
@@ -139,10 +141,15 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
             batch = {"image": torch.from_numpy(image).permute(2, 0, 1)[None].contiguous(),
                      "cells": torch.from_numpy(cells)[None]}
             if gt is not None:
-                full_centres = gt.points_px[gt.status == 2, 0].astype(np.float64)
+                batch["gt_full"], batch["gt_ignore"] = [], []
                 centres = cells_to_markers(cells)[:, 0].astype(np.float64)
+                full_centres = gt.points_px[gt.status == 2, 0].astype(np.float64)
                 distance = np.linalg.norm(centres[:, None] - full_centres[None], axis=-1)
-                batch["gt_full"] = [(distance < 1e-2).any(axis=1) if len(full_centres) else np.zeros(len(centres), bool)]
+                batch["gt_full"].append((distance < 1e-2).any(axis=1) if len(full_centres) else
+                                        np.zeros(len(centres), bool))
+                shown = gt.points_px[gt.status > 0, 0].astype(np.float64)  # every marker the image shows
+                distance = np.linalg.norm(shown[:, None] - centres[None], axis=-1)
+                batch["gt_ignore"].append(shown[~(distance < 1e-2).any(axis=1)] if len(centres) else shown)
             yield batch
             continue
         if task == "recognizer":
@@ -180,7 +187,8 @@ class _Results:
         if self.task == "localizer":
             decoded = decode_localizer(output, threshold=self.threshold)
             self._add(pred=[points for points, _ in decoded],
-                      gt=[cells_to_markers(c) for c in batch["cells"].numpy()], full=batch.get("gt_full"))
+                      gt=[cells_to_markers(c) for c in batch["cells"].numpy()], full=batch.get("gt_full"),
+                      ignore=batch.get("gt_ignore"))
         elif self.task == "recognizer":
             ranked = torch.topk(output, min(5, output.shape[1]), dim=1).indices
             self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy())
@@ -204,7 +212,8 @@ class _Results:
             pred = [p for chunk in s["pred"] for p in chunk]
             gt = [g for chunk in s["gt"] for g in chunk]
             full = None if any(f is None for f in s["full"]) else [f for chunk in s["full"] for f in chunk]
-            metrics = localizer_metrics(pred, gt, full, self.radius_px)
+            ignore = None if any(f is None for f in s["ignore"]) else [f for chunk in s["ignore"] for f in chunk]
+            metrics = localizer_metrics(pred, gt, full, self.radius_px, ignore)
         elif self.task == "recognizer":
             metrics = recognizer_metrics(np.concatenate(s["ranked"]), np.concatenate(s["marker_id"]))
         else:

@@ -94,20 +94,29 @@ def cells_to_markers(cells: np.ndarray, cell: int = 8) -> np.ndarray:
 
 
 def localizer_metrics(pred_points: Sequence[np.ndarray], gt_points: Sequence[np.ndarray],
-                      gt_full: Sequence[np.ndarray] | None = None, radius_px: float = MATCH_RADIUS_PX) -> dict:
+                      gt_full: Sequence[np.ndarray] | None = None, radius_px: float = MATCH_RADIUS_PX,
+                      gt_ignore: Sequence[np.ndarray] | None = None) -> dict:
     """Marker detection accuracy over a set of images.
 
     pred_points: per image (N_i, 5, 2) predicted centre, TL, TR, BL, BR in pixels; gt_points: per
     image (M_i, 5, 2) ground truth (NaN for a point off the fabric, ignored in the errors); gt_full:
-    per image (M_i,) bool, True for fully visible markers (None: not reported).
+    per image (M_i,) bool, True for fully visible markers (None: not reported); gt_ignore: per image
+    (L_i, 2) centres of markers in the image that are not targets (a marker whose centre is hidden,
+    or whose centre shares its cell with a nearer one): a prediction on one of them (one to one,
+    within the radius, after the matches to targets) finds a real marker and is neither a true nor a
+    false positive.
     Returns {"radius_px", "images", "all": {precision, recall, f1, counts, "error_px": {point name:
-    {median, p95, count}}}, "full": the same over fully visible markers}.  For "full", predictions
-    matched to a marker that is not fully visible are neither true nor false positives."""
-    if len(pred_points) != len(gt_points) or (gt_full is not None and len(gt_full) != len(gt_points)):
+    {median, p95, count}}}, "full": the same over fully visible markers, "ignored": the predictions
+    on non-target markers}.  For "full", predictions matched to a marker that is not fully visible
+    are neither true nor false positives."""
+    if len(pred_points) != len(gt_points) or (gt_full is not None and len(gt_full) != len(gt_points)) or (
+            gt_ignore is not None and len(gt_ignore) != len(gt_points)):
         raise ValueError(f"localizer_metrics: {len(pred_points)} predictions, {len(gt_points)} ground truths"
-                         + ("" if gt_full is None else f", {len(gt_full)} full masks") + ": expected one per image")
+                         + ("" if gt_full is None else f", {len(gt_full)} full masks")
+                         + ("" if gt_ignore is None else f", {len(gt_ignore)} ignore sets") + ": expected one per image")
     counts = {"all": np.zeros(3, np.int64), "full": np.zeros(3, np.int64)}  # tp, fp, fn
     errors: dict[str, list[np.ndarray]] = {"all": [], "full": []}
+    ignored = 0
     for i, (pred, gt) in enumerate(zip(pred_points, gt_points)):
         pred = np.asarray(pred, dtype=np.float64).reshape(-1, 5, 2)
         gt = np.asarray(gt, dtype=np.float64).reshape(-1, 5, 2)
@@ -115,17 +124,25 @@ def localizer_metrics(pred_points: Sequence[np.ndarray], gt_points: Sequence[np.
         if full.shape != (len(gt),):
             raise ValueError(f"localizer_metrics: image {i}: gt_full has shape {full.shape}, expected ({len(gt)},)")
         p, g = match_markers(pred[:, 0], gt[:, 0], radius_px)
+        unmatched = len(pred) - len(p)
+        if gt_ignore is not None:
+            rest = np.setdiff1d(np.arange(len(pred)), p)
+            on_other, _ = match_markers(pred[rest, 0], np.asarray(gt_ignore[i], np.float64).reshape(-1, 2), radius_px)
+            ignored += len(on_other)
+            unmatched -= len(on_other)
         error = np.linalg.norm(pred[p] - gt[g], axis=-1)  # (K, 5), NaN where the truth is off the fabric
-        counts["all"] += [len(p), len(pred) - len(p), len(gt) - len(g)]
+        counts["all"] += [len(p), unmatched, len(gt) - len(g)]
         errors["all"].append(error)
         matched_full = full[g]
-        counts["full"] += [matched_full.sum(), len(pred) - len(p), full.sum() - matched_full.sum()]
+        counts["full"] += [matched_full.sum(), unmatched, full.sum() - matched_full.sum()]
         errors["full"].append(error[matched_full])
     result: dict[str, object] = {"radius_px": float(radius_px), "images": len(gt_points)}
     for subset in ("all", "full") if gt_full is not None else ("all",):
         error = np.concatenate(errors[subset]) if errors[subset] else np.zeros((0, 5))
         result[subset] = {**detection_scores(*counts[subset]),
                           "error_px": {name: error_stats(error[:, k]) for k, name in enumerate(LOCALIZATION_POINTS)}}
+    if gt_ignore is not None:
+        result["ignored"] = ignored
     return result
 
 

@@ -116,6 +116,27 @@ def test_localizer_metrics_perfect_and_imperfect():
     assert "full" not in localizer_metrics([pred0], [gt[0]])
 
 
+def test_a_prediction_on_a_marker_that_is_not_a_target_is_neither_true_nor_false():
+    """A marker whose centre is hidden is shown but is no target; finding it is not a false positive.
+    A prediction far from every marker still is, and a target takes its prediction first."""
+    gt = [_markers(3, 0)]
+    other = _markers(2, 7)[:, 0] + 200  # two shown markers that are not targets
+    pred = np.concatenate([gt[0], _markers(1, 3) + 1000, other[:1, None].repeat(5, axis=1)])
+    pred[-1, 0] += np.array([2.0, 0.0], np.float32)  # 2 px from the first non-target centre
+    full = [np.array([True, True, False])]
+    plain = localizer_metrics([pred], gt, full, radius_px=4.0)
+    assert plain["all"]["false_positive"] == plain["full"]["false_positive"] == 2 and "ignored" not in plain
+    result = localizer_metrics([pred], gt, full, radius_px=4.0, gt_ignore=[other])
+    assert result["ignored"] == 1
+    for subset, tp in (("all", 3), ("full", 2)):
+        assert (result[subset]["true_positive"], result[subset]["false_positive"], result[subset]["false_negative"]) \
+            == (tp, 1, 0)
+    # a non-target centre on a target's centre does not take the target's prediction
+    assert localizer_metrics([gt[0]], gt, full, gt_ignore=[gt[0][:1, 0]])["all"]["true_positive"] == 3
+    with pytest.raises(ValueError, match="1 ignore sets"):
+        localizer_metrics([pred, pred], gt * 2, full * 2, gt_ignore=[other])
+
+
 def test_match_markers_one_to_one_within_radius():
     pred = np.array([[0.0, 0.0], [3.0, 0.0], [50.0, 50.0]])
     gt = np.array([[1.0, 0.0], [4.0, 0.0]])
@@ -191,6 +212,9 @@ def test_folder_batches_carry_consistent_ground_truth(dataset):
     for b in localizer:
         assert b["image"].shape == (1, 3, 128, 128) and b["cells"].shape == (1, 16, 16, 11)
         assert len(b["gt_full"][0]) == len(cells_to_markers(b["cells"][0].numpy()))
+        ignore, targets = b["gt_ignore"][0], cells_to_markers(b["cells"][0].numpy())[:, 0]
+        assert ignore.ndim == 2 and ignore.shape[1] == 2
+        assert not (np.linalg.norm(ignore[:, None] - targets[None], axis=-1) < 1e-2).any()  # no target twice
 
 
 @pytest.mark.parametrize("task", ["localizer", "recognizer", "crosspoints"])
