@@ -207,7 +207,9 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     neighbours' estimate: matched to the present markers on their own, those matched to full ones
     give the layout residual that the Detector's cut test saw (none when None).
 
-    Returns a dict: ints "detections" (N), "gt_markers" (M present), "gt_full" (of them status 2);
+    Returns a dict: ints "detections" (N), "on_hidden" (of them, unmatched ones on a shown marker whose
+    centre is hidden: neither true nor false positives), "gt_markers" (M present), "gt_full" (of them
+    status 2);
     over the K matches (K,) bool "matched_full", "id_correct", "partial" (flagged by the Detector) and
     "point_error_px" (K, 5) float64 (NaN where the truth is off the fabric); (R,) float64
     "localizer_residual_cells" (localized points matched to full markers) and (F,) "gt_residual_cells"
@@ -223,6 +225,10 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     full = truth.status == 2
     d, g = match_markers(detections.points_px[:, 0], truth.points_px[:, 0], radius_px)
     id_correct = detections.marker_id[d] == truth.marker_id[g]
+    # a detection of a shown marker whose centre is hidden found a real marker: neither true nor false
+    hidden = gt.select((gt.status > 0) & ~gt.point_visible[:, 0])
+    rest = np.setdiff1d(np.arange(len(detections)), d)
+    on_hidden, _ = match_markers(detections.points_px[rest, 0], hidden.points_px[:, 0], radius_px)
     point_error = np.linalg.norm(detections.points_px[d].astype(np.float64) - truth.points_px[g], axis=-1)
 
     # crosspoints compare only where the ID, so the grid of crosspoints, is the true one
@@ -240,6 +246,7 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
         localizer_residual = layout_residual(spec, localized_px[raw[full[raw_truth]]])
     return {
         "detections": len(detections),
+        "on_hidden": len(on_hidden),
         "gt_markers": truth.num_markers,
         "gt_full": int(full.sum()),
         "matched_full": full[g],
@@ -281,7 +288,8 @@ def detector_metrics(records: Sequence[dict], max_residual_cells: float | None =
     above it.  Returns (JSON-ready)::
 
       images, detections
-      markers        {"all": precision, recall, f1, counts over the present ground-truth markers,
+      markers        {"all": precision, recall, f1, counts over the present ground-truth markers
+                      (detections on a shown marker whose centre is hidden are neither: "on_hidden"),
                       "full": recall, true_positive, false_negative over the fully visible ones}
       id_accuracy    {"all", "full"}: {"accuracy": share of matched detections with the true ID, "count"}
       partial        {"full", "partly"}: {"fraction": share of the matched fully / partly visible
@@ -309,7 +317,9 @@ def detector_metrics(records: Sequence[dict], max_residual_cells: float | None =
         "images": len(records),
         "detections": int(pooled["detections"]),
         "markers": {
-            "all": detection_scores(matched, pooled["detections"] - matched, pooled["gt_markers"] - matched),
+            "all": detection_scores(matched, pooled["detections"] - matched - pooled["on_hidden"],
+                                    pooled["gt_markers"] - matched),
+            "on_hidden": int(pooled["on_hidden"]),
             "full": {key: full_scores[key] for key in ("recall", "true_positive", "false_negative")},
         },
         "id_accuracy": {"all": _fraction(pooled["id_correct"], "accuracy"),

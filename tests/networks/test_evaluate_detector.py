@@ -177,7 +177,7 @@ def test_evaluate_detector_counts_add_up(dataset, checkpoints):
     present = sum(int(((g.status > 0) & g.point_visible[:, 0]).sum()) for g in gt)
     markers = result["markers"]["all"]
     assert markers["true_positive"] + markers["false_negative"] == present
-    assert markers["true_positive"] + markers["false_positive"] == result["detections"]
+    assert markers["true_positive"] + markers["false_positive"] + result["markers"]["on_hidden"] == result["detections"]
     assert markers["true_positive"] > 0 and result["point_error_px"]["all"]["centre"]["count"] > 0
     full = result["markers"]["full"]
     assert full["true_positive"] + full["false_negative"] == sum(int((g.status == 2).sum()) for g in gt)
@@ -208,3 +208,23 @@ def test_cli(dataset, checkpoints, tmp_path, capsys):
     assert "expected a localizer checkpoint" in capsys.readouterr().err
     assert main(args + ["--data", str(dataset), "--localizer-scale", "0"]) == 2
     assert "localizer_scale must be in" in capsys.readouterr().err
+
+
+def test_a_detection_of_a_marker_whose_centre_is_hidden_is_neither_true_nor_false():
+    """Marker 5 is shown but its centre is hidden (no ground-truth marker of the matching): a detection
+    on it found a real marker, and the precision does not count it; the far one stays false."""
+    gt = _ground_truth()
+    detections = _detections(gt)
+    hidden = Detections(
+        marker_id=np.array([16], np.int64), confidence=np.full(1, 0.9, np.float32),
+        points_px=gt.points_px[[5]] + np.float32(1.0), crosspoints_px=gt.crosspoints_px[[5]],
+        crosspoint_visible=gt.crosspoint_visible[[5]], partial=np.array([True]))
+    both = Detections(**{field: np.concatenate([getattr(detections, field), getattr(hidden, field)])
+                         for field in ("marker_id", "confidence", "points_px", "crosspoints_px",
+                                       "crosspoint_visible", "partial")})
+    before = match_detections(detections, gt, SPEC, radius_px=4.0)
+    record = match_detections(both, gt, SPEC, radius_px=4.0)
+    assert before["on_hidden"] == 0 and record["on_hidden"] == 1 and record["detections"] == 6
+    markers = detector_metrics([record])["markers"]
+    assert (markers["all"]["true_positive"], markers["all"]["false_positive"]) == (4, 1)
+    assert markers["on_hidden"] == 1 and markers["all"]["precision"] == pytest.approx(0.8)
