@@ -8,7 +8,8 @@ every image of the split, as reconstruction does, and compares its `Detections` 
 `ImageGroundTruth` (`gt/<name>.npz`); see `networks.metrics.detector_metrics` for the definitions:
   markers        precision / recall / F1 over the markers present in the image (status > 0, centre
                  visible; a detection matches one whose centre is within --radius pixels), recall
-                 over the fully visible ones;
+                 over the fully visible ones; a detection of a shown marker whose centre is hidden
+                 is neither a true nor a false positive (on_hidden);
   id_accuracy    matched detections with the true ID, over all and over fully visible markers;
   partial        matched fully / partly visible markers that the Detector flagged partial (cut);
   point_error_px median and 95th percentile error of each of the five points of the matched fully
