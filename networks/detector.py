@@ -58,6 +58,7 @@ from networks.homography import (
     estimate_from_neighbours,
     inside_image,
     layout_residual,
+    predict_missing,
     vote_ids,
 )
 from networks.models import CELL, normalize
@@ -88,6 +89,11 @@ class DetectorConfig:
       by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
       to full-resolution pixels; the recognizer and crosspoint crops are always cut from the full
       image, so only the localizer's input shrinks (and its cost, by the factor squared).
+    grow_missing: with tables, markers the localizer missed next to fully observed ones (a hidden
+      centre, a fold, too oblique) are placed by at least `grow_min_neighbours` of them
+      (`networks.homography.predict_missing`), get their layout ID and go through the crosspoint
+      network; one is kept when at least `grow_min_visible` of its crosspoints (a share of K x K)
+      are visible.  They are flagged `partial`, with `id_support` -1.
     """
 
     presence_threshold: float = 0.5
@@ -102,9 +108,15 @@ class DetectorConfig:
     vote_min_partial: int = 4
     vote_tolerance: float = 0.3
     localizer_scale: float = 1.0
+    grow_missing: bool = True
+    grow_min_neighbours: int = 2
+    grow_min_visible: float = 0.1
 
     def __post_init__(self) -> None:
         problems = []
+        if not 1 <= self.grow_min_neighbours <= 8 or not 0 <= self.grow_min_visible <= 1:
+            problems.append(f"grow_min_neighbours must be in 1..8 and grow_min_visible in [0, 1], got "
+                            f"{self.grow_min_neighbours}, {self.grow_min_visible}")
         for name in ("presence_threshold", "visibility_threshold"):
             if not 0 < getattr(self, name) < 1:
                 problems.append(f"{name} must be in (0, 1), got {getattr(self, name)}")
@@ -399,6 +411,24 @@ class Detector:
                 self.config.consistency_cells)
         return points, partial
 
+    def grow(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+             marker_id: np.ndarray, confidence: np.ndarray, partial: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Stage 4b: the markers the localizer missed next to fully observed ones (`config.grow_missing`;
+        `networks.homography.predict_missing`): (image_index (A,), marker_id (A,), points (A, 5, 2),
+        confidence (A,)); none without tables."""
+        found = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 5, 2)), np.zeros(0, np.float32))]
+        if self.layout is None or not self.config.grow_missing:
+            return found[0]
+        for i in np.unique(image_index):
+            pick = np.flatnonzero(image_index == i)
+            size = (images[i].shape[1], images[i].shape[0])
+            full = fully_observed(self.spec, points_px[pick], size, self.config.max_layout_residual_cells) & ~partial[pick]
+            ids, points, conf = predict_missing(self.layout, marker_id[pick], points_px[pick], full, confidence[pick],
+                                                size, self.config.grow_min_neighbours)
+            found.append((np.full(len(ids), i, np.int64), ids, points, conf))
+        return tuple(np.concatenate(arrays) for arrays in zip(*found))
+
     def __call__(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """Detect the markers of every image: images uint8 (H, W, 3) -> one `Detections` per image."""
         return self.detect(images)[0]
@@ -435,8 +465,18 @@ class Detector:
         lap("vote")
         confidence = (presence * probability).astype(np.float32)
         points, partial = self.complete_partial(images, image_index, points, marker_id, confidence)
+        grown_index, grown_id, grown_points, grown_confidence = self.grow(
+            images, image_index, points, marker_id, confidence, partial)
+        grown = np.concatenate([np.zeros(len(image_index), bool), np.ones(len(grown_index), bool)])
+        image_index, marker_id = np.concatenate([image_index, grown_index]), np.concatenate([marker_id, grown_id])
+        points, confidence = np.concatenate([points, grown_points]), np.concatenate([confidence, grown_confidence])
+        partial = np.concatenate([partial, np.ones(len(grown_index), bool)])
+        support = np.concatenate([support, np.full(len(grown_index), -1, support.dtype)])
         lap("complete")
         crosspoints_px, visible = self.locate_crosspoints(images, image_index, points, marker_id)
+        keep = ~grown | (visible.mean(axis=(1, 2)) >= self.config.grow_min_visible)
+        image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = (
+            a[keep] for a in (image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible))
         lap("crosspoints")
 
         result = []

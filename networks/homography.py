@@ -214,20 +214,12 @@ def estimate_from_neighbours(
     sources = np.flatnonzero(full & known)
     if len(targets) == 0 or len(sources) == 0:
         return out, estimated
-    # the most confident full detection of every ID
-    ranked = sources[np.argsort(-np.asarray(confidence)[sources], kind="stable")]
-    unique_ids, first = np.unique(marker_id[ranked], return_index=True)
-    detection_of_id = np.full(layout.num_ids, -1, dtype=np.int64)
-    detection_of_id[unique_ids] = ranked[first]
-
-    neighbour = layout.neighbours(marker_id[targets])  # (T, 8)
-    detection = np.where(neighbour >= 0, detection_of_id[np.maximum(neighbour, 0)], -1)
-    found = detection >= 0
+    detection_of_id = _detection_of_id(layout, marker_id, sources, confidence)
+    found, src, dst, mask = _neighbour_points(layout, marker_id[targets], detection_of_id, points_px)
     t = len(targets)
-    src = np.concatenate([layout.localization_xy[np.maximum(neighbour, 0)].reshape(t, 40, 2),
-                          layout.localization_xy[marker_id[targets]]], axis=1)  # (T, 45, 2)
-    dst = np.concatenate([points_px[np.maximum(detection, 0)].reshape(t, 40, 2), points_px[targets]], axis=1)
-    mask = np.concatenate([np.repeat(found, 5, axis=1), np.zeros((t, 5), dtype=bool)], axis=1)
+    src = np.concatenate([src, layout.localization_xy[marker_id[targets]]], axis=1)  # (T, 45, 2)
+    dst = np.concatenate([dst, points_px[targets]], axis=1)
+    mask = np.concatenate([mask, np.zeros((t, 5), dtype=bool)], axis=1)
 
     first_fit = fit_homography_masked(src, dst, mask)
     own_xy = layout.localization_xy[marker_id[targets]]
@@ -242,6 +234,77 @@ def estimate_from_neighbours(
     out[targets[ok]] = predicted[ok]
     estimated[targets[ok]] = True
     return out, estimated
+
+
+def predict_missing(
+    layout: MarkerLayout,
+    marker_id: np.ndarray,
+    points_px: np.ndarray,
+    full: np.ndarray,
+    confidence: np.ndarray,
+    image_size: tuple[int, int],
+    min_neighbours: int = 2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The markers of one image that the localizer missed next to fully visible ones, placed by them.
+
+    Arguments as `estimate_from_neighbours`.  Every garment ID on the same panel next to a `full`
+    detection (`MarkerLayout.neighbours`) that was not detected at all, with at least
+    `min_neighbours` full detected neighbours, gets the pattern_xy -> image homography fitted to
+    their localization points applied to its own localization_xy; it is kept when one of its five
+    points lies in the image.  A missed marker is one whose centre is hidden (the localizer has no
+    target there), cut by a fold, or too oblique: its crosspoint network's visibility then says
+    which of its crosspoints the image shows.
+
+    Returns (marker_id (A,) int64, points (A, 5, 2) float64, confidence (A,) float32: the mean of
+    its full neighbours')."""
+    marker_id = np.asarray(marker_id, dtype=np.int64)
+    points_px = np.asarray(points_px, dtype=np.float64)
+    confidence = np.asarray(confidence, dtype=np.float64)
+    nothing = np.zeros(0, np.int64), np.zeros((0, 5, 2)), np.zeros(0, np.float32)
+    known = layout.contains(marker_id)
+    sources = np.flatnonzero(np.asarray(full, dtype=bool) & known)
+    if len(sources) == 0:
+        return nothing
+    detected = np.zeros(layout.num_ids, dtype=bool)
+    detected[marker_id[known]] = True
+    candidates = np.unique(layout.neighbours(marker_id[sources]))
+    candidates = candidates[candidates >= 0]
+    candidates = candidates[~detected[candidates]]
+    if len(candidates) == 0:
+        return nothing
+    detection_of_id = _detection_of_id(layout, marker_id, sources, confidence)
+    found, src, dst, mask = _neighbour_points(layout, candidates, detection_of_id, points_px)
+    enough = found.sum(axis=1) >= min_neighbours
+    candidates, found, src, dst, mask = candidates[enough], found[enough], src[enough], dst[enough], mask[enough]
+    predicted = apply_homography(fit_homography_masked(src, dst, mask), layout.localization_xy[candidates])
+    ok = np.isfinite(predicted).all(axis=(1, 2)) & inside_image(predicted, *image_size).any(axis=1)
+    detection = np.where(found, detection_of_id[np.maximum(layout.neighbours(candidates), 0)], 0)
+    mean_confidence = (confidence[detection] * found).sum(axis=1) / np.maximum(found.sum(axis=1), 1)
+    return candidates[ok], predicted[ok], mean_confidence[ok].astype(np.float32)
+
+
+def _detection_of_id(layout: MarkerLayout, marker_id: np.ndarray, sources: np.ndarray,
+                     confidence: np.ndarray) -> np.ndarray:
+    """(num_ids,) int64: the most confident of the `sources` detections of every ID, -1 where none."""
+    ranked = sources[np.argsort(-np.asarray(confidence)[sources], kind="stable")]
+    unique_ids, first = np.unique(marker_id[ranked], return_index=True)
+    detection_of_id = np.full(layout.num_ids, -1, dtype=np.int64)
+    detection_of_id[unique_ids] = ranked[first]
+    return detection_of_id
+
+
+def _neighbour_points(layout: MarkerLayout, ids: np.ndarray, detection_of_id: np.ndarray, points_px: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For markers `ids` (T,): which of their 8 layout neighbours were detected (T, 8), and the
+    neighbours' localization points in pattern_xy (T, 40, 2) and in the image (T, 40, 2), with the
+    mask (T, 40) of the detected ones, for `fit_homography_masked`."""
+    neighbour = layout.neighbours(ids)  # (T, 8)
+    detection = np.where(neighbour >= 0, detection_of_id[np.maximum(neighbour, 0)], -1)
+    found = detection >= 0
+    t = len(ids)
+    src = layout.localization_xy[np.maximum(neighbour, 0)].reshape(t, 40, 2)
+    dst = points_px[np.maximum(detection, 0)].reshape(t, 40, 2)
+    return found, src, dst, np.repeat(found, 5, axis=1)
 
 
 def _side_px(points_px: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from networks.homography import (
     MarkerLayout,
     crop_to_image,
     estimate_from_neighbours,
+    predict_missing,
     fit_homography_masked,
     layout_residual,
     vote_ids,
@@ -176,6 +177,34 @@ def test_cut_marker_is_recovered_from_its_neighbours(table, scene):
     _, estimated = estimate_from_neighbours(layout, SPEC, ids[alone], detected[alone], full[alone],
                                             confidence[alone], IMAGE_SIZE, 1.0)
     assert not estimated.any()
+
+
+def test_missed_markers_are_placed_by_their_full_neighbours(table, scene):
+    """Markers 8 and 11 (middle column of 7 8 9 / 10 11 12) were not detected: each has four or five
+    full detected neighbours, which place it exactly (the scene is one homography)."""
+    _, points, _ = scene
+    layout = MarkerLayout.from_tables([table], SPEC.num_ids)
+    ids = table.marker_ids.astype(np.int64)
+    seen = np.array([0, 2, 3, 5])  # 7, 9, 10, 12
+    confidence = np.array([0.9, 0.8, 0.7, 0.6])
+    grown, placed, conf = predict_missing(layout, ids[seen], points[seen], np.ones(4, bool), confidence, IMAGE_SIZE)
+    assert grown.tolist() == [8, 11]
+    assert np.abs(placed - points[[1, 4]]).max() < 1e-6
+    assert conf == pytest.approx([0.75, 0.75])  # the mean of their four full neighbours'
+    # a detected marker is not grown again, even when it is not full; nor is an ID beyond the panel
+    grown, _, _ = predict_missing(layout, ids[[0, 1, 2, 3, 5]], points[[0, 1, 2, 3, 5]],
+                                  np.array([True, False, True, True, True]), np.ones(5), IMAGE_SIZE)
+    assert grown.tolist() == [11]
+    # with one full neighbour, too few by default; markers entirely outside the image are dropped
+    grown, _, _ = predict_missing(layout, ids[:1], points[:1], np.ones(1, bool), np.ones(1), IMAGE_SIZE)
+    assert len(grown) == 0
+    grown, _, _ = predict_missing(layout, ids[:1], points[:1], np.ones(1, bool), np.ones(1), IMAGE_SIZE,
+                                  min_neighbours=1)
+    assert grown.tolist() == [8, 10, 11]
+    grown, _, _ = predict_missing(layout, ids[seen], points[seen] + 1e4, np.ones(4, bool), confidence, IMAGE_SIZE)
+    assert len(grown) == 0
+    # no full detection: nothing
+    assert len(predict_missing(layout, ids[seen], points[seen], np.zeros(4, bool), confidence, IMAGE_SIZE)[0]) == 0
 
 
 def test_vote_ids_restores_ids_that_the_neighbours_contradict(table, scene):
@@ -384,6 +413,29 @@ def test_detector_completes_cut_markers_of_each_image(detector, table, scene):
     assert partial.tolist() == [False] * 4 + [True] + [False] * 2
     assert np.abs(completed[4] - points[4]).max() < 1e-6
     assert np.array_equal(completed[np.arange(7) != 4], both[np.arange(7) != 4])
+
+
+def test_detector_grows_missed_markers_of_each_image(detector, table, scene):
+    """Image 0 misses markers 8 and 11, image 1 shows 7 alone: only image 0 grows, its two markers
+    placed by their neighbours; with grow_missing off, nothing grows."""
+    _, points, _ = scene
+    ids = table.marker_ids.astype(np.int64)
+    seen = [0, 2, 3, 5]
+    image = np.zeros((IMAGE_SIZE[1], IMAGE_SIZE[0], 3), np.uint8)
+    image_index = np.array([0] * 4 + [1])
+    both, both_ids = np.concatenate([points[seen], points[:1]]), np.concatenate([ids[seen], ids[:1]])
+    index, grown, placed, confidence = detector.grow([image, image], image_index, both, both_ids, np.ones(5),
+                                                    np.zeros(5, bool))
+    assert index.tolist() == [0, 0] and grown.tolist() == ids[[1, 4]].tolist()
+    assert np.abs(placed - points[[1, 4]]).max() < 1e-6 and confidence.tolist() == [1.0, 1.0]
+    saved = detector.config
+    detector.config = dataclasses.replace(saved, grow_missing=False)
+    try:
+        assert len(detector.grow([image, image], image_index, both, both_ids, np.ones(5), np.zeros(5, bool))[0]) == 0
+    finally:
+        detector.config = saved
+    with pytest.raises(ValueError, match="grow_min_neighbours"):
+        DetectorConfig(grow_min_neighbours=0)
 
 
 def test_detector_checks_its_inputs(codebook, table):
