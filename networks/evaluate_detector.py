@@ -131,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
                              "marker's layout before it counts as cut (default %(default)s)")
     parser.add_argument("--no-id-votes", action="store_true",
                         help="keep the recognizer's IDs (default: correct them by the neighbours' votes)")
+    parser.add_argument("--no-grow", action="store_true",
+                        help="do not add the markers the localizer missed next to fully observed ones "
+                             "(default: grow them, DetectorConfig.grow_missing)")
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -146,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
         detector = load_detector(args.localizer, args.recognizer, args.crosspoints, args.data, args.device,
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
                                                 max_layout_residual_cells=args.max_layout_residual,
-                                                vote_ids=not args.no_id_votes), args.batch_size)
+                                                vote_ids=not args.no_id_votes, grow_missing=not args.no_grow),
+                                 args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),
                                    "crosspoints": str(args.crosspoints)}, **metrics}
