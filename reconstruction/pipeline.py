@@ -54,7 +54,8 @@ class RunSettings:
     starts from (`reconstruction.refine.load_initial_shape`; a factory capture's ``sim/dressed.npz``),
     or "" for the template's placement pose (a poor start: see `refine_sequence`); localizer_scale:
     networks mode, `networks.DetectorConfig.localizer_scale` (0.5 when the views' markers are 32 to
-    64 px across)."""
+    64 px across); grow_missing: networks mode, `networks.DetectorConfig.grow_missing` (the markers
+    the localizer missed next to fully observed ones are added)."""
 
     template: str
     level_mm: int = 12
@@ -65,6 +66,7 @@ class RunSettings:
     checkpoints: tuple[str, ...] = ()
     initial_shape: str = ""
     localizer_scale: float = 1.0
+    grow_missing: bool = True
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -91,6 +93,11 @@ class RunSettings:
         return GroundTruthConfig(noise_px=self.noise_px, dropout=self.dropout, seed=self.seed)
 
 
+#: what a folder written before a setting existed was made with, where that is not the setting's
+#: default (otherwise the default): detections before the Detector grew missed markers had none
+BEFORE = {"grow_missing": False}
+
+
 def start(out: str | Path, settings: RunSettings) -> Path:
     """Create (or reopen) the output folder with `settings`; a folder made with other settings is refused
     (its outputs would mix)."""
@@ -100,7 +107,7 @@ def start(out: str | Path, settings: RunSettings) -> Path:
     path = out / "run.json"
     if path.exists():
         # a folder written before a setting existed holds that setting's default
-        saved = {**{f.name: f.default for f in fields(RunSettings) if f.default is not MISSING},
+        saved = {**{f.name: f.default for f in fields(RunSettings) if f.default is not MISSING}, **BEFORE,
                  **load_json(path), "checkpoints": list(load_json(path).get("checkpoints", ()))}
         if saved != record:
             differ = sorted(k for k in set(saved) | set(record) if saved.get(k) != record.get(k))
@@ -115,7 +122,7 @@ def settings_of(out: str | Path) -> RunSettings:
     path = Path(out) / "run.json"
     if not path.is_file():
         raise ValueError(f"{out}: not a reconstruction folder (no run.json); run `detect` or `run` first")
-    data = dict(load_json(path))
+    data = {**BEFORE, **load_json(path)}
     data["checkpoints"] = tuple(data.get("checkpoints", ()))
     try:
         return RunSettings(**data)
@@ -169,7 +176,8 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
             if detector is None:  # the garment's tables: its IDs only, and cut markers from their neighbours
                 tables = load_template(settings.template).layout.tables()
                 detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables,
-                                                     config=DetectorConfig(localizer_scale=settings.localizer_scale))
+                                                     config=DetectorConfig(localizer_scale=settings.localizer_scale,
+                                                                           grow_missing=settings.grow_missing))
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))
     save_json(out / "detections" / "cameras.json", {"cameras": [c.to_dict() for c in cameras]})

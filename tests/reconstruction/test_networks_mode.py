@@ -42,6 +42,7 @@ def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capt
             "--checkpoints", *_checkpoints(tmp_path, template.layout.spec), "--localizer-scale", "0.25", "--quiet"]
     assert main(argv) == 0
     assert json.loads((out / "run.json").read_text())["localizer_scale"] == 0.25
+    assert json.loads((out / "run.json").read_text())["grow_missing"] is True  # the default; --no-grow: False
     cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
     found = []
     for camera in cameras:
@@ -72,3 +73,27 @@ def test_networks_mode_reads_the_cameras_of_a_capture_folder(capture_folder, tmp
     capsys.readouterr()
     assert main([*argv, "--views", str(bare), "--out", str(tmp_path / "rec2")]) != 0
     assert f"put cameras.json in {bare}" in capsys.readouterr().err
+
+
+def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
+    """`--no-grow` goes to run.json; a folder made before growth existed (no grow_missing in its
+    run.json) was made without it, so a default run there is refused and a --no-grow one resumes."""
+    from reconstruction import pipeline
+
+    checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
+    grown = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
+    plain = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, grow_missing=False)
+    assert grown.grow_missing
+    pipeline.start(tmp_path / "new", plain)
+    assert json.loads((tmp_path / "new" / "run.json").read_text())["grow_missing"] is False
+    with pytest.raises(ValueError, match=r"other settings \(grow_missing\)"):
+        pipeline.start(tmp_path / "new", grown)
+    older = tmp_path / "older"
+    pipeline.start(older, grown)
+    record = json.loads((older / "run.json").read_text())
+    del record["grow_missing"]
+    (older / "run.json").write_text(json.dumps(record))
+    assert pipeline.settings_of(older).grow_missing is False
+    pipeline.start(older, plain)
+    with pytest.raises(ValueError, match="grow_missing"):
+        pipeline.start(older, grown)
