@@ -110,7 +110,7 @@ class DetectorConfig:
     localizer_scale: float = 1.0
     grow_missing: bool = True
     grow_min_neighbours: int = 2
-    grow_min_visible: float = 0.1
+    grow_min_visible: float = 0.3
 
     def __post_init__(self) -> None:
         problems = []
