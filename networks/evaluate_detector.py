@@ -9,7 +9,9 @@ every image of the split, as reconstruction does, and compares its `Detections` 
   markers        precision / recall / F1 over the markers present in the image (status > 0, centre
                  visible; a detection matches one whose centre is within --radius pixels), recall
                  over the fully visible ones; a detection of a shown marker whose centre is hidden
-                 is neither a true nor a false positive (on_hidden);
+                 is neither a true nor a false positive (on_hidden), nor is one with the ID of a
+                 shown marker whose crosspoints it lies on (by_id: a marker cut by the garment's
+                 edge has no centre on the fabric to match);
   id_accuracy    matched detections with the true ID, over all and over fully visible markers;
   partial        matched fully / partly visible markers that the Detector flagged partial (cut);
   point_error_px median and 95th percentile error of each of the five points of the matched fully

@@ -208,8 +208,9 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     give the layout residual that the Detector's cut test saw (none when None).
 
     Returns a dict: ints "detections" (N), "on_hidden" (of them, unmatched ones on a shown marker whose
-    centre is hidden: neither true nor false positives), "gt_markers" (M present), "gt_full" (of them
-    status 2);
+    centre is hidden), "by_id" (of the rest, unmatched ones with the ID of a shown marker whose
+    crosspoints they lie on: a marker cut by the edge, its centre off the fabric) (neither true nor
+    false positives), "gt_markers" (M present), "gt_full" (of them status 2);
     over the K matches (K,) bool "matched_full", "id_correct", "partial" (flagged by the Detector) and
     "point_error_px" (K, 5) float64 (NaN where the truth is off the fabric); (R,) float64
     "localizer_residual_cells" (localized points matched to full markers) and (F,) "gt_residual_cells"
@@ -229,6 +230,19 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     hidden = gt.select((gt.status > 0) & ~gt.point_visible[:, 0])
     rest = np.setdiff1d(np.arange(len(detections)), d)
     on_hidden, _ = match_markers(detections.points_px[rest, 0], hidden.points_px[:, 0], radius_px)
+    # a marker cut by the garment's edge has no centre on the fabric to match: a detection with its
+    # ID whose crosspoints lie on its crosspoints (median within the radius, where both see them)
+    # found it too (the Detector places and grows such markers from their neighbours)
+    by_id = 0
+    shown = np.flatnonzero(gt.status > 0)
+    row_of_id = dict(zip(gt.marker_id[shown].tolist(), shown.tolist()))
+    for r in np.setdiff1d(rest, rest[on_hidden]):
+        j = row_of_id.get(int(detections.marker_id[r]))
+        both = None if j is None else detections.crosspoint_visible[r] & gt.crosspoint_visible[j]
+        if both is not None and both.any():
+            offset = np.linalg.norm(detections.crosspoints_px[r][both].astype(np.float64) - gt.crosspoints_px[j][both],
+                                    axis=-1)
+            by_id += int(np.median(offset) <= radius_px)
     point_error = np.linalg.norm(detections.points_px[d].astype(np.float64) - truth.points_px[g], axis=-1)
 
     # crosspoints compare only where the ID, so the grid of crosspoints, is the true one
@@ -247,6 +261,7 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     return {
         "detections": len(detections),
         "on_hidden": len(on_hidden),
+        "by_id": by_id,
         "gt_markers": truth.num_markers,
         "gt_full": int(full.sum()),
         "matched_full": full[g],
@@ -289,7 +304,8 @@ def detector_metrics(records: Sequence[dict], max_residual_cells: float | None =
 
       images, detections
       markers        {"all": precision, recall, f1, counts over the present ground-truth markers
-                      (detections on a shown marker whose centre is hidden are neither: "on_hidden"),
+                      (detections on a shown marker whose centre is hidden, "on_hidden", and unmatched
+                      ones with a shown marker's ID on its crosspoints, "by_id", are neither),
                       "full": recall, true_positive, false_negative over the fully visible ones}
       id_accuracy    {"all", "full"}: {"accuracy": share of matched detections with the true ID, "count"}
       partial        {"full", "partly"}: {"fraction": share of the matched fully / partly visible
@@ -317,9 +333,10 @@ def detector_metrics(records: Sequence[dict], max_residual_cells: float | None =
         "images": len(records),
         "detections": int(pooled["detections"]),
         "markers": {
-            "all": detection_scores(matched, pooled["detections"] - matched - pooled["on_hidden"],
+            "all": detection_scores(matched, pooled["detections"] - matched - pooled["on_hidden"] - pooled["by_id"],
                                     pooled["gt_markers"] - matched),
             "on_hidden": int(pooled["on_hidden"]),
+            "by_id": int(pooled["by_id"]),
             "full": {key: full_scores[key] for key in ("recall", "true_positive", "false_negative")},
         },
         "id_accuracy": {"all": _fraction(pooled["id_correct"], "accuracy"),

@@ -177,7 +177,8 @@ def test_evaluate_detector_counts_add_up(dataset, checkpoints):
     present = sum(int(((g.status > 0) & g.point_visible[:, 0]).sum()) for g in gt)
     markers = result["markers"]["all"]
     assert markers["true_positive"] + markers["false_negative"] == present
-    assert markers["true_positive"] + markers["false_positive"] + result["markers"]["on_hidden"] == result["detections"]
+    assert markers["true_positive"] + markers["false_positive"] + result["markers"]["on_hidden"] + \
+        result["markers"]["by_id"] == result["detections"]
     assert markers["true_positive"] > 0 and result["point_error_px"]["all"]["centre"]["count"] > 0
     full = result["markers"]["full"]
     assert full["true_positive"] + full["false_negative"] == sum(int((g.status == 2).sum()) for g in gt)
@@ -228,3 +229,27 @@ def test_a_detection_of_a_marker_whose_centre_is_hidden_is_neither_true_nor_fals
     markers = detector_metrics([record])["markers"]
     assert (markers["all"]["true_positive"], markers["all"]["false_positive"]) == (4, 1)
     assert markers["on_hidden"] == 1 and markers["all"]["precision"] == pytest.approx(0.8)
+
+
+def test_a_detection_of_a_cut_marker_is_matched_by_its_id_and_crosspoints():
+    """Marker 5's centre is off the fabric (NaN): no centre match can find it.  A detection with its ID
+    whose visible crosspoints lie on its crosspoints found it (by_id); one 10 px off did not."""
+    gt = _ground_truth()
+    gt.points_px[5, 0] = np.nan
+    detections = _detections(gt)
+
+    def with_marker_5(shift: float) -> Detections:
+        extra = Detections(
+            marker_id=np.array([16], np.int64), confidence=np.full(1, 0.9, np.float32),
+            points_px=gt.points_px[[5]] + np.float32(shift), crosspoints_px=gt.crosspoints_px[[5]] + np.float32(shift),
+            crosspoint_visible=np.ones((1, K, K), bool), partial=np.array([True]))
+        return Detections(**{field: np.concatenate([getattr(detections, field), getattr(extra, field)])
+                             for field in ("marker_id", "confidence", "points_px", "crosspoints_px",
+                                           "crosspoint_visible", "partial")})
+
+    right = match_detections(with_marker_5(0.5), gt, SPEC, radius_px=4.0)
+    assert (right["on_hidden"], right["by_id"]) == (0, 1)
+    markers = detector_metrics([right])["markers"]
+    assert (markers["all"]["true_positive"], markers["all"]["false_positive"], markers["by_id"]) == (4, 1, 1)
+    off = match_detections(with_marker_5(10.0), gt, SPEC, radius_px=4.0)
+    assert off["by_id"] == 0 and detector_metrics([off])["markers"]["all"]["false_positive"] == 2
