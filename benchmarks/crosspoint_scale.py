@@ -30,12 +30,20 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from assets.pattern import generate_codebook  # noqa: E402
+from assets.pattern import CROSSPOINT_CROP, generate_codebook  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, crosspoint_crops  # noqa: E402
 from foreshortening import marker_shape  # noqa: E402
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint  # noqa: E402
 from networks.data import dataset_spec  # noqa: E402
-from networks.evaluate import crop_batches, crosspoint_arrays, crosspoint_crop_points, evaluate_model  # noqa: E402
+from networks.evaluate import (  # noqa: E402
+    crop_batches,
+    crosspoint_arrays,
+    crosspoint_crop_points,
+    crosspoint_predictions,
+)
+from networks.homography import crop_to_image  # noqa: E402
+from networks.metrics import crosspoint_metrics  # noqa: E402
+from networks.tasks import autocast, forward  # noqa: E402
 from partial_ids import SIZES, size_bin  # noqa: E402
 from vote_settings import images_and_truth  # noqa: E402
 
@@ -61,18 +69,28 @@ def crop_set(pairs: list[tuple[Path, Path]], spec, codebook: np.ndarray) -> tupl
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}, np.concatenate(sizes)
 
 
+@torch.no_grad()
 def by_size(model, arrays: dict[str, np.ndarray], sizes: np.ndarray, spec, device: torch.device,
             batch_size: int) -> dict[str, dict]:
-    """The crosspoint metrics of all crops and of each size bin with crops."""
+    """The crosspoint metrics of all crops and of each size bin with crops, from one pass of the model."""
+    model.eval()
+    visible, xy = [], []
+    for batch in crop_batches(arrays, batch_size):
+        with autocast(device, device.type == "cuda"):
+            output, _, _ = forward("crosspoints", model, batch, device)
+        v, p = crosspoint_predictions(output)
+        visible.append(v)
+        xy.append(p)
+    visible, xy = np.concatenate(visible), np.concatenate(xy)
+    image = crop_to_image(spec, CROSSPOINT_CROP, arrays["points_px"].astype(np.float64), xy)
     which = np.digitize(sizes, SIZES[1:-1])
     groups = {"all sizes": np.ones(len(sizes), bool)}
     groups.update({size_bin(lo, hi): which == k for k, (lo, hi) in enumerate(zip(SIZES[:-1], SIZES[1:]))})
     result = {}
     for label, mask in groups.items():
         if mask.any():
-            chosen = {key: value[mask] for key, value in arrays.items()}
-            metrics = evaluate_model("crosspoints", model, crop_batches(chosen, batch_size), device, spec,
-                                     mixed_precision=device.type == "cuda")
+            metrics = crosspoint_metrics(visible[mask], xy[mask], arrays["visible"][mask], arrays["xy"][mask],
+                                         image[mask], arrays["gt_xy_image"][mask])
             result[label] = {"crops": metrics["crops"], "size_median": float(np.median(sizes[mask])),
                              "visibility": metrics["visibility"], "crop_error_px": metrics["crop_error_px"],
                              "image_error_px": metrics["image_error_px"]}

@@ -165,6 +165,13 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
 
 # ---- running a model -------------------------------------------------------------------------------
 
+def crosspoint_predictions(output: torch.Tensor, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """A `CrosspointLocalizer` output (B, 3, K, K) as (visible (B, K, K) bool: sigmoid above
+    `threshold`; xy (B, K, K, 2) float32 crop pixels)."""
+    out = output.detach().float().cpu().numpy()
+    return out[:, 0] > np.log(threshold / (1 - threshold)), out[:, 1:].transpose(0, 2, 3, 1)
+
+
 class _Results:
     """Accumulates one task's predictions, ground truth and loss over batches."""
 
@@ -193,10 +200,8 @@ class _Results:
             ranked = torch.topk(output, min(5, output.shape[1]), dim=1).indices
             self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy())
         else:
-            out = output.cpu().numpy()
-            logit = np.log(self.threshold / (1 - self.threshold))
-            pred_xy = out[:, 1:].transpose(0, 2, 3, 1)
-            self._add(pred_visible=out[:, 0] > logit, pred_xy=pred_xy, gt_visible=batch["visible"].numpy(),
+            pred_visible, pred_xy = crosspoint_predictions(output, self.threshold)
+            self._add(pred_visible=pred_visible, pred_xy=pred_xy, gt_visible=batch["visible"].numpy(),
                       gt_xy=batch["xy"].numpy())
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
