@@ -445,13 +445,14 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     # fit_to_time_limit: (first step timed, its clock, the share of the time limit it is timed over)
     probe = (step + FIT_SKIP_STEPS, None, FIT_PROBE_SHARE) if fit_to_time_limit else None
     longest = config.steps  # a fit never plans beyond the configured schedule
+    fits = 0
 
     def fit_schedule() -> None:
         """Plan `config.steps` to end within the time limit at the rate measured since the probe began
         (the same number on every rank: their plans are averaged); after the first fit, time the
         steps again (`FIT_REFIT_SHARE`) and fit once more."""
-        nonlocal config, stop, probe
-        first, clock, share = probe
+        nonlocal config, stop, probe, fits
+        first, clock, _ = probe
         now = time.monotonic()
         rate = (step - first) / max(now - clock, 1e-9)
         planned = step + rate * (time_limit_s - (now - started)) * FIT_MARGIN
@@ -462,7 +463,8 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
         config = config.replace(steps=planned)
         stop = planned if until_step is None else min(until_step, planned)
         bar.total = planned
-        probe = (step, now, FIT_REFIT_SHARE) if share == FIT_PROBE_SHARE else None
+        fits += 1
+        probe = (step, now, FIT_REFIT_SHARE) if fits == 1 else None
         if ranks.main:
             config.save(out / "config.json")
 
