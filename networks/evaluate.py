@@ -141,15 +141,13 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
             batch = {"image": torch.from_numpy(image).permute(2, 0, 1)[None].contiguous(),
                      "cells": torch.from_numpy(cells)[None]}
             if gt is not None:
-                batch["gt_full"], batch["gt_ignore"] = [], []
                 centres = cells_to_markers(cells)[:, 0].astype(np.float64)
                 full_centres = gt.points_px[gt.status == 2, 0].astype(np.float64)
-                distance = np.linalg.norm(centres[:, None] - full_centres[None], axis=-1)
-                batch["gt_full"].append((distance < 1e-2).any(axis=1) if len(full_centres) else
-                                        np.zeros(len(centres), bool))
                 shown = gt.points_px[gt.status > 0, 0].astype(np.float64)  # every marker the image shows
-                distance = np.linalg.norm(shown[:, None] - centres[None], axis=-1)
-                batch["gt_ignore"].append(shown[~(distance < 1e-2).any(axis=1)] if len(centres) else shown)
+                # (distances to an empty set are an empty axis: any() is False there)
+                batch["gt_full"] = [(np.linalg.norm(centres[:, None] - full_centres[None], axis=-1) < 1e-2).any(axis=1)]
+                target = (np.linalg.norm(shown[:, None] - centres[None], axis=-1) < 1e-2).any(axis=1)
+                batch["gt_ignore"] = [shown[~target]]
             yield batch
             continue
         if task == "recognizer":
