@@ -133,22 +133,25 @@ GPU_COST = {"localizer": 1.0, "recognizer": 1.1, "crosspoints": 1.9}
 HEAVIEST = tuple(sorted(GPU_COST, key=GPU_COST.get, reverse=True))
 #: steps between checkpoints (a ResNet-50 with its Adam state is about 300 MB to write)
 CHECKPOINT_EVERY = 2000
+#: smoke runs' Detector: only the surest guesses of an untrained localizer, far apart (hundreds of crops
+#: through the crosspoint network take minutes on a CPU)
+SMOKE_DETECTOR = {"presence_threshold": 0.9, "nms_radius_px": 40.0}
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
 RESERVE_S, START_S = 210.0, 45.0
 
 
-def prepare(root: Path, out: Path, cores: int = 1) -> tuple[Path, int]:
-    """(a copy of the rendered dataset folder in `out`, samples built): its files copied, and
+def prepare(root: Path, out: Path, cores: int = 1, name: str = "rendered") -> tuple[Path, int]:
+    """(a copy of the rendered dataset folder in `out`/`name`, samples built): its files copied, and
     `samples/<name>.npz` built in the copy (on `cores` processes) for every manifest entry when the
     folder has none.
     Copied, not linked: on the device machine the working tree is replaced by each call, and a call
     that does not carry the folder removes it there, so links into it break under a running
     benchmark (the sixth networks run lost its evaluation so)."""
-    view = out / "rendered"
+    view = out / name
     view.mkdir(parents=True, exist_ok=True)
-    names = ["images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl"]
-    for name in names + (["samples"] if (root / "samples").is_dir() else []):
-        source, target = root / name, view / name
+    items = ["images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl"]
+    for item in items + (["samples"] if (root / "samples").is_dir() else []):
+        source, target = root / item, view / item
         if not source.exists() or target.exists():
             continue
         if source.is_dir():  # whole or not at all: an interrupted copy is finished by the next call
@@ -172,11 +175,13 @@ def prepare(root: Path, out: Path, cores: int = 1) -> tuple[Path, int]:
     return view, len(todo)
 
 
-def heldout(root: Path, out: Path, limit: int | None = None, markers: int | None = None) -> Path:
-    """A view of the rendered dataset holding its validation and test images (the first `limit`) as
-    the split 'heldout' (the runs train on its train split).  markers: keep only N markers of each
-    image, fully visible ones first (smoke runs: evaluating every crop on a CPU takes minutes)."""
-    view = out / "heldout"
+def heldout(root: Path, out: Path, limit: int | None = None, markers: int | None = None, every_split: bool = False,
+            name: str = "heldout") -> Path:
+    """A view (`out`/`name`) of the rendered dataset holding its validation and test images (the first
+    `limit`; every image with `every_split`: a folder of held-out renders only) as the split 'heldout'
+    (the runs train on the train split of --rendered).  markers: keep only N markers of each image,
+    fully visible ones first (smoke runs: evaluating every crop on a CPU takes minutes)."""
+    view = out / name
     view.mkdir(parents=True, exist_ok=True)
     linked = ("images", "meta", "template.npz", "config.json", "splits.json") + (() if markers else ("gt", "samples"))
     for name in linked:
@@ -184,7 +189,7 @@ def heldout(root: Path, out: Path, limit: int | None = None, markers: int | None
         if not link.exists():
             link.symlink_to((root / name).resolve())
     entries = [json.loads(line) for line in (root / "manifest.jsonl").read_text().splitlines() if line]
-    entries = [dict(e, split="heldout") for e in entries if e["split"] != "train"][:limit]
+    entries = [dict(e, split="heldout") for e in entries if every_split or e["split"] != "train"][:limit]
     if markers:
         spec = dataset_spec(root)
         for e in entries:
@@ -281,6 +286,20 @@ def init_weights(folder: Path | None) -> dict[str, str]:
     if folder is None or not folder.is_dir():
         return {}
     return {name: str((folder / f"{name}.pt").resolve()) for name in RUNS if (folder / f"{name}.pt").is_file()}
+
+
+def main_checkpoints(out: Path, init: dict[str, str] | None = None) -> list[Path] | None:
+    """The localizer's, recognizer's and crosspoint network's checkpoints that the Detector chains: each
+    main run's last.pt, or, for a main run not trained in `out`, the checkpoint it would have started
+    from (`--init`); None when a task has neither."""
+    paths = []
+    for task in ("localizer", "recognizer", "crosspoints"):
+        last = out / MAIN[task] / "run" / "last.pt"
+        start = (init or {}).get(MAIN[task])
+        if not last.exists() and start is None:
+            return None
+        paths.append(last if last.exists() else Path(start))
+    return paths
 
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
@@ -419,28 +438,32 @@ def evaluate_inits(init: dict[str, str], test: Path, device: str) -> dict[str, d
     return {name: evaluate(path, test, split="heldout", device=device, progress=False) for name, path in init.items()}
 
 
-def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False) -> dict[str, dict]:
-    """`networks.evaluate_detector` of the three main runs chained, on the held-out renders, with the
+def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init: dict[str, str] | None = None,
+                   variants: bool = True) -> dict[str, dict]:
+    """`networks.evaluate_detector` of the three main runs chained (`main_checkpoints`), on the held-out
+    renders, with the
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
     baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
     before; and with the comparison runs on exact crops in place of the main runs, where they exist;
-    keyed by a label of the variant."""
+    keyed by a label of the variant (`variants` False: the defaults alone)."""
     from networks.detector import DetectorConfig
     from networks.evaluate_detector import evaluate_detector, load_detector
 
-    paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
-    variants = {"defaults": (paths, {}), "no ID votes": (paths, {"vote_ids": False}),
-                "cut above 1 cell": (paths, {"max_layout_residual_cells": 1.0})}
-    exact = [out / name / "run" / "last.pt" for name in ("recognizer", "crosspoints")]
-    if exact[0].exists():
-        variants["recognizer on exact crops"] = ([paths[0], exact[0], paths[2]], {})
-    if exact[1].exists():
-        variants["crosspoints on exact crops"] = ([paths[0], paths[1], exact[1]], {})
-    if exact[0].exists() and exact[1].exists():
-        variants["both on exact crops"] = ([paths[0], *exact], {})
+    paths = main_checkpoints(out, init)
+    chains = {"defaults": (paths, {})}
+    if variants:
+        chains.update({"no ID votes": (paths, {"vote_ids": False}),
+                       "cut above 1 cell": (paths, {"max_layout_residual_cells": 1.0})})
+        exact = [out / name / "run" / "last.pt" for name in ("recognizer", "crosspoints")]
+        if exact[0].exists():
+            chains["recognizer on exact crops"] = ([paths[0], exact[0], paths[2]], {})
+        if exact[1].exists():
+            chains["crosspoints on exact crops"] = ([paths[0], paths[1], exact[1]], {})
+        if exact[0].exists() and exact[1].exists():
+            chains["both on exact crops"] = ([paths[0], *exact], {})
     results = {}
-    for label, (checkpoints, overrides) in variants.items():
-        config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, **overrides)
+    for label, (checkpoints, overrides) in chains.items():
+        config = DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), **overrides)
         detector = load_detector(*checkpoints, test, device=device, config=config)
         results[label] = evaluate_detector(detector, test, split="heldout", progress=False)
     return results
@@ -456,32 +479,52 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
     from foreshortening import rendered_pairs  # benchmarks/ (this script's folder)
     from partial_ids import top1
 
-    others = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "crosspoints")]
+    localizer, _, crosspoints = main_checkpoints(out, init)
     recognizers = {f"{name} (step {run_step(out / name / 'run')})": out / name / "run" / "last.pt"
                    for name, (task, *_) in RUNS.items()
                    if task == "recognizer" and (out / name / "run" / "last.pt").exists()}
     if (init or {}).get(MAIN["recognizer"]):
         recognizers[f"{MAIN['recognizer']}, its --init"] = Path(init[MAIN["recognizer"]])
     pairs = rendered_pairs(test)
-    return {label: top1(load_detector(others[0], path, others[1], test, device=device), pairs)[0]
+    return {label: top1(load_detector(localizer, path, crosspoints, test, device=device), pairs)[0]
             for label, path in recognizers.items()}
 
 
-def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False) -> list[dict]:
+def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | None = None, smoke: bool = False
+                   ) -> dict:
+    """The Detector's networks (`main_checkpoints`) on a second folder of held-out renders
+    (`--extra-heldout`, every image held out; made, say, at another resolution or of unseen motions):
+    each network's `networks.evaluate` metrics, the chain with its defaults, and the recognizer's top-1
+    given the true points by group and marker size (`partial_ids.top1`)."""
+    from networks.evaluate_detector import load_detector
+
+    from foreshortening import rendered_pairs
+    from partial_ids import top1
+
+    paths = main_checkpoints(out, init)
+    metrics = {task: evaluate(path, view, split="heldout", device=device, progress=False)
+               for task, path in zip(("localizer", "recognizer", "crosspoints"), paths)}
+    groups, by_size = top1(load_detector(*paths, view, device=device), rendered_pairs(view))
+    return {"images": len(rendered_pairs(view)), "checkpoints": [str(p) for p in paths], "metrics": metrics,
+            "detector": evaluate_chain(out, view, device, smoke, init, variants=False)["defaults"],
+            "recognizer_top1": {"groups": groups, "by_size": by_size}}
+
+
+def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False,
+               init: dict[str, str] | None = None) -> list[dict]:
     """Detector images per second on `repeats` synthesized images of each size, framed as the renders
     (marker size grows with the image side; the localizer sees the image at 512 / side, the scale it
     was trained on), after a warm-up call on the first and with every ID's reference texture rendered;
     with the stage times (`Detector.stage_seconds`) and the markers found on the
-    first image (the same on every device) and the markers the images show.  Smoke runs take only the
-    surest guesses of their untrained localizer (hundreds of crops through the crosspoint network
-    take minutes on a CPU)."""
+    first image (the same on every device) and the markers the images show (smoke runs:
+    `SMOKE_DETECTOR`)."""
     from networks import Detector, DetectorConfig
 
-    paths = [out / MAIN[task] / "run" / "last.pt" for task in ("localizer", "recognizer", "crosspoints")]
+    paths = main_checkpoints(out, init)
     rows = []
     for size in sizes:
         scale = min(1.0, 512 / size)
-        config = DetectorConfig(presence_threshold=0.9 if smoke else 0.5, localizer_scale=scale)
+        config = DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), localizer_scale=scale)
         detector = Detector.from_checkpoints(*paths, device=device, config=config)
         marker = tuple(v * size / 512 for v in SynthConfig().marker_px)
         synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), marker_px=marker, seed=7))
@@ -538,6 +581,8 @@ def main() -> None:
     parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
                         "as a slim bf16 checkpoint to <export>/weights/<run>.pt (for --init elsewhere)")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
+    parser.add_argument("--extra-heldout", type=Path, help="a second factory dataset folder whose every image is "
+                        "held out (other resolutions, unseen motions): the Detector's networks evaluated on it too")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         sys.exit("benchmarks/networks.py trains on a CUDA GPU; none is visible")
@@ -560,6 +605,12 @@ def main() -> None:
                  "IDs would not be this machine's IDs")
     rendered, rebuilt = prepare(args.rendered, args.out, 1 if smoke else args.cores)
     test = heldout(rendered, args.out, args.eval_images, markers=8 if smoke else None)
+    if args.extra_heldout is not None:
+        if codebook_hash(dataset_spec(args.extra_heldout)) != here:
+            sys.exit(f"--extra-heldout {args.extra_heldout}: its pattern differs from --rendered's")
+        extra, _ = prepare(args.extra_heldout, args.out, 1 if smoke else args.cores, name="extra")
+        extra = heldout(extra, args.out, args.eval_images, markers=8 if smoke else None, every_split=True,
+                        name="heldout_extra")
     shards = make_shards(args.out, rendered, max(1, args.cores - 1) if not smoke else 1,
                          min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke,
                          names)
@@ -580,21 +631,24 @@ def main() -> None:
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},
-              "init_metrics": {}, "partial_ids": {}, "throughput": [], "errors": {}}
+              "init_metrics": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
     stage = Stages(result, args.out / "results.json", started)
     stage("metrics", evaluate_runs, args.out, test, args.device)
     stage("mixes", compare_mixes, args.out)
     if init:
         stage("init_metrics", evaluate_inits, init, test, args.device)
-    if all(name in result["metrics"] for name in MAIN.values()):
-        stage("detector", evaluate_chain, args.out, test, args.device, smoke)
+    if main_checkpoints(args.out, init) is not None:  # a main run not trained here is chained from its --init
+        stage("detector", evaluate_chain, args.out, test, args.device, smoke, init)
         stage("partial_ids", evaluate_partial_ids, args.out, test, args.device, init)
+        if args.extra_heldout is not None:
+            stage("extra", evaluate_extra, args.out, extra, args.device, init, smoke)
         sizes = [int(v) for v in args.sizes.split(",") if v] if not smoke else [256]
         stage("throughput", throughput, args.out, args.device, tuple(sizes),
-              4 if args.device.startswith("cuda") else 1, smoke)
+              4 if args.device.startswith("cuda") else 1, smoke, init)
         cpu_sizes = [int(v) for v in args.cpu_sizes.split(",") if v]
         if args.device.startswith("cuda") and cpu_sizes and deadline - time.monotonic() > 45:
-            stage("throughput", lambda: result["throughput"] + throughput(args.out, "cpu", tuple(cpu_sizes), 1))
+            stage("throughput", lambda: result["throughput"] + throughput(args.out, "cpu", tuple(cpu_sizes), 1,
+                                                                          init=init))
     if args.export is not None:
         export(args.out, args.export, args.export_weights)
     for name, error in result["errors"].items():
@@ -683,12 +737,31 @@ def _print_tables(result: dict) -> None:
             if isinstance(value, float) and not key.endswith("step"):
                 print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
     if result["detector"]:
-        print(f"\n| Detector, three runs chained ({result['heldout_images']} held-out renders) "
-              "| markers P / R / F1 | recall, fully visible | ID accuracy all / full | cut share of fully visible "
-              "| median px centre, TL, TR, BL, BR (not cut) | crosspoints visibility P / R | crosspoint px median / p95 "
-              "| s/image | stages s/image: localize, recognize, vote, complete, crosspoints "
-              "|\n|---|---|---|---|---|---|---|---|---|---|")
-    for label, d in result["detector"].items():
+        _print_chains(f"{result['heldout_images']} held-out renders", result["detector"])
+    if result.get("partial_ids"):
+        print(f"\n| recognizer, top-1 given the true points ({result['heldout_images']} held-out renders) "
+              "| markers | count | top-1 |\n|---|---|---|---|")
+        for label, groups in result["partial_ids"].items():
+            for group, r in groups.items():
+                print(f"| {label} | {group} | {r['markers']} | {r['top1']:.3f} |")
+    if result.get("extra"):
+        _print_extra(result["extra"])
+    print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
+          "| first image: found / shown | stages s/image: localize, recognize, vote, complete, crosspoints "
+          "|\n|---|---|---|---|---|---|---|")
+    for r in result["throughput"]:
+        print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
+              f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
+              f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} | {_stages(r, r['images'])} |")
+
+
+def _print_chains(images: str, chains: dict[str, dict]) -> None:
+    print(f"\n| Detector, three runs chained ({images}) "
+          "| markers P / R / F1 | recall, fully visible | ID accuracy all / full | cut share of fully visible "
+          "| median px centre, TL, TR, BL, BR (not cut) | crosspoints visibility P / R | crosspoint px median / p95 "
+          "| s/image | stages s/image: localize, recognize, vote, complete, crosspoints "
+          "|\n|---|---|---|---|---|---|---|---|---|---|")
+    for label, d in chains.items():
         m, ids, xp = d["markers"], d["id_accuracy"], d["crosspoints"]
         points = ", ".join(_number(d["point_error_px"]["not_partial"][k]["median"], ".2f")
                            for k in ("centre", "TL", "TR", "BL", "BR"))
@@ -698,19 +771,24 @@ def _print_tables(result: dict) -> None:
               f"{points} | {xp['visibility']['precision']:.3f} / {xp['visibility']['recall']:.3f} | "
               f"{_number(xp['error_px']['median'], '.3f')} / {_number(xp['error_px']['p95'], '.3f')} | "
               f"{d['seconds_per_image']:.3f} | {_stages(d, d['images'])} |")
-    if result.get("partial_ids"):
-        print(f"\n| recognizer, top-1 given the true points ({result['heldout_images']} held-out renders) "
-              "| markers | count | top-1 |\n|---|---|---|---|")
-        for label, groups in result["partial_ids"].items():
-            for group, r in groups.items():
-                print(f"| {label} | {group} | {r['markers']} | {r['top1']:.3f} |")
-    print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
-          "| first image: found / shown | stages s/image: localize, recognize, vote, complete, crosspoints "
-          "|\n|---|---|---|---|---|---|---|")
-    for r in result["throughput"]:
-        print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
-              f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
-              f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} | {_stages(r, r['images'])} |")
+
+
+def _print_extra(extra: dict) -> None:
+    """The --extra-heldout tables: each network's metrics, the chain, the recognizer's top-1 by size."""
+    images = f"{extra['images']} renders of --extra-heldout"
+    print(f"\n| metric ({images}) | value |\n|---|---|")
+    for task, m in extra["metrics"].items():
+        for key, value in _flatten(m):
+            if isinstance(value, float) and not key.endswith("step"):
+                print(f"| {task} (step {m['step']}).{key} | {value:.4g} |")
+    _print_chains(images, {"defaults": extra["detector"]})
+    print(f"\n| recognizer, top-1 given the true points ({images}) | markers | size px | count | top-1 "
+          "|\n|---|---|---|---|---|")
+    for group, r in extra["recognizer_top1"]["groups"].items():
+        print(f"| | {group} | all | {r['markers']} | {r['top1']:.3f} |")
+    for group, bins in extra["recognizer_top1"]["by_size"].items():
+        for size, r in bins.items():
+            print(f"| | {group} | {size} | {r['markers']} | {r['top1']:.3f} |")
 
 
 def _stages(record: dict, images: float) -> str:

@@ -114,3 +114,60 @@ def test_the_run_table_shows_the_call_s_synth_weight_not_the_default(bench, caps
     assert bench.RUNS["localizer_mix"][1] != 0.0
     bench._print_tables(result)
     assert "| localizer_mix | 0.0 | 0 | 2 | 10 / 10 |" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def garment_dataset(tmp_path_factory):
+    """One synthesized image per split and a template.npz whose one panel holds all 64 IDs."""
+    from assets.fileio import save_npz
+    from assets.pattern import PatternSpec
+    from tests.networks.test_evaluate import SPEC, write_factory_dataset
+
+    root = write_factory_dataset(tmp_path_factory.mktemp("ds"), SPEC, {"train": 1, "val": 1, "test": 1})
+    panel = PatternSpec(rows=8, cols=8, num_ids=64)
+    layout = {"spec": SPEC.to_dict(), "panels": [{"name": "front", "spec": panel.to_dict(), "first_id": 0}]}
+    save_npz(root / "template.npz", {"layout_json": np.frombuffer(json.dumps(layout).encode(), np.uint8)})
+    return root
+
+
+@pytest.fixture(scope="module")
+def init_folder(tmp_path_factory):
+    """Slim-checkpoint stand-ins of an earlier call's main runs (`--init`): untrained tiny networks."""
+    from networks.checkpoint import save_checkpoint
+    from networks.config import TrainConfig
+    from tests.networks.test_detector import _networks
+    from tests.networks.test_evaluate import SPEC
+
+    folder = tmp_path_factory.mktemp("init")
+    for name, model in zip(MAIN3, _networks(0)):
+        task = name.split("_")[0]
+        save_checkpoint(folder / f"{name}.pt", task, model, TrainConfig(task=task), SPEC)
+    return folder
+
+
+def test_a_main_run_not_trained_this_call_is_chained_from_its_init(bench, tmp_path, init_folder):
+    init = bench.init_weights(init_folder)
+    assert bench.main_checkpoints(tmp_path, {}) is None  # nothing trained, nothing to start from
+    assert bench.main_checkpoints(tmp_path, init) == [Path(init[name]) for name in MAIN3]
+    trained = tmp_path / "crosspoints_jitter" / "run" / "last.pt"
+    trained.parent.mkdir(parents=True)
+    shutil.copy(init_folder / "crosspoints_jitter.pt", trained)
+    assert bench.main_checkpoints(tmp_path, init)[2] == trained  # this call's run before its start
+    assert bench.main_checkpoints(tmp_path, {"localizer_mix": init["localizer_mix"]}) is None
+
+
+def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, garment_dataset, init_folder, capsys):
+    # two markers kept of each image: every crop through an untrained ResNet-50 takes seconds on a CPU
+    view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
+    assert len(bench.heldout(garment_dataset, tmp_path)
+               .joinpath("manifest.jsonl").read_text().splitlines()) == 2  # val and test only
+    extra = bench.evaluate_extra(tmp_path, view, "cpu", bench.init_weights(init_folder), smoke=True)
+    assert extra["images"] == 3 and set(extra["metrics"]) == {"localizer", "recognizer", "crosspoints"}
+    assert extra["detector"]["images"] == 3 and extra["detector"]["split"] == "heldout"
+    assert sum(r["markers"] for r in extra["recognizer_top1"]["groups"].values()) > 0
+    result = {"date": "2026-11-26", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {}, "runs": {},
+              "training": {}, "heldout_images": 2, "metrics": {}, "detector": {}, "throughput": [], "extra": extra}
+    bench._print_tables(result)
+    printed = capsys.readouterr().out
+    assert "| Detector, three runs chained (3 renders of --extra-heldout) |" in printed
+    assert "| recognizer (step 0).top1 |" in printed
