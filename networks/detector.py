@@ -58,6 +58,7 @@ from networks.homography import (
     estimate_from_neighbours,
     inside_image,
     layout_residual,
+    points_from_crosspoints,
     predict_missing,
     vote_ids,
 )
@@ -93,7 +94,10 @@ class DetectorConfig:
       centre, a fold, too oblique) are placed by at least `grow_min_neighbours` of them
       (`networks.homography.predict_missing`), get their layout ID and go through the crosspoint
       network; one is kept when at least `grow_min_visible` of its crosspoints (a share of K x K)
-      are visible.  They are flagged `partial`, with `id_support` -1.
+      are visible.  They are flagged `partial`, with `id_support` -1.  `grow_rounds` > 1 grows again
+      from the markers placed so far: each later round also places markers by the cut and grown ones
+      whose own visible crosspoints give their pose (`networks.homography.points_from_crosspoints`),
+      reaching markers with fewer than `grow_min_neighbours` fully observed neighbours.
     """
 
     presence_threshold: float = 0.5
@@ -111,9 +115,12 @@ class DetectorConfig:
     grow_missing: bool = True
     grow_min_neighbours: int = 2
     grow_min_visible: float = 0.3
+    grow_rounds: int = 1
 
     def __post_init__(self) -> None:
         problems = []
+        if self.grow_rounds < 1:
+            problems.append(f"grow_rounds must be >= 1, got {self.grow_rounds}")
         if not 1 <= self.grow_min_neighbours <= 8 or not 0 <= self.grow_min_visible <= 1:
             problems.append(f"grow_min_neighbours must be in 1..8 and grow_min_visible in [0, 1], got "
                             f"{self.grow_min_neighbours}, {self.grow_min_visible}")
@@ -194,6 +201,18 @@ def usable_points(spec: PatternSpec, points_px: np.ndarray) -> np.ndarray:
             det = np.linalg.det(h)
         ok[ok] = np.isfinite(h).all(axis=(1, 2)) & np.isfinite(det) & (np.abs(det) > 1e-12)
     return ok
+
+
+def _grown_markers(grown: tuple[np.ndarray, ...], support_dtype: np.dtype) -> tuple[np.ndarray, ...]:
+    """`Detector.grow`'s (image_index, marker_id, points, confidence) as the detections' six arrays
+    (image_index, marker_id, points, confidence, partial, id_support): partial, support -1."""
+    count = len(grown[0])
+    return (*grown, np.ones(count, bool), np.full(count, -1, support_dtype))
+
+
+def _joined(first: tuple[np.ndarray, ...], second: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """Two tuples of per-marker arrays, concatenated array by array."""
+    return tuple(np.concatenate([a, b.astype(a.dtype, copy=False)]) for a, b in zip(first, second))
 
 
 def fully_observed(spec: PatternSpec, points_px: np.ndarray, image_size: tuple[int, int],
@@ -429,6 +448,18 @@ class Detector:
             found.append((np.full(len(ids), i, np.int64), ids, points, conf))
         return tuple(np.concatenate(arrays) for arrays in zip(*found))
 
+    def grow_from_placed(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
+                         marker_id: np.ndarray, confidence: np.ndarray, partial: np.ndarray,
+                         crosspoints_px: np.ndarray, visible: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """A later round of growth (`config.grow_rounds`): as `grow`, with the cut and grown (`partial`)
+        markers whose visible crosspoints (N, K, K, 2), (N, K, K) give their pose
+        (`networks.homography.points_from_crosspoints`) among the sources, placed so."""
+        posed_points, posed = points_from_crosspoints(self.spec, crosspoints_px, visible)
+        trusted = partial & posed
+        sources = np.where(trusted[:, None, None], posed_points, points_px)
+        return self.grow(images, image_index, sources, marker_id, confidence, partial & ~trusted)
+
     def __call__(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """Detect the markers of every image: images uint8 (H, W, 3) -> one `Detections` per image."""
         return self.detect(images)[0]
@@ -465,19 +496,30 @@ class Detector:
         lap("vote")
         confidence = (presence * probability).astype(np.float32)
         points, partial = self.complete_partial(images, image_index, points, marker_id, confidence)
-        grown_index, grown_id, grown_points, grown_confidence = self.grow(
-            images, image_index, points, marker_id, confidence, partial)
-        grown = np.concatenate([np.zeros(len(image_index), bool), np.ones(len(grown_index), bool)])
-        image_index, marker_id = np.concatenate([image_index, grown_index]), np.concatenate([marker_id, grown_id])
-        points, confidence = np.concatenate([points, grown_points]), np.concatenate([confidence, grown_confidence])
-        partial = np.concatenate([partial, np.ones(len(grown_index), bool)])
-        support = np.concatenate([support, np.full(len(grown_index), -1, support.dtype)])
+        markers = (image_index, marker_id, points, confidence, partial, support)
+        # the first round of growth goes through the crosspoint network with the detections, in one pass
+        grown = self.grow(images, image_index, points, marker_id, confidence, partial)
+        markers = _joined(markers, _grown_markers(grown, support.dtype))
         lap("complete")
-        crosspoints_px, visible = self.locate_crosspoints(images, image_index, points, marker_id)
-        keep = ~grown | (visible.mean(axis=(1, 2)) >= self.config.grow_min_visible)
-        image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = (
-            a[keep] for a in (image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible))
+        crosspoints = self.locate_crosspoints(images, markers[0], markers[2], markers[1])
+        seen = np.ones(len(markers[0]), bool)
+        seen[len(image_index):] = crosspoints[1][len(image_index):].mean(axis=(1, 2)) >= self.config.grow_min_visible
+        markers, crosspoints = tuple(a[seen] for a in markers), tuple(a[seen] for a in crosspoints)
         lap("crosspoints")
+        for _ in range(1, self.config.grow_rounds if self.layout is not None and self.config.grow_missing else 1):
+            grown = self.grow_from_placed(images, *markers[:5], *crosspoints)
+            lap("complete")
+            if not len(grown[0]):
+                break
+            found = self.locate_crosspoints(images, grown[0], grown[2], grown[1])
+            seen = found[1].mean(axis=(1, 2)) >= self.config.grow_min_visible
+            markers = _joined(markers, tuple(a[seen] for a in _grown_markers(grown, support.dtype)))
+            crosspoints = _joined(crosspoints, tuple(a[seen] for a in found))
+            lap("crosspoints")
+            if not seen.any():
+                break
+        image_index, marker_id, points, confidence, partial, support = markers
+        crosspoints_px, visible = crosspoints
 
         result = []
         for i in range(len(images)):
