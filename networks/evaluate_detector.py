@@ -136,6 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-grow", action="store_true",
                         help="do not add the markers the localizer missed next to fully observed ones "
                              "(default: grow them, DetectorConfig.grow_missing)")
+    parser.add_argument("--grow-rounds", type=int, default=defaults.grow_rounds, metavar="N",
+                        help="rounds of growth, each later one also from the markers placed before "
+                             "(default %(default)s)")
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -151,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         detector = load_detector(args.localizer, args.recognizer, args.crosspoints, args.data, args.device,
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
                                                 max_layout_residual_cells=args.max_layout_residual,
-                                                vote_ids=not args.no_id_votes, grow_missing=not args.no_grow),
+                                                vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
+                                                grow_rounds=args.grow_rounds),
                                  args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),

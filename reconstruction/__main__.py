@@ -60,6 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--no-grow", action="store_true",
                        help="networks mode: do not add the markers the localizer missed next to fully observed "
                        "ones (default: add them; they raise the captured fraction, at a higher error p95)")
+        p.add_argument("--grow-rounds", type=int, default=1, metavar="N",
+                       help="networks mode: rounds of growth, each later one from the markers placed before "
+                       "(default %(default)s)")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")
@@ -117,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
                                             noise_px=args.noise, dropout=args.dropout, seed=args.seed,
                                             checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
                                             initial_shape=str(Path(initial).resolve()) if initial else "",
-                                            localizer_scale=args.localizer_scale, grow_missing=not args.no_grow)
+                                            localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
+                                            grow_rounds=args.grow_rounds)
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")

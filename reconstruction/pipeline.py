@@ -55,7 +55,8 @@ class RunSettings:
     or "" for the template's placement pose (a poor start: see `refine_sequence`); localizer_scale:
     networks mode, `networks.DetectorConfig.localizer_scale` (0.5 when the views' markers are 32 to
     64 px across); grow_missing: networks mode, `networks.DetectorConfig.grow_missing` (the markers
-    the localizer missed next to fully observed ones are added)."""
+    the localizer missed next to fully observed ones are added); grow_rounds: networks mode,
+    `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before)."""
 
     template: str
     level_mm: int = 12
@@ -67,6 +68,7 @@ class RunSettings:
     initial_shape: str = ""
     localizer_scale: float = 1.0
     grow_missing: bool = True
+    grow_rounds: int = 1
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -75,6 +77,8 @@ class RunSettings:
             raise ValueError("the networks mode needs three checkpoints: localizer, recognizer, crosspoints")
         if self.level_mm <= 0:
             raise ValueError(f"level_mm must be > 0, got {self.level_mm}")
+        if self.grow_rounds < 1:
+            raise ValueError(f"grow_rounds must be >= 1, got {self.grow_rounds}")
         if not 0 < self.localizer_scale <= 4:
             raise ValueError(f"localizer_scale must be in (0, 4], got {self.localizer_scale}")
         if self.initial_shape and not Path(self.initial_shape).is_file():
@@ -177,7 +181,8 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
                 tables = load_template(settings.template).layout.tables()
                 detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables,
                                                      config=DetectorConfig(localizer_scale=settings.localizer_scale,
-                                                                           grow_missing=settings.grow_missing))
+                                                                           grow_missing=settings.grow_missing,
+                                                                           grow_rounds=settings.grow_rounds))
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))
     save_json(out / "detections" / "cameras.json", {"cameras": [c.to_dict() for c in cameras]})
