@@ -439,13 +439,14 @@ def evaluate_inits(init: dict[str, str], test: Path, device: str) -> dict[str, d
 
 
 def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init: dict[str, str] | None = None,
-                   variants: bool = True) -> dict[str, dict]:
+                   variants: bool = True, **config: object) -> dict[str, dict]:
     """`networks.evaluate_detector` of the three main runs chained (`main_checkpoints`), on the held-out
     renders, with the
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
     baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
     before; and with the comparison runs on exact crops in place of the main runs, where they exist;
-    keyed by a label of the variant (`variants` False: the defaults alone)."""
+    keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
+    fields set in every variant."""
     from networks.detector import DetectorConfig
     from networks.evaluate_detector import evaluate_detector, load_detector
 
@@ -463,8 +464,8 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
             chains["both on exact crops"] = ([paths[0], *exact], {})
     results = {}
     for label, (checkpoints, overrides) in chains.items():
-        config = DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), **overrides)
-        detector = load_detector(*checkpoints, test, device=device, config=config)
+        detector = load_detector(*checkpoints, test, device=device,
+                                 config=DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), **config, **overrides))
         results[label] = evaluate_detector(detector, test, split="heldout", progress=False)
     return results
 
@@ -495,7 +496,9 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     """The Detector's networks (`main_checkpoints`) on a second folder of held-out renders
     (`--extra-heldout`, every image held out; made, say, at another resolution or of unseen motions):
     each network's `networks.evaluate` metrics, the chain with its defaults, and the recognizer's top-1
-    given the true points by group and marker size (`partial_ids.top1`)."""
+    given the true points by group and marker size (`partial_ids.top1`).  The chain runs twice: with the
+    localizer at full size, and at 512 / the image side (the scale of the renders it trained on, as
+    in `throughput`)."""
     from networks.evaluate_detector import load_detector
 
     from foreshortening import rendered_pairs
@@ -504,10 +507,14 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     paths = main_checkpoints(out, init)
     metrics = {task: evaluate(path, view, split="heldout", device=device, progress=False)
                for task, path in zip(("localizer", "recognizer", "crosspoints"), paths)}
-    groups, by_size = top1(load_detector(*paths, view, device=device), rendered_pairs(view))
-    return {"images": len(rendered_pairs(view)), "checkpoints": [str(p) for p in paths], "metrics": metrics,
-            "detector": evaluate_chain(out, view, device, smoke, init, variants=False)["defaults"],
-            "recognizer_top1": {"groups": groups, "by_size": by_size}}
+    pairs = rendered_pairs(view)
+    groups, by_size = top1(load_detector(*paths, view, device=device), pairs)
+    side = max(cv2.imread(str(pairs[0][0]), cv2.IMREAD_UNCHANGED).shape[:2])
+    chains = {f"localizer scale {scale:.2g}": evaluate_chain(out, view, device, smoke, init, variants=False,
+                                                             localizer_scale=scale)["defaults"]
+              for scale in sorted({1.0, min(1.0, 512 / side)}, reverse=True)}
+    return {"images": len(pairs), "checkpoints": [str(p) for p in paths], "metrics": metrics,
+            "detector": chains, "recognizer_top1": {"groups": groups, "by_size": by_size}}
 
 
 def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False,
@@ -781,7 +788,7 @@ def _print_extra(extra: dict) -> None:
         for key, value in _flatten(m):
             if isinstance(value, float) and not key.endswith("step"):
                 print(f"| {task} (step {m['step']}).{key} | {value:.4g} |")
-    _print_chains(images, {"defaults": extra["detector"]})
+    _print_chains(images, extra["detector"])
     print(f"\n| recognizer, top-1 given the true points ({images}) | markers | size px | count | top-1 "
           "|\n|---|---|---|---|---|")
     for group, r in extra["recognizer_top1"]["groups"].items():

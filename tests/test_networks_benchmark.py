@@ -163,11 +163,13 @@ def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, ga
                .joinpath("manifest.jsonl").read_text().splitlines()) == 2  # val and test only
     extra = bench.evaluate_extra(tmp_path, view, "cpu", bench.init_weights(init_folder), smoke=True)
     assert extra["images"] == 3 and set(extra["metrics"]) == {"localizer", "recognizer", "crosspoints"}
-    assert extra["detector"]["images"] == 3 and extra["detector"]["split"] == "heldout"
+    chain = extra["detector"]["localizer scale 1"]  # the images are 128 px: no second scale
+    assert list(extra["detector"]) == ["localizer scale 1"] and chain["images"] == 3 and chain["split"] == "heldout"
     assert sum(r["markers"] for r in extra["recognizer_top1"]["groups"].values()) > 0
     result = {"date": "2026-11-26", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {}, "runs": {},
               "training": {}, "heldout_images": 2, "metrics": {}, "detector": {}, "throughput": [], "extra": extra}
     bench._print_tables(result)
     printed = capsys.readouterr().out
     assert "| Detector, three runs chained (3 renders of --extra-heldout) |" in printed
+    assert "| localizer scale 1 |" in printed
     assert "| recognizer (step 0).top1 |" in printed
