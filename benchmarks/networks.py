@@ -6,8 +6,10 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    at --shard-minutes per call; an unfinished folder is continued by the next call and used as far
    as it goes), shared by all runs and calls.
 2. Train, all runs at once, each resuming from its last.pt (`networks.train`), spread over the GPUs
-   (`placement`: one GPU per main run while there are GPUs, spare GPUs join the heaviest main runs as
-   DistributedDataParallel ranks through torchrun, the comparison runs share GPUs).  The main runs
+   (`placement`: one GPU per main run while there are GPUs, the comparison runs share GPUs; with
+   --ddp, spare GPUs join the heaviest main runs as DistributedDataParallel ranks through torchrun,
+   which is off by default because it slows training down: on H200s the crosspoint network trains
+   on synthetic shards at 31 steps/s on one GPU and 15 on two ranks, SyncBatchNorm included).  The main runs
    (`MAIN`, the default of --runs): localizer_mix (rendered train split + shards, synth weight 0.5),
    recognizer_partial and crosspoints_jitter (shards + rendered crops, synth weight 0.75, the crops
    cut from five points jittered by `CROP_JITTER_PX`, as the Detector cuts them from the
@@ -318,7 +320,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
-              names: list[str], final: bool = False, ddp: bool = True, pretrained: dict[str, str] | None = None,
+              names: list[str], final: bool = False, ddp: bool = False, pretrained: dict[str, str] | None = None,
               init: dict[str, str] | None = None) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
@@ -330,7 +332,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
     active = [name for name in names if before[name] < targets[name]]
     fitted = {name for name in active if final and RUNS[name][2] is None}  # the runs without a fixed stop
     gpus = placement(active, torch.cuda.device_count() if device.startswith("cuda") and not smoke else 0)
-    if not ddp:  # one GPU per run, spare GPUs idle
+    if not ddp:  # one GPU per run, spare GPUs idle (DDP ranks slow a run down; see the docstring)
         gpus = {name: g[:1] for name, g in gpus.items()}
     ranks = {name: max(1, len(gpus[name])) for name in active}
     workers = worker_counts(active, ranks, cores, smoke)
@@ -577,7 +579,9 @@ def main() -> None:
                         help=f"runs to train this call (of {', '.join(RUNS)}; default the main runs)")
     parser.add_argument("--final", action="store_true", help="the last call: each main run fits its schedule "
                         "to end within this call (at the step rate measured early in it, then again)")
-    parser.add_argument("--no-ddp", action="store_true", help="one GPU per run: spare GPUs are left idle")
+    parser.add_argument("--ddp", action="store_true", help="spare GPUs join the heaviest main runs as DDP ranks "
+                        "(default: one GPU per run, spare GPUs idle; two ranks trained the crosspoint network at "
+                        "half the step rate of one GPU)")
     parser.add_argument("--pretrained", type=Path, help="a folder of torchvision ImageNet ResNet files "
                         "(resnet18-*.pth, resnet50-*.pth) to start new runs from; default: from scratch")
     parser.add_argument("--localizer-synth-weight", type=float,
@@ -626,7 +630,7 @@ def main() -> None:
     init = init_weights(args.init)
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
-                         not args.no_ddp, pretrained, init)
+                         args.ddp, pretrained, init)
     train_s = time.perf_counter() - t0
     gpu = f"{torch.cuda.device_count()} x {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
