@@ -507,7 +507,8 @@ class Detector:
         markers, crosspoints = tuple(a[seen] for a in markers), tuple(a[seen] for a in crosspoints)
         lap("crosspoints")
         for _ in range(1, self.config.grow_rounds if self.layout is not None and self.config.grow_missing else 1):
-            grown = self.grow_from_placed(images, *markers[:5], *crosspoints)
+            image_index, marker_id, points, confidence, partial, _ = markers
+            grown = self.grow_from_placed(images, image_index, points, marker_id, confidence, partial, *crosspoints)
             lap("complete")
             if not len(grown[0]):
                 break

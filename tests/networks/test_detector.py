@@ -372,6 +372,26 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         detector([small, small.astype(np.float32)])
 
 
+def test_later_rounds_of_growth_only_add_markers(detector, scene):
+    """The chain with three rounds of growth keeps every marker of one round and its crosspoints (a
+    later round places markers the earlier ones did not), with consistent arrays."""
+    images = [np.ascontiguousarray(scene[0][200:296, 200:328]), np.ascontiguousarray(scene[0][150:300, 150:330])]
+    saved = detector.config
+    one = detector(images)
+    detector.config = dataclasses.replace(saved, grow_rounds=3)
+    try:
+        three = detector(images)
+    finally:
+        detector.config = saved
+    k = SPEC.crosspoints_per_side
+    for a, b in zip(one, three):
+        n = len(b)
+        assert n >= len(a) and b.crosspoints_px.shape == (n, k, k, 2) and b.partial.shape == (n,)
+        assert np.array_equal(b.marker_id[:len(a)], a.marker_id)
+        assert np.allclose(b.crosspoints_px[:len(a)], a.crosspoints_px, atol=1e-3)
+        assert (b.id_support[len(a):] == -1).all() and b.partial[len(a):].all()  # grown markers
+
+
 def test_detections_save_load_round_trip(tmp_path, detector, scene):
     image = np.ascontiguousarray(scene[0][200:264, 260:324])
     detections = detector([image])[0]
