@@ -118,30 +118,19 @@ def test_the_run_table_shows_the_call_s_synth_weight_not_the_default(bench, caps
 
 @pytest.fixture(scope="module")
 def garment_dataset(tmp_path_factory):
-    """One synthesized image per split and a template.npz whose one panel holds all 64 IDs."""
-    from assets.fileio import save_npz
-    from assets.pattern import PatternSpec
-    from tests.networks.test_evaluate import SPEC, write_factory_dataset
+    """One synthesized image per split, and the garment's template."""
+    from tests.networks.test_evaluate_detector import write_garment_dataset
 
-    root = write_factory_dataset(tmp_path_factory.mktemp("ds"), SPEC, {"train": 1, "val": 1, "test": 1})
-    panel = PatternSpec(rows=8, cols=8, num_ids=64)
-    layout = {"spec": SPEC.to_dict(), "panels": [{"name": "front", "spec": panel.to_dict(), "first_id": 0}]}
-    save_npz(root / "template.npz", {"layout_json": np.frombuffer(json.dumps(layout).encode(), np.uint8)})
-    return root
+    return write_garment_dataset(tmp_path_factory.mktemp("ds"), {"train": 1, "val": 1, "test": 1})
 
 
 @pytest.fixture(scope="module")
 def init_folder(tmp_path_factory):
     """Slim-checkpoint stand-ins of an earlier call's main runs (`--init`): untrained tiny networks."""
-    from networks.checkpoint import save_checkpoint
-    from networks.config import TrainConfig
-    from tests.networks.test_detector import _networks
-    from tests.networks.test_evaluate import SPEC
+    from tests.networks.test_evaluate_detector import untrained_checkpoints
 
     folder = tmp_path_factory.mktemp("init")
-    for name, model in zip(MAIN3, _networks(0)):
-        task = name.split("_")[0]
-        save_checkpoint(folder / f"{name}.pt", task, model, TrainConfig(task=task), SPEC)
+    untrained_checkpoints(folder, MAIN3)
     return folder
 
 

@@ -3,6 +3,8 @@ against a hand-made ground truth (exact answers), and `networks.evaluate_detecto
 networks on a tiny dataset folder (the one of test_evaluate, plus a garment template)."""
 
 import json
+from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pytest
@@ -143,22 +145,32 @@ def test_detector_metrics_pool_images():
 
 # ---- the Detector on a dataset folder ------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    """Two test images of the synthesizer and a template.npz whose one panel holds all 64 IDs (only
-    its layout_json: what the evaluation reads)."""
-    root = write_factory_dataset(tmp_path_factory.mktemp("ds"), SPEC, {"test": 2})
+def write_garment_dataset(root: Path, splits: dict[str, int]) -> Path:
+    """`write_factory_dataset` of the synthesizer's images with a template.npz whose one panel holds
+    all 64 IDs (only its layout_json: what the evaluation reads)."""
+    root = write_factory_dataset(root, SPEC, splits)
     panel = PatternSpec(rows=8, cols=8, num_ids=64)
     layout = {"spec": SPEC.to_dict(), "panels": [{"name": "front", "spec": panel.to_dict(), "first_id": 0}]}
     save_npz(root / "template.npz", {"layout_json": np.frombuffer(json.dumps(layout).encode(), np.uint8)})
     return root
 
 
+def untrained_checkpoints(folder: Path, names: Sequence[str] = ("localizer", "recognizer", "crosspoints")
+                          ) -> list[Path]:
+    """The test's untrained networks (localizer, recognizer, crosspoints) saved as `folder`/<name>.pt."""
+    return [save_checkpoint(folder / f"{name}.pt", task, model, TrainConfig(task=task), SPEC)
+            for name, task, model in zip(names, ("localizer", "recognizer", "crosspoints"), _networks(0))]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Two test images of the synthesizer, and the garment's template."""
+    return write_garment_dataset(tmp_path_factory.mktemp("ds"), {"test": 2})
+
+
 @pytest.fixture(scope="module")
 def checkpoints(tmp_path_factory):
-    out = tmp_path_factory.mktemp("ckpt")
-    return [save_checkpoint(out / f"{task}.pt", task, model, TrainConfig(task=task), SPEC)
-            for task, model in zip(("localizer", "recognizer", "crosspoints"), _networks(0))]
+    return untrained_checkpoints(tmp_path_factory.mktemp("ckpt"))
 
 
 def test_evaluate_detector_counts_add_up(dataset, checkpoints):
