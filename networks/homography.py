@@ -300,7 +300,8 @@ def points_from_crosspoints(spec: PatternSpec, crosspoints_px: np.ndarray, visib
     h = fit_homography_masked(np.broadcast_to(grid, (n, k * k, 2)), crosspoints_px.reshape(n, k * k, 2),
                               visible.reshape(n, k * k))
     rc = localization_rc(spec)
-    points = apply_homography(h, np.broadcast_to(rc[:, ::-1].astype(np.float64), (n, 5, 2)))
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN homographies: fewer than 4 crosspoints seen
+        points = apply_homography(h, np.broadcast_to(rc[:, ::-1].astype(np.float64), (n, 5, 2)))
     spans = visible.any(axis=2).sum(axis=1) >= 2, visible.any(axis=1).sum(axis=1) >= 2  # rows, columns
     ok = (visible.sum(axis=(1, 2)) >= min_count) & spans[0] & spans[1] & np.isfinite(points).all(axis=(1, 2))
     return points, ok
