@@ -39,10 +39,12 @@ def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capt
     out = tmp_path / "rec"
     argv = ["detect", "--views", str(capture_folder), "--cameras", str(capture_folder / "cameras.json"),
             "--template", str(capture_folder / "template.npz"), "--out", str(out), "--device", "cpu",
-            "--checkpoints", *_checkpoints(tmp_path, template.layout.spec), "--localizer-scale", "0.25", "--quiet"]
+            "--checkpoints", *_checkpoints(tmp_path, template.layout.spec), "--localizer-scale", "0.25",
+            "--grow-rounds", "2", "--quiet"]
     assert main(argv) == 0
     assert json.loads((out / "run.json").read_text())["localizer_scale"] == 0.25
     assert json.loads((out / "run.json").read_text())["grow_missing"] is True  # the default; --no-grow: False
+    assert json.loads((out / "run.json").read_text())["grow_rounds"] == 2
     cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
     found = []
     for camera in cameras:
@@ -84,6 +86,8 @@ def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
     grown = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
     plain = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, grow_missing=False)
     assert grown.grow_missing
+    with pytest.raises(ValueError, match="grow_rounds must be >= 1"):
+        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, grow_rounds=0)
     pipeline.start(tmp_path / "new", plain)
     assert json.loads((tmp_path / "new" / "run.json").read_text())["grow_missing"] is False
     with pytest.raises(ValueError, match=r"other settings \(grow_missing\)"):
