@@ -30,7 +30,8 @@ run would have seen.  Mixed precision (bf16 autocast) on CUDA.
 Several GPUs (or CPU processes): ``torchrun --nproc-per-node N -m networks.train ...`` trains with
 DistributedDataParallel (`networks.distributed`): `batch_size` stays the global batch, each rank
 takes an equal share of every step's batch, BatchNorm uses the global batch's statistics, and only
-rank 0 writes the run folder, logs and shows the progress bar.
+rank 0 writes the run folder, logs and shows the progress bar.  Measured on H200s (RESULTS.md, twelfth
+run), two ranks train the crosspoint network at half the step rate of one GPU: not yet a speed-up.
 """
 
 from __future__ import annotations
