@@ -195,6 +195,28 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
 
 # ---- the whole Detector ---------------------------------------------------------------------------
 
+def _found_by_id(detections: "Detections", gt: "ImageGroundTruth", rows: np.ndarray, radius_px: float) -> int:
+    """How many of the detections `rows` (unmatched by centre) found a shown marker by its ID: a marker
+    cut by the garment's edge has no centre on the fabric to match, so a detection with its ID whose
+    crosspoints lie on its crosspoints (median offset within `radius_px` where both see them) found it
+    too (the Detector places and grows such markers from their neighbours)."""
+    shown = np.flatnonzero(gt.status > 0)
+    ids, first = np.unique(gt.marker_id[shown], return_index=True)
+    if len(ids) == 0 or len(rows) == 0:
+        return 0
+    at = np.minimum(np.searchsorted(ids, detections.marker_id[rows]), len(ids) - 1)
+    known = ids[at] == detections.marker_id[rows]
+    r, j = rows[known], shown[first[at[known]]]
+    both = detections.crosspoint_visible[r] & gt.crosspoint_visible[j]  # (R, K, K)
+    offset = np.linalg.norm(detections.crosspoints_px[r].astype(np.float64) - gt.crosspoints_px[j], axis=-1)
+    seen = both.any(axis=(1, 2))
+    if not seen.any():
+        return 0
+    k = both.shape[1]
+    median = np.nanmedian(np.where(both, offset, np.nan)[seen].reshape(-1, k * k), axis=1)
+    return int((median <= radius_px).sum())
+
+
 def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: PatternSpec,
                      radius_px: float = MATCH_RADIUS_PX, localized_px: np.ndarray | None = None) -> dict:
     """One image's Detector output against its ground truth, as raw arrays that `detector_metrics` pools.
@@ -230,19 +252,7 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     hidden = gt.select((gt.status > 0) & ~gt.point_visible[:, 0])
     rest = np.setdiff1d(np.arange(len(detections)), d)
     on_hidden, _ = match_markers(detections.points_px[rest, 0], hidden.points_px[:, 0], radius_px)
-    # a marker cut by the garment's edge has no centre on the fabric to match: a detection with its
-    # ID whose crosspoints lie on its crosspoints (median within the radius, where both see them)
-    # found it too (the Detector places and grows such markers from their neighbours)
-    by_id = 0
-    shown = np.flatnonzero(gt.status > 0)
-    row_of_id = dict(zip(gt.marker_id[shown].tolist(), shown.tolist()))
-    for r in np.setdiff1d(rest, rest[on_hidden]):
-        j = row_of_id.get(int(detections.marker_id[r]))
-        both = None if j is None else detections.crosspoint_visible[r] & gt.crosspoint_visible[j]
-        if both is not None and both.any():
-            offset = np.linalg.norm(detections.crosspoints_px[r][both].astype(np.float64) - gt.crosspoints_px[j][both],
-                                    axis=-1)
-            by_id += int(np.median(offset) <= radius_px)
+    by_id = _found_by_id(detections, gt, np.setdiff1d(rest, rest[on_hidden]), radius_px)
     point_error = np.linalg.norm(detections.points_px[d].astype(np.float64) - truth.points_px[g], axis=-1)
 
     # crosspoints compare only where the ID, so the grid of crosspoints, is the true one
