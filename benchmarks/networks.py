@@ -186,10 +186,10 @@ def heldout(root: Path, out: Path, limit: int | None = None, markers: int | None
     view = out / name
     view.mkdir(parents=True, exist_ok=True)
     linked = ("images", "meta", "template.npz", "config.json", "splits.json") + (() if markers else ("gt", "samples"))
-    for name in linked:
-        link = view / name
+    for item in linked:
+        link = view / item
         if not link.exists():
-            link.symlink_to((root / name).resolve())
+            link.symlink_to((root / item).resolve())
     entries = [json.loads(line) for line in (root / "manifest.jsonl").read_text().splitlines() if line]
     entries = [dict(e, split="heldout") for e in entries if every_split or e["split"] != "train"][:limit]
     if markers:
@@ -743,10 +743,7 @@ def _print_tables(result: dict) -> None:
                   f"{a['recall']:.3f} | {a['f1']:.3f} | {full} | {a['error_px']['centre']['median']:.2f} |")
     print(f"\n| metric ({result['heldout_images']} held-out Blender renders) | value |\n|---|---|")
     inits = {f"{name}, its --init": m for name, m in result.get("init_metrics", {}).items()}
-    for name, m in {**result["metrics"], **inits}.items():
-        for key, value in _flatten(m):
-            if isinstance(value, float) and not key.endswith("step"):
-                print(f"| {name} (step {m['step']}).{key} | {value:.4g} |")
+    _print_metrics({**result["metrics"], **inits})
     if result["detector"]:
         _print_chains(f"{result['heldout_images']} held-out renders", result["detector"])
     if result.get("partial_ids"):
@@ -764,6 +761,14 @@ def _print_tables(result: dict) -> None:
         print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
               f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
               f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} | {_stages(r, r['images'])} |")
+
+
+def _print_metrics(metrics: dict[str, dict]) -> None:
+    """One table row per number of each label's `networks.evaluate` metrics."""
+    for label, m in metrics.items():
+        for key, value in _flatten(m):
+            if isinstance(value, float) and not key.endswith("step"):
+                print(f"| {label} (step {m['step']}).{key} | {value:.4g} |")
 
 
 def _print_chains(images: str, chains: dict[str, dict]) -> None:
@@ -788,10 +793,7 @@ def _print_extra(extra: dict) -> None:
     """The --extra-heldout tables: each network's metrics, the chain, the recognizer's top-1 by size."""
     images = f"{extra['images']} renders of --extra-heldout"
     print(f"\n| metric ({images}) | value |\n|---|---|")
-    for task, m in extra["metrics"].items():
-        for key, value in _flatten(m):
-            if isinstance(value, float) and not key.endswith("step"):
-                print(f"| {task} (step {m['step']}).{key} | {value:.4g} |")
+    _print_metrics(extra["metrics"])
     _print_chains(images, extra["detector"])
     print(f"\n| recognizer, top-1 given the true points ({images}) | markers | size px | count | top-1 "
           "|\n|---|---|---|---|---|")
