@@ -496,31 +496,32 @@ class Detector:
         lap("vote")
         confidence = (presence * probability).astype(np.float32)
         points, partial = self.complete_partial(images, image_index, points, marker_id, confidence)
-        markers = (image_index, marker_id, points, confidence, partial, support)
+        detected = len(image_index)
         # the first round of growth goes through the crosspoint network with the detections, in one pass
         grown = self.grow(images, image_index, points, marker_id, confidence, partial)
-        markers = _joined(markers, _grown_markers(grown, support.dtype))
+        image_index, marker_id, points, confidence, partial, support = _joined(
+            (image_index, marker_id, points, confidence, partial, support), _grown_markers(grown, support.dtype))
         lap("complete")
-        crosspoints = self.locate_crosspoints(images, markers[0], markers[2], markers[1])
-        seen = np.ones(len(markers[0]), bool)
-        seen[len(image_index):] = crosspoints[1][len(image_index):].mean(axis=(1, 2)) >= self.config.grow_min_visible
-        markers, crosspoints = tuple(a[seen] for a in markers), tuple(a[seen] for a in crosspoints)
+        crosspoints_px, visible = self.locate_crosspoints(images, image_index, points, marker_id)
+        keep = np.ones(len(image_index), bool)
+        keep[detected:] = visible[detected:].mean(axis=(1, 2)) >= self.config.grow_min_visible
+        markers = tuple(a[keep] for a in (image_index, marker_id, points, confidence, partial, support,
+                                          crosspoints_px, visible))
         lap("crosspoints")
         for _ in range(1, self.config.grow_rounds if self.layout is not None and self.config.grow_missing else 1):
-            image_index, marker_id, points, confidence, partial, _ = markers
-            grown = self.grow_from_placed(images, image_index, points, marker_id, confidence, partial, *crosspoints)
+            image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = markers
+            grown = self.grow_from_placed(images, image_index, points, marker_id, confidence, partial,
+                                          crosspoints_px, visible)
             lap("complete")
             if not len(grown[0]):
                 break
             found = self.locate_crosspoints(images, grown[0], grown[2], grown[1])
-            seen = found[1].mean(axis=(1, 2)) >= self.config.grow_min_visible
-            markers = _joined(markers, tuple(a[seen] for a in _grown_markers(grown, support.dtype)))
-            crosspoints = _joined(crosspoints, tuple(a[seen] for a in found))
+            keep = found[1].mean(axis=(1, 2)) >= self.config.grow_min_visible
+            markers = _joined(markers, tuple(a[keep] for a in (*_grown_markers(grown, support.dtype), *found)))
             lap("crosspoints")
-            if not seen.any():
+            if not keep.any():
                 break
-        image_index, marker_id, points, confidence, partial, support = markers
-        crosspoints_px, visible = crosspoints
+        image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = markers
 
         result = []
         for i in range(len(images)):
