@@ -6,7 +6,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    at --shard-minutes per call; an unfinished folder is continued by the next call and used as far
    as it goes), shared by all runs and calls.
 2. Train, all runs at once, each resuming from its last.pt (`networks.train`), spread over the GPUs
-   (`placement`: one GPU per main run while there are GPUs, the comparison runs share GPUs; with
+   (`placement`: one GPU per main run while there are GPUs, a comparison run on the least loaded; with
    --ddp, spare GPUs join the heaviest main runs as DistributedDataParallel ranks through torchrun,
    which is off by default because it slows training down: on H200s the crosspoint network trains
    on synthetic shards at 31 steps/s on one GPU and 15 on two ranks, SyncBatchNorm included).  The main runs
@@ -239,24 +239,21 @@ def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: 
 
 
 def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
-    """The GPUs of each active run: the main runs first, heaviest first (`GPU_COST`), each on the GPU
-    with the least cost placed so far (so on two GPUs the crosspoint run has one to itself and the
-    two lighter runs share the other), then the other runs round-robin over the same GPUs; GPUs left
-    over join the heaviest main runs (`HEAVIEST`) as further DDP ranks.  No GPUs (the CPU): every run
-    gets [] (one process)."""
+    """The GPUs of each active run: the main runs first, heaviest first (`GPU_COST`), then the other
+    runs, each on the GPU with the least cost placed so far (so on two GPUs the crosspoint run has
+    one to itself and the two lighter runs share the other, and a comparison run beside the three
+    main runs on four GPUs has the fourth to itself); GPUs left over join the heaviest main runs
+    (`HEAVIEST`) as further DDP ranks.  No GPUs (the CPU): every run gets [] (one process)."""
     if gpus < 1:
         return {name: [] for name in active}
     load, placed = [0.0] * gpus, {}
-    for task in HEAVIEST:
-        if MAIN[task] in active:
-            gpu = min(range(gpus), key=lambda g: (load[g], g))
-            placed[MAIN[task]], load[gpu] = [gpu], load[gpu] + GPU_COST[task]
-    others = [n for n in active if n not in placed]
-    placed.update({name: [i % gpus] for i, name in enumerate(others)})
-    spare = list(range(len(placed), gpus))
-    heavy = [MAIN[t] for t in HEAVIEST if MAIN[t] in placed]
-    for k, gpu in enumerate(spare if heavy else []):
-        placed[heavy[k % len(heavy)]].append(gpu)
+    mains = [MAIN[task] for task in HEAVIEST if MAIN[task] in active]
+    for name in mains + [n for n in active if n not in mains]:
+        gpu = min(range(gpus), key=lambda g: (load[g], g))
+        placed[name], load[gpu] = [gpu], load[gpu] + GPU_COST[RUNS[name][0]]
+    spare = [g for g in range(gpus) if load[g] == 0.0]
+    for k, gpu in enumerate(spare if mains else []):
+        placed[mains[k % len(mains)]].append(gpu)
     return {name: placed[name] for name in active}
 
 

@@ -36,10 +36,13 @@ def test_two_gpus_give_the_crosspoint_run_one_to_itself(bench):
     assert list(placed) == MAIN3  # the caller's order
 
 
-def test_comparison_runs_round_robin_and_spare_gpus_join_the_heaviest(bench):
+def test_comparison_runs_take_the_least_loaded_gpu_and_spare_gpus_join_the_heaviest(bench):
     placed = bench.placement(MAIN3 + ["localizer_synth"], 3)
     assert sorted(g for name in MAIN3 for g in placed[name]) == [0, 1, 2]
-    assert placed["localizer_synth"] == [0]
+    assert placed["localizer_synth"] == placed["localizer_mix"] == [2]  # the lightest main run's GPU
+    fourth = bench.placement(MAIN3 + ["crosspoints"], 4)
+    assert fourth["crosspoints"] == [3] and fourth["crosspoints_jitter"] == [0]  # no spare GPU is left
+    assert bench.placement(MAIN3 + ["crosspoints", "recognizer"], 4)["recognizer"] == [2]
     spare = bench.placement(MAIN3, 5)
     assert spare["crosspoints_jitter"] == [0, 3] and spare["recognizer_partial"] == [1, 4]
     assert spare["localizer_mix"] == [2]
