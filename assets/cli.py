@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 from typing import Callable
@@ -21,3 +22,14 @@ def run_cli(action: Callable[[], object], failures: tuple[type[Exception], ...] 
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0
+
+
+def localizer_scale_arg(text: str) -> float | None:
+    """argparse type of `--localizer-scale`: a number, or "auto" (None: chosen per image,
+    `networks.DetectorConfig.localizer_scale`, which checks the number's range)."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None

@@ -495,9 +495,9 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     """The Detector's networks (`main_checkpoints`) on a second folder of held-out renders
     (`--extra-heldout`, every image held out; made, say, at another resolution or of unseen motions):
     each network's `networks.evaluate` metrics, the chain with its defaults, and the recognizer's top-1
-    given the true points by group and marker size (`partial_ids.top1`).  The chain runs twice: with the
-    localizer at full size, and at 512 / the image side (the scale of the renders it trained on, as
-    in `throughput`)."""
+    given the true points by group and marker size (`partial_ids.top1`).  The chain runs three times:
+    with the localizer at full size, at 512 / the image side (the scale of the renders it trained on,
+    as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None)."""
     from networks.evaluate_detector import load_detector
 
     from foreshortening import rendered_pairs
@@ -509,9 +509,12 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     pairs = rendered_pairs(view)
     groups, by_size = top1(load_detector(*paths, view, device=device), pairs)
     side = max(cv2.imread(str(pairs[0][0]), cv2.IMREAD_UNCHANGED).shape[:2])
-    chains = {f"localizer scale {scale:.2g}": evaluate_chain(out, view, device, smoke, init, variants=False,
-                                                             localizer_scale=scale)["defaults"]
-              for scale in sorted({1.0, min(1.0, 512 / side)}, reverse=True)}
+    chains = {}
+    for scale in [*sorted({1.0, min(1.0, 512 / side)}, reverse=True), None]:
+        chain = evaluate_chain(out, view, device, smoke, init, variants=False, localizer_scale=scale)["defaults"]
+        chosen = chain["localizer_scale"]
+        label = f"{scale:.2g}" if scale is not None else f"auto ({chosen['min']:.2f}-{chosen['max']:.2f})"
+        chains[f"localizer scale {label}"] = chain
     return {"images": len(pairs), "checkpoints": [str(p) for p in paths], "metrics": metrics,
             "detector": chains, "recognizer_top1": {"groups": groups, "by_size": by_size}}
 

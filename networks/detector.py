@@ -3,8 +3,9 @@
 The three networks are chained through the pattern's one crop mapping (`assets.pattern.crop_homography`
 / `unwarp`, the same that made their training crops)::
 
-    1. Marker Localizer on the whole image (resized by `localizer_scale`, padded to a multiple of 8)
-       -> `decode_localizer` -> five points and a presence probability per marker.
+    1. Marker Localizer on the whole image (resized by `localizer_scale`, or by a scale chosen per
+       image from a first pass's marker sizes, padded to a multiple of 8) -> `decode_localizer` ->
+       five points and a presence probability per marker.
     2. Each marker's 96 x 96 crop (`RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
        argmax (over the garment's IDs when `tables` are given) and
        ``confidence = presence probability x softmax probability of that ID``.
@@ -89,7 +90,14 @@ class DetectorConfig:
       markers fall in the size range it was trained on (the synthesizer's `marker_px`, 16 to 32 px
       by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
       to full-resolution pixels; the recognizer and crosspoint crops are always cut from the full
-      image, so only the localizer's input shrinks (and its cost, by the factor squared).
+      image, so only the localizer's input shrinks (and its cost, by the factor squared).  None: chosen
+      per image (`auto_localizer_scale`): a first pass at `AUTO_FIRST_SIDE_PX` / the image's longest
+      side (at most 1) measures the median side of the markers it finds, and the image is localized
+      again at the scale that makes it `localizer_marker_px`; the chosen scales of the last call are
+      in `Detector.localizer_scales`.
+    localizer_marker_px: the marker side (pixels, the square root of its area) that the automatic
+      scale aims at: the best fixed scales measured were 0.4 on the 8-camera capture's 55 px markers
+      (22 px), 0.75 on 1024 px renders' 32 px markers (24 px) and 1 on 512 px renders' 19.6 px ones.
     grow_missing: with tables, markers the localizer missed next to fully observed ones (a hidden
       centre, a fold, too oblique) are placed by at least `grow_min_neighbours` of them
       (`networks.homography.predict_missing`), get their layout ID and go through the crosspoint
@@ -111,7 +119,8 @@ class DetectorConfig:
     vote_min: int = 2
     vote_min_partial: int = 4
     vote_tolerance: float = 0.3
-    localizer_scale: float = 1.0
+    localizer_scale: float | None = 1.0
+    localizer_marker_px: float = 22.0
     grow_missing: bool = True
     grow_min_neighbours: int = 2
     grow_min_visible: float = 0.3
@@ -132,8 +141,10 @@ class DetectorConfig:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         if self.nms_radius_px is not None and not self.nms_radius_px > 0:
             problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
-        if not 0 < self.localizer_scale <= 4:
-            problems.append(f"localizer_scale must be in (0, 4], got {self.localizer_scale}")
+        if self.localizer_scale is not None and not 0 < self.localizer_scale <= 4:
+            problems.append(f"localizer_scale must be in (0, 4] or None (chosen per image), got {self.localizer_scale}")
+        if not 4 <= self.localizer_marker_px <= 256:
+            problems.append(f"localizer_marker_px must be in [4, 256], got {self.localizer_marker_px}")
         if self.vote_min < 1 or self.vote_min_partial < 1 or not 0 < self.vote_tolerance < 0.5:
             problems.append(f"vote_min and vote_min_partial must be >= 1 and vote_tolerance in (0, 0.5), got "
                             f"{self.vote_min}, {self.vote_min_partial}, {self.vote_tolerance}")
@@ -169,6 +180,15 @@ def pad_images(images: Sequence[np.ndarray], cell: int = CELL) -> np.ndarray:
     return batch
 
 
+#: the automatic localizer scale's first pass shows the localizer images of this longest side (the
+#: training renders' framing, in which markers are about 20 px), at most at full size
+AUTO_FIRST_SIDE_PX = 512
+#: ... and measures the markers' size when it finds at least this many
+AUTO_MIN_MARKERS = 8
+#: a chosen scale this close to the first pass's (relative) keeps the first pass's markers
+AUTO_KEEP_RELATIVE = 0.1
+
+
 def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """(the image resized by `scale` (area resampling when shrinking), (2,) the per-axis factor from
     its continuous pixels back to the image's: x_image = x_resized * factor)."""
@@ -178,6 +198,26 @@ def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, n
     size = (max(1, round(width * scale)), max(1, round(height * scale)))
     resized = cv2.resize(image, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
     return resized, np.array([width / size[0], height / size[1]])
+
+
+def marker_side_px(points_px: np.ndarray) -> np.ndarray:
+    """(N,) the side of each marker of points_px (N, 5, 2) (centre, TL, TR, BL, BR): the square root
+    of the area of its corner quadrilateral, in the points' pixels."""
+    corners = np.asarray(points_px, np.float64)[:, [1, 2, 4, 3]]  # TL, TR, BR, BL: around the marker
+    x, y = corners[..., 0], corners[..., 1]
+    area = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
+    return np.sqrt(area)
+
+
+def auto_localizer_scale(points_px: np.ndarray, first_scale: float, marker_px: float,
+                         min_markers: int = AUTO_MIN_MARKERS) -> float:
+    """The localizer scale that makes the median side of the markers `points_px` (N, 5, 2), found at
+    `first_scale` and given in full-resolution pixels, `marker_px` pixels: at most 1 (an enlarged
+    image adds no detail and costs the square) and at least 1/16; `first_scale` when fewer than
+    `min_markers` markers were found (too few to measure)."""
+    if len(points_px) < min_markers:
+        return first_scale
+    return float(np.clip(marker_px / np.median(marker_side_px(points_px)), 1 / 16, 1.0))
 
 
 def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
@@ -294,6 +334,8 @@ class Detector:
         #: seconds spent in each stage by the calls so far (localize, recognize, vote, complete,
         #: crosspoints), each stage ending with its results on the host
         self.stage_seconds = dict.fromkeys(("localize", "recognize", "vote", "complete", "crosspoints"), 0.0)
+        #: the localizer scale of each image of the last call (`DetectorConfig.localizer_scale`)
+        self.localizer_scales: list[float] = []
 
     @classmethod
     def from_checkpoints(cls, localizer_path: str | Path, recognizer_path: str | Path, crosspoints_path: str | Path,
@@ -323,12 +365,29 @@ class Detector:
 
     def localize(self, images: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Stage 1: per image, (points_px (N, 5, 2) float32, presence probability (N,) float32) of the
-        markers whose centre lies in the image."""
+        markers whose centre lies in the image, found at `config.localizer_scale` or, where that is
+        None, at a scale chosen per image (`auto_localizer_scale`; the scales in
+        `self.localizer_scales`)."""
+        if self.config.localizer_scale is not None:
+            self.localizer_scales = [self.config.localizer_scale] * len(images)
+            return self._localize(images, self.localizer_scales)
+        first = [min(1.0, AUTO_FIRST_SIDE_PX / max(image.shape[:2])) for image in images]
+        out = self._localize(images, first)
+        chosen = [auto_localizer_scale(points, scale, self.config.localizer_marker_px)
+                  for (points, _), scale in zip(out, first)]
+        self.localizer_scales = [c if abs(c / f - 1) > AUTO_KEEP_RELATIVE else f for c, f in zip(chosen, first)]
+        again = [i for i, (c, f) in enumerate(zip(self.localizer_scales, first)) if c != f]
+        for i, found in zip(again, self._localize([images[i] for i in again], [chosen[i] for i in again])):
+            out[i] = found
+        return out
+
+    def _localize(self, images: Sequence[np.ndarray], scales: Sequence[float]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """`localize` with the localizer scale of each image given."""
         kwargs = {} if self.config.nms_radius_px is None else {"nms_radius_px": self.config.nms_radius_px}
         out = []
         with torch.inference_mode():
             for chunk in _batches(len(images), self.config.image_batch_size):
-                resized = [resize_for_localizer(image, self.config.localizer_scale) for image in images[chunk]]
+                resized = [resize_for_localizer(image, scale) for image, scale in zip(images[chunk], scales[chunk])]
                 batch = self._to_device(pad_images([r for r, _ in resized]))
                 decoded = decode_localizer(self.localizer(batch), threshold=self.config.presence_threshold,
                                            cell=CELL, **kwargs)

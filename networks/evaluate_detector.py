@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from assets.cli import localizer_scale_arg
 from assets.fileio import save_json
 from assets.pattern import MarkerTable, PatternSpec
 from assets.pattern.observation import ImageGroundTruth
@@ -92,7 +93,7 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
         raise ValueError(f"limit must be >= 1 or None, got {limit}")
     root = Path(data)
     entries = split_entries(root, split)[:limit]
-    records, seconds = [], 0.0
+    records, seconds, scales = [], 0.0, []
     stages_before = dict(detector.stage_seconds)
     for entry in tqdm(entries, desc="evaluate detector", unit="image", disable=not progress):
         if "gt" not in entry:
@@ -105,10 +106,13 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
         start = time.perf_counter()
         (detections,), ((localized, _),) = detector.detect([image])  # localized: the points the cut test saw
         seconds += time.perf_counter() - start
+        scales += detector.localizer_scales
         records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
     metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
     return {"data": str(root), "split": split, "radius_px": float(radius_px), "tables": detector.layout is not None,
             **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records),
+            "localizer_scale": {"config": detector.config.localizer_scale, "median": float(np.median(scales)),
+                                "min": min(scales), "max": max(scales)},
             "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()}}
 
 
@@ -124,9 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="test", help="train, val or test (default test)")
     parser.add_argument("--limit", type=int, metavar="N", help="evaluate the first N images of the split only")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
-    parser.add_argument("--localizer-scale", type=float, default=1.0, metavar="S",
+    parser.add_argument("--localizer-scale", type=localizer_scale_arg, default=1.0, metavar="S",
                         help="the localizer sees the image resized by this factor, so markers fall in the "
-                             "size range it was trained on (0.5 for markers 32 to 64 px across; default 1)")
+                             "size range it was trained on (0.5 for markers 32 to 64 px across; default 1), "
+                             "or 'auto': chosen per image from a first pass's marker sizes")
     defaults = DetectorConfig()
     parser.add_argument("--max-layout-residual", type=float, default=defaults.max_layout_residual_cells, metavar="CELLS",
                         help="cells (24 per marker side) by which five points may miss a homography of the "

@@ -155,8 +155,12 @@ def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, ga
                .joinpath("manifest.jsonl").read_text().splitlines()) == 2  # val and test only
     extra = bench.evaluate_extra(tmp_path, view, "cpu", bench.init_weights(init_folder), smoke=True)
     assert extra["images"] == 3 and set(extra["metrics"]) == {"localizer", "recognizer", "crosspoints"}
-    chain = extra["detector"]["localizer scale 1"]  # the images are 128 px: no second scale
-    assert list(extra["detector"]) == ["localizer scale 1"] and chain["images"] == 3 and chain["split"] == "heldout"
+    chain = extra["detector"]["localizer scale 1"]  # the images are 128 px: no second fixed scale
+    labels = list(extra["detector"])
+    assert labels[0] == "localizer scale 1" and chain["images"] == 3 and chain["split"] == "heldout"
+    automatic = extra["detector"][labels[1]]  # and the scale chosen per image
+    assert len(labels) == 2 and labels[1].startswith("localizer scale auto (") and automatic["images"] == 3
+    assert automatic["localizer_scale"]["config"] is None and automatic["localizer_scale"]["max"] <= 1.0
     assert sum(r["markers"] for r in extra["recognizer_top1"]["groups"].values()) > 0
     result = {"date": "2026-11-26", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {}, "runs": {},
               "training": {}, "heldout_images": 2, "metrics": {}, "detector": {}, "throughput": [], "extra": extra}

@@ -23,7 +23,17 @@ from assets.pattern import (
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.detections import Detections
-from networks.detector import Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers, usable_points
+from networks.detector import (
+    AUTO_FIRST_SIDE_PX,
+    Detector,
+    DetectorConfig,
+    auto_localizer_scale,
+    fully_observed,
+    marker_side_px,
+    pad_images,
+    unwarp_markers,
+    usable_points,
+)
 from networks.homography import (
     MarkerLayout,
     crop_to_image,
@@ -545,3 +555,52 @@ def test_localizer_scale_maps_points_back_to_full_resolution(detector, scene):
     assert ((centre >= 0) & (centre <= [261, 197])).all()
     with pytest.raises(ValueError, match="localizer_scale must be in"):
         DetectorConfig(localizer_scale=0.0)
+
+
+def _square_marker(side, angle, centre):
+    """Five points (centre, TL, TR, BL, BR) of a square marker of `side` px turned by `angle`."""
+    local = np.array([[0, 0], [-1, -1], [1, -1], [-1, 1], [1, 1]], np.float64) * side / 2
+    turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    return local @ turn.T + centre
+
+
+def test_marker_side_is_the_square_root_of_its_corner_quad_area():
+    square = _square_marker(20.0, 0.3, [100.0, 50.0])
+    stretched = square * [2.0, 1.0]  # area doubled
+    assert np.allclose(marker_side_px(np.stack([square, stretched])), [20.0, 20.0 * np.sqrt(2)])
+
+
+def test_auto_localizer_scale_aims_at_the_marker_size():
+    def markers(side, count=8):
+        return np.stack([_square_marker(side, 0.1 * i, [50.0 * i, 30.0]) for i in range(count)])
+    assert auto_localizer_scale(markers(44.0), 0.5, 22.0) == pytest.approx(0.5)
+    assert auto_localizer_scale(markers(110.0), 0.5, 22.0) == pytest.approx(0.2)
+    assert auto_localizer_scale(markers(11.0), 0.5, 22.0) == 1.0  # never enlarged
+    assert auto_localizer_scale(markers(1000.0), 0.5, 22.0) == 1 / 16
+    assert auto_localizer_scale(markers(44.0, count=7), 0.3, 22.0) == 0.3  # too few to measure
+    with pytest.raises(ValueError, match="localizer_marker_px"):
+        DetectorConfig(localizer_scale=None, localizer_marker_px=2.0)
+
+
+def test_auto_localizer_scale_localizes_again_at_the_chosen_scale(detector, scene):
+    """localizer_scale None: a first pass at 512 / the longest side measures the markers (the
+    untrained localizer's are 40 px in its input) and the image is localized again at the scale that
+    makes them 22 px, exactly as at that fixed scale; an image too small for 8 markers keeps its
+    first pass."""
+    def at(scale):
+        return Detector(detector.localizer, detector.recognizer, detector.crosspoints, SPEC, codebook=detector.codebook,
+                        config=dataclasses.replace(detector.config, localizer_scale=scale))
+
+    image, small = scene[0], np.ascontiguousarray(scene[0][200:264, 250:346])
+    auto = at(None)
+    found = auto.localize([image, small])
+    first = AUTO_FIRST_SIDE_PX / IMAGE_SIZE[0]
+    chosen = auto_localizer_scale(at(first).localize([image])[0][0], first, 22.0)
+    assert chosen == pytest.approx(22.0 / (40.0 / first), rel=0.05)
+    assert auto.localizer_scales == [chosen, 1.0]
+    (points, score), (expected, expected_score) = found[0], at(chosen).localize([image])[0]
+    assert len(points) >= 8 and len(points) == len(expected)
+    assert np.allclose(points, expected) and np.allclose(score, expected_score)
+    alone = auto.localize([small])[0]  # alone: in a batch the small image is padded to the large one's size
+    assert len(alone[0]) < 8 and auto.localizer_scales == [1.0]
+    assert all(np.array_equal(a, b) for a, b in zip(alone, at(1.0).localize([small])[0]))

@@ -181,7 +181,8 @@ def test_evaluate_detector_counts_add_up(dataset, checkpoints):
     result = evaluate_detector(detector, dataset, "test", progress=False, radius_px=32.0)
     assert set(result) == {"data", "split", "radius_px", "tables", "images", "detections", "markers", "id_accuracy",
                            "partial", "point_error_px", "crosspoints", "layout_residual_cells", "seconds",
-                           "seconds_per_image", "stage_seconds"}
+                           "seconds_per_image", "stage_seconds", "localizer_scale"}
+    assert result["localizer_scale"] == {"config": 1.0, "median": 1.0, "min": 1.0, "max": 1.0}
     assert result["images"] == 2 and result["tables"] is True and result["seconds"] > 0
     assert set(result["stage_seconds"]) == set(detector.stage_seconds)
     assert 0 < sum(result["stage_seconds"].values()) <= result["seconds"]
@@ -221,6 +222,10 @@ def test_cli(dataset, checkpoints, tmp_path, capsys):
     assert "expected a localizer checkpoint" in capsys.readouterr().err
     assert main(args + ["--data", str(dataset), "--localizer-scale", "0"]) == 2
     assert "localizer_scale must be in" in capsys.readouterr().err
+    automatic = tmp_path / "auto.json"
+    assert main(args + ["--data", str(dataset), "--limit", "1", "--localizer-scale", "auto", "--json", str(automatic)]) == 0
+    chosen = json.loads(automatic.read_text())["localizer_scale"]
+    assert chosen["config"] is None and 0 < chosen["min"] <= chosen["median"] <= chosen["max"] <= 1
 
 
 def test_a_detection_of_a_marker_whose_centre_is_hidden_is_neither_true_nor_false():

@@ -65,8 +65,9 @@ def test_networks_mode_reads_the_cameras_of_a_capture_folder(capture_folder, tmp
     template = capture_folder / "template.npz"
     checkpoints = _checkpoints(tmp_path, load_template(template).layout.spec)
     argv = ["detect", "--template", str(template), "--device", "cpu", "--checkpoints", *checkpoints,
-            "--localizer-scale", "0.25", "--frames", "3", "--quiet"]
+            "--localizer-scale", "auto", "--frames", "3", "--quiet"]
     assert main([*argv, "--views", str(capture_folder), "--out", str(tmp_path / "rec")]) == 0
+    assert json.loads((tmp_path / "rec" / "run.json").read_text())["localizer_scale"] is None  # chosen per view
     cameras = json.loads((capture_folder / "cameras.json").read_text())["cameras"]
     assert [c["name"] for c in json.loads((tmp_path / "rec" / "detections" / "cameras.json").read_text())["cameras"]] \
         == [c["name"] for c in cameras]
