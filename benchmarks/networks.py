@@ -19,7 +19,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    partial markers with a visible centre, `TrainConfig.recognizer_partial`, since the eighth run's
    whole-marker recognizer read them 0.37 right) train until the budget's end.
    Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops,
-   recognizer_jitter (jittered crops of whole markers only), and
+   recognizer_jitter (jittered crops of whole markers only), crosspoints_rendered (the main
+   crosspoint run's crops at synth weight 0.25: which mix trains it best), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  Data workers
@@ -115,6 +116,8 @@ RUNS = {
     "recognizer_partial": ("recognizer", 0.75, None, 6, "recognizer_partial"),
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
+    # mostly rendered crops (20 ms each to a worker against a shard crop's 1.7 ms): twice the share
+    "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
 }
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_jitter"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,

@@ -26,6 +26,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from assets.cli import localizer_scale_arg  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, completed_points, recognizer_markers  # noqa: E402
 from networks.detector import Detector, DetectorConfig  # noqa: E402
 
@@ -122,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", default="", help="only these capture frames (comma-separated stems, e.g. f000120)")
     parser.add_argument("--chain", action="store_true", help="also where the chain loses them: found by the "
                         "localizer, identified on its points alone and after the ID votes")
-    parser.add_argument("--localizer-scale", type=float, help="with --chain (default 1 on renders, 0.3 on a capture)")
+    parser.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
+                        help="with --chain: a number, or 'auto' (chosen per image, the default)")
     parser.add_argument("--radius", type=float, help="with --chain: match radius px (default 4 on renders, 12 on a "
                         "capture)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
@@ -142,10 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         if capture is not None and args.frames:
             wanted = set(args.frames.split(","))
             pairs = [p for p in pairs if p[0].stem in wanted]
-        scale = args.localizer_scale or (1.0 if rendered is not None else 0.3)
         detector = Detector.from_checkpoints(*args.checkpoints, device=args.device,
                                              tables=load_template(template).layout.tables(),
-                                             config=DetectorConfig(localizer_scale=scale))
+                                             config=DetectorConfig(localizer_scale=args.localizer_scale))
         source = f"{label} ({len(pairs)} images)"
         sources[source], sizes[source] = top1(detector, pairs)
         if args.chain:

@@ -128,10 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="test", help="train, val or test (default test)")
     parser.add_argument("--limit", type=int, metavar="N", help="evaluate the first N images of the split only")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
-    parser.add_argument("--localizer-scale", type=localizer_scale_arg, default=1.0, metavar="S",
+    parser.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto", metavar="S",
                         help="the localizer sees the image resized by this factor, so markers fall in the "
-                             "size range it was trained on (0.5 for markers 32 to 64 px across; default 1), "
-                             "or 'auto': chosen per image from a first pass's marker sizes")
+                             "size range it was trained on (0.5 for markers 32 to 64 px across), or 'auto' "
+                             "(the default): chosen per image from a first pass's marker sizes")
     defaults = DetectorConfig()
     parser.add_argument("--max-layout-residual", type=float, default=defaults.max_layout_residual_cells, metavar="CELLS",
                         help="cells (24 per marker side) by which five points may miss a homography of the "

@@ -54,10 +54,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--frames", help="frames to use, e.g. 120-131 or 120,125 (default: all)")
         p.add_argument("--device", help="networks mode: cuda or cpu (default: a GPU when there is one)")
-        p.add_argument("--localizer-scale", type=localizer_scale_arg, default=1.0,
+        p.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
                        help="networks mode: the marker localizer sees the views resized by this factor, so that "
-                       "markers are 16 to 32 px across there (0.5 for 32 to 64 px markers), or 'auto': "
-                       "chosen per view from a first pass's marker sizes")
+                       "markers are 16 to 32 px across there (0.5 for 32 to 64 px markers), or 'auto' (the "
+                       "default): chosen per view from a first pass's marker sizes")
         p.add_argument("--no-grow", action="store_true",
                        help="networks mode: do not add the markers the localizer missed next to fully observed "
                        "ones (default: add them; they raise the captured fraction, at a higher error p95)")
