@@ -305,7 +305,7 @@ def main_checkpoints(out: Path, init: dict[str, str] | None = None) -> list[Path
 
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
-               init: dict[str, str] | None = None) -> TrainConfig:
+               init: dict[str, str] | None = None, localizer_marker_px: float | None = None) -> TrainConfig:
     task, synth_weight, _, _, folder = RUNS[name]
     start = (init or {}).get(name)
     steps, batch = SCHEDULE[task]
@@ -316,12 +316,13 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        recognizer_partial=SHARDS[folder][3],
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
-                       checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight)
+                       checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
+                       localizer_marker_px=localizer_marker_px if task == "localizer" else None)
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
               names: list[str], final: bool = False, ddp: bool = False, pretrained: dict[str, str] | None = None,
-              init: dict[str, str] | None = None) -> dict[str, dict]:
+              init: dict[str, str] | None = None, localizer_marker_px: float | None = None) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
     to end within this call (`--fit-time-limit`).  Returns per run its steps, planned steps, wall time
@@ -343,7 +344,8 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         task = RUNS[name][0]
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        run_config(name, workers[name], max_steps, pretrained or {}, init).save(folder / "config.in.json")
+        run_config(name, workers[name], max_steps, pretrained or {}, init, localizer_marker_px
+                   ).save(folder / "config.in.json")
         launcher = [sys.executable]
         if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
             launcher += ["-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(ranks[name])]
@@ -590,6 +592,9 @@ def main() -> None:
     parser.add_argument("--localizer-synth-weight", type=float,
                         help=f"the main localizer run's share of synthesized images (default "
                         f"{RUNS[MAIN['localizer']][1]}); 0 with --init: a last phase on the renders alone")
+    parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
+                        help="the localizer runs read rendered images shrunk so their markers measure this many "
+                        "pixels, as the Detector's automatic scale shows them (TrainConfig.localizer_marker_px)")
     parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
                         "--export-weights) that new runs start from (networks.train --init)")
     parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
@@ -633,7 +638,7 @@ def main() -> None:
     init = init_weights(args.init)
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
-                         args.ddp, pretrained, init)
+                         args.ddp, pretrained, init, args.localizer_marker_px)
     train_s = time.perf_counter() - t0
     gpu = f"{torch.cuda.device_count()} x {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "

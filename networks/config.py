@@ -63,7 +63,10 @@ class TrainConfig:
     marker the localizer finds; validation stays on whole markers.  The ninth GPU run's measurement
     made it the default: partial markers read right 0.63 -> 0.76 on renders, 0.77 -> 0.92 on a
     capture, whole ones 0.952 -> 0.963.  False: the reference's crops, whole markers only (and what
-    a saved config without the field trained on).
+    a saved config without the field trained on).  localizer_marker_px (localizer): rendered images
+    are read shrunk so their markers' median side is this many pixels, the size the Detector's
+    automatic scale shows them at (`networks.DetectorConfig.localizer_marker_px`, 22; the renders'
+    `RenderedDataset` marker_px); None: at their own scale, as the reference.
     """
 
     task: str
@@ -89,6 +92,7 @@ class TrainConfig:
     crop_jitter_px: float = 0.0
     view_warp: bool = True
     recognizer_partial: bool = True
+    localizer_marker_px: float | None = None
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -112,6 +116,9 @@ class TrainConfig:
             problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
+        if self.localizer_marker_px is not None and not (
+                isinstance(self.localizer_marker_px, (int, float)) and 4 <= self.localizer_marker_px <= 256):
+            problems.append(f"localizer_marker_px must be in [4, 256] pixels or None, got {self.localizer_marker_px!r}")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):

@@ -53,6 +53,7 @@ from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
 from networks.config import TASKS
+from networks.homography import auto_localizer_scale
 from networks.models import CELL
 from networks.synth import PatternSynthesizer, SynthConfig
 
@@ -189,12 +190,17 @@ class RenderedDataset(_Items, Dataset):
     that test (the Detector would not cut it) is cut from the true points.  0: the stored exact crops.
     partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
     (whole markers and partial ones with a visible centre), their crops cut from the image
-    (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers."""
+    (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
+    marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
+    median side of its fully visible markers is this many pixels, as the Detector's automatic scale
+    shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
+    from the ground-truth points; crops and view warps are then taken from it.  None: the renders'
+    own scale."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
-                 partial_markers: bool = False):
+                 partial_markers: bool = False, marker_px: float | None = None):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -214,13 +220,16 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
+        if marker_px is not None and (task != "localizer" or not 4 <= marker_px <= 256):
+            raise ValueError(f"marker_px is for the localizer's images, in [4, 256] px; got {marker_px} for the {task}")
+        self.marker_px = marker_px
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
         if not self.entries:
             raise ValueError(f"{self.root}: no images in split {split!r}")
         needed = ["samples"] + (["image"] if task == "localizer" or self._cut_anew else []) + \
-            (["gt"] if view_warp or self._cut_anew else [])
+            (["gt"] if view_warp or marker_px or self._cut_anew else [])
         missing = [e.get(k, f"{e.get('name')} has no {k!r} entry") for e in self.entries for k in needed
                    if k not in e or not (self.root / e[k]).is_file()]
         if missing:
@@ -232,11 +241,16 @@ class RenderedDataset(_Items, Dataset):
         # before DataLoader workers fork: done per worker and image, it starved the tenth GPU run (a
         # mixed batch draws its rendered items from random images, so the workers' caches rarely hit)
         self._sources: list[dict[str, np.ndarray]] = []
-        quiet = len(self.entries) < (50 if self._cut_anew or view_warp else 1000)
+        quiet = len(self.entries) < (50 if self._cut_anew or view_warp or marker_px else 1000)
         entries = tqdm(range(len(self.entries)), desc=f"index {split} {task}", disable=quiet)
         if task == "localizer":
             self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
-            self._markers = {i: self._warp_markers(i) for i in entries} if view_warp is not None else {}
+            self._markers = {i: self._warp_markers(i) for i in entries} if view_warp or marker_px else {}
+            #: per image, the scale it is read at (`marker_px`)
+            self._scales = [1.0 if marker_px is None else
+                            auto_localizer_scale(m["points_px"][m["status"] == 2], 1.0, marker_px, min_markers=1)
+                            for m in (self._markers[i] for i in range(len(self.entries)))] \
+                if marker_px else [1.0] * len(self.entries)
         else:
             key = _CROP_KEYS[task][1]
             if self._cut_anew:
@@ -312,6 +326,12 @@ class RenderedDataset(_Items, Dataset):
             if arrays["cells"].shape != (h // 8, w // 8, 11):
                 raise ValueError(f"{path}: cells has shape {arrays['cells'].shape}, expected "
                                  f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
+            scale = self._scales[image_index]
+            if scale < 1.0:  # shrunk to whole cells: the targets from the points moved by the same factors
+                size = tuple(max(CELL, int(round(side * scale)) // CELL * CELL) for side in (w, h))
+                view = np.diag([size[0] / w, size[1] / h, 1.0])
+                arrays = {"image": cv2.resize(arrays["image"], size, interpolation=cv2.INTER_AREA),
+                          "cells": self._warped_cells(image_index, view, size)}
             return self._keep(image_index, arrays)
         if self._cut_anew:
             return self._keep(image_index, self._jitter_source(image_index))

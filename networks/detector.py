@@ -55,6 +55,7 @@ from networks.decode import decode_localizer
 from networks.detections import Detections
 from networks.homography import (
     MarkerLayout,
+    auto_localizer_scale,
     crop_to_image,
     estimate_from_neighbours,
     inside_image,
@@ -181,10 +182,9 @@ def pad_images(images: Sequence[np.ndarray], cell: int = CELL) -> np.ndarray:
 
 
 #: the automatic localizer scale's first pass shows the localizer images of this longest side (the
-#: training renders' framing, in which markers are about 20 px), at most at full size
+#: training renders' framing, in which markers are about 20 px), at most at full size, and measures
+#: the markers' size when it finds at least `networks.homography.AUTO_MIN_MARKERS`
 AUTO_FIRST_SIDE_PX = 512
-#: ... and measures the markers' size when it finds at least this many
-AUTO_MIN_MARKERS = 8
 #: a chosen scale this close to the first pass's (relative) keeps the first pass's markers
 AUTO_KEEP_RELATIVE = 0.1
 
@@ -198,26 +198,6 @@ def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, n
     size = (max(1, round(width * scale)), max(1, round(height * scale)))
     resized = cv2.resize(image, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
     return resized, np.array([width / size[0], height / size[1]])
-
-
-def marker_side_px(points_px: np.ndarray) -> np.ndarray:
-    """(N,) the side of each marker of points_px (N, 5, 2) (centre, TL, TR, BL, BR): the square root
-    of the area of its corner quadrilateral, in the points' pixels."""
-    corners = np.asarray(points_px, np.float64)[:, [1, 2, 4, 3]]  # TL, TR, BR, BL: around the marker
-    x, y = corners[..., 0], corners[..., 1]
-    area = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
-    return np.sqrt(area)
-
-
-def auto_localizer_scale(points_px: np.ndarray, first_scale: float, marker_px: float,
-                         min_markers: int = AUTO_MIN_MARKERS) -> float:
-    """The localizer scale that makes the median side of the markers `points_px` (N, 5, 2), found at
-    `first_scale` and given in full-resolution pixels, `marker_px` pixels: at most 1 (an enlarged
-    image adds no detail and costs the square) and at least 1/16; `first_scale` when fewer than
-    `min_markers` markers were found (too few to measure)."""
-    if len(points_px) < min_markers:
-        return first_scale
-    return float(np.clip(marker_px / np.median(marker_side_px(points_px)), 1 / 16, 1.0))
 
 
 def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,

@@ -419,3 +419,27 @@ def _tally(layout: MarkerLayout, marker_id: np.ndarray, voters: np.ndarray, targ
     pairs, count = pairs[order], count[order]
     first = np.unique(pairs[:, 0], return_index=True)[1]
     return pairs[first, 0], pairs[first, 1], count[first], own
+
+
+#: `auto_localizer_scale` measures the markers' size when there are at least this many
+AUTO_MIN_MARKERS = 8
+
+
+def marker_side_px(points_px: np.ndarray) -> np.ndarray:
+    """(N,) the side of each marker of points_px (N, 5, 2) (centre, TL, TR, BL, BR): the square root
+    of the area of its corner quadrilateral, in the points' pixels."""
+    corners = np.asarray(points_px, np.float64)[:, [1, 2, 4, 3]]  # TL, TR, BR, BL: around the marker
+    x, y = corners[..., 0], corners[..., 1]
+    area = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
+    return np.sqrt(area)
+
+
+def auto_localizer_scale(points_px: np.ndarray, first_scale: float, marker_px: float,
+                         min_markers: int = AUTO_MIN_MARKERS) -> float:
+    """The localizer scale that makes the median side of the markers `points_px` (N, 5, 2), found at
+    `first_scale` and given in full-resolution pixels, `marker_px` pixels: at most 1 (an enlarged
+    image adds no detail and costs the square) and at least 1/16; `first_scale` when fewer than
+    `min_markers` markers were found (too few to measure)."""
+    if len(points_px) < min_markers:
+        return first_scale
+    return float(np.clip(marker_px / np.median(marker_side_px(points_px)), 1 / 16, 1.0))

@@ -246,10 +246,11 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
                 synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size, stored=False))
     root = _dataset_root(data)
     view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
+    marker_px = config.localizer_marker_px if task == "localizer" else None
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
-                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial)
-    val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed)
+                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px)
+    val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
             raise ValueError(f"{root}: the {split} split has no {task} samples")
@@ -547,6 +548,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "view_warp": False if args.no_view_warp else None,
+                 "localizer_marker_px": args.localizer_marker_px,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -588,6 +590,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="train without augmentation (photometric, and the localizer's view warp)")
     parser.add_argument("--no-view-warp", action="store_true",
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
+    parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
+                        help="localizer: read rendered images shrunk so their markers measure this many pixels, "
+                        "as the Detector's automatic scale shows them (22); default: their own scale")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
                         "markers with a visible centre too; shards need the same: networks.synth write "

@@ -169,3 +169,9 @@ def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, ga
     assert "| Detector, three runs chained (3 renders of --extra-heldout) |" in printed
     assert "| localizer scale 1 |" in printed
     assert "| recognizer (step 0).top1 |" in printed
+
+
+def test_localizer_marker_px_reaches_the_localizer_runs_only(bench):
+    assert bench.run_config("localizer_mix", 1, 2, {}, None, 22.0).localizer_marker_px == 22.0
+    assert bench.run_config("crosspoints_jitter", 1, 2, {}, None, 22.0).localizer_marker_px is None
+    assert bench.run_config("localizer_mix", 1, 2, {}).localizer_marker_px is None  # the renders' own scale

@@ -23,24 +23,16 @@ from assets.pattern import (
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.detections import Detections
-from networks.detector import (
-    AUTO_FIRST_SIDE_PX,
-    Detector,
-    DetectorConfig,
-    auto_localizer_scale,
-    fully_observed,
-    marker_side_px,
-    pad_images,
-    unwarp_markers,
-    usable_points,
-)
+from networks.detector import AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers, usable_points
 from networks.homography import (
     MarkerLayout,
+    auto_localizer_scale,
     crop_to_image,
     estimate_from_neighbours,
     predict_missing,
     fit_homography_masked,
     layout_residual,
+    marker_side_px,
     points_from_crosspoints,
     vote_ids,
 )

@@ -18,6 +18,7 @@ from assets.fileio import save_npz
 from assets.pattern import PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.config import TrainConfig
+from networks.data import RenderedDataset
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
@@ -239,6 +240,20 @@ def test_the_localizer_trains_on_shards_mixed_with_rendered_crops(dataset, tmp_p
     with pytest.raises(ValueError, match="image_size"):
         train(config.replace(image_size=96), dataset, tmp_path / "other", device="cpu", spec=SPEC, shards=shards,
               progress=False)
+
+
+def test_the_localizer_trains_on_renders_read_at_the_detectors_scale(dataset, tmp_path):
+    """--localizer-marker-px: the rendered training and validation images are read shrunk so their
+    markers measure that many pixels (`RenderedDataset` marker_px); the config carries it."""
+    out = tmp_path / "run"
+    _config("localizer", image_size=64, steps=2).save(tmp_path / "config.json")
+    assert main(["localizer", "--data", str(dataset), "--out", str(out), "--device", "cpu", "--quiet",
+                 "--config", str(tmp_path / "config.json"), "--localizer-marker-px", "8"]) == 0
+    assert read_checkpoint(out / "last.pt")["config"]["localizer_marker_px"] == 8.0
+    val = RenderedDataset(dataset, "val", "localizer", marker_px=8.0)
+    assert val[0]["image"].shape[1] < 128 and val[0]["cells"].shape[0] == val[0]["image"].shape[1] // 8  # shrunk
+    with pytest.raises(ValueError, match="localizer_marker_px"):
+        _config("localizer", localizer_marker_px=2.0)
 
 
 def test_the_schedule_fits_the_time_limit(dataset, tmp_path, caplog):
