@@ -247,9 +247,8 @@ class RenderedDataset(_Items, Dataset):
             self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
             self._markers = {i: self._warp_markers(i) for i in entries} if view_warp or marker_px else {}
             #: per image, the scale it is read at (`marker_px`)
-            self._scales = [1.0 if marker_px is None else
-                            auto_localizer_scale(m["points_px"][m["status"] == 2], 1.0, marker_px, min_markers=1)
-                            for m in (self._markers[i] for i in range(len(self.entries)))] \
+            self._scales = [auto_localizer_scale(self._markers[i]["points_px"][self._markers[i]["status"] == 2], 1.0,
+                                                 marker_px, min_markers=1) for i in range(len(self.entries))] \
                 if marker_px else [1.0] * len(self.entries)
         else:
             key = _CROP_KEYS[task][1]
@@ -278,9 +277,10 @@ class RenderedDataset(_Items, Dataset):
             width, height = self.crop_size((w, h))
             view = None if self.view_warp is None else self.view_warp.homography(self._rng(index, _VIEW), (w, h),
                                                                                  (width, height))
-            if view is not None:
+            if view is not None:  # the targets: the source's points through the shrink (marker_px), then the view
                 return self._item(index, image=warp_image(image, view, (width, height)),
-                                  cells=self._warped_cells(image_index, view, (width, height)))
+                                  cells=self._warped_cells(image_index, view @ arrays.get("shrink", np.eye(3)),
+                                                           (width, height)))
             if self.crop_px is not None:
                 rng = self._rng(index, 3)
                 i0, j0 = (int(rng.integers(0, n + 1)) for n in ((h - height) // CELL, (w - width) // CELL))
@@ -329,9 +329,9 @@ class RenderedDataset(_Items, Dataset):
             scale = self._scales[image_index]
             if scale < 1.0:  # shrunk to whole cells: the targets from the points moved by the same factors
                 size = tuple(max(CELL, int(round(side * scale)) // CELL * CELL) for side in (w, h))
-                view = np.diag([size[0] / w, size[1] / h, 1.0])
+                shrink = np.diag([size[0] / w, size[1] / h, 1.0])
                 arrays = {"image": cv2.resize(arrays["image"], size, interpolation=cv2.INTER_AREA),
-                          "cells": self._warped_cells(image_index, view, size)}
+                          "cells": self._warped_cells(image_index, shrink, size), "shrink": shrink}
             return self._keep(image_index, arrays)
         if self._cut_anew:
             return self._keep(image_index, self._jitter_source(image_index))

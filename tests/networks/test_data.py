@@ -432,6 +432,9 @@ def test_marker_px_reads_each_image_at_the_detectors_automatic_scale(folder):
     data = RenderedDataset(folder, "train", "localizer", seed=5, marker_px=target)
     plain = RenderedDataset(folder, "train", "localizer", seed=5)
     large = RenderedDataset(folder, "train", "localizer", seed=5, marker_px=np.nanmax(sides) * 2)
+    warp = ViewWarp(probability=1.0, scale=(0.8, 1.25), rotation_deg=20.0, squeeze=0.6)
+    warped = RenderedDataset(folder, "train", "localizer", seed=5, marker_px=target, view_warp=warp, crop_px=64)
+    found = 0
     grid = np.stack(np.meshgrid(np.arange(24), np.arange(16)), axis=-1) * 8.0
     for i, entry in enumerate(entries):
         gt = ImageGroundTruth.load(folder / entry["gt"])
@@ -456,5 +459,20 @@ def test_marker_px_reads_each_image_at_the_detectors_automatic_scale(folder):
         for p in points:
             assert (np.nanmax(np.abs(moved[inside] - p), axis=(1, 2)) < 1e-3).sum() == 1
         assert all(torch.equal(large[i][k], plain[i][k]) for k in ("image", "cells"))  # markers already smaller
+        # a view warp is drawn on the shrunk image, and its targets follow both
+        out = warped.crop_size(size)  # at most 64 x 64, cut from the shrunk image
+        view = warp.homography(np.random.default_rng([5, 0, i, _VIEW]), size, out)
+        item = warped[i]
+        shrunk = cv2.resize(png, size, interpolation=cv2.INTER_AREA)
+        assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), warp_image(shrunk, view, out))
+        seen = apply_homography(view, moved)
+        inside = ((seen[:, 0] >= 0) & (seen[:, 0] < out)).all(axis=1) & gt.point_visible[:, 0] & (gt.status > 0)
+        cells = item["cells"].numpy()
+        present = cells[..., 0] > 0
+        assert present.sum() == inside.sum()
+        for p in cells[present][:, 1:].reshape(-1, 5, 2) + grid[: out[1] // 8, : out[0] // 8][present][:, None, :]:
+            assert (np.nanmax(np.abs(seen[inside] - p), axis=(1, 2)) < 1e-3).sum() == 1
+        found += int(present.sum())
+    assert found > 0
     with pytest.raises(ValueError, match="marker_px"):
         RenderedDataset(folder, "train", "recognizer", marker_px=22.0)
