@@ -54,8 +54,9 @@ class RunSettings:
     starts from (`reconstruction.refine.load_initial_shape`; a factory capture's ``sim/dressed.npz``),
     or "" for the template's placement pose (a poor start: see `refine_sequence`); localizer_scale:
     networks mode, `networks.DetectorConfig.localizer_scale` (0.5 when the views' markers are 32 to
-    64 px across; None, the default: chosen per view); grow_missing: networks mode, `networks.DetectorConfig.grow_missing` (the markers
-    the localizer missed next to fully observed ones are added); grow_rounds: networks mode,
+    64 px across; None, the default: chosen per view); grow_missing: networks mode,
+    `networks.DetectorConfig.grow_missing` (the markers the localizer missed next to fully observed
+    ones are added); grow_rounds: networks mode,
     `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before)."""
 
     template: str
