@@ -91,11 +91,11 @@ class DetectorConfig:
       markers fall in the size range it was trained on (the synthesizer's `marker_px`, 16 to 32 px
       by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
       to full-resolution pixels; the recognizer and crosspoint crops are always cut from the full
-      image, so only the localizer's input shrinks (and its cost, by the factor squared).  None: chosen
-      per image (`auto_localizer_scale`): a first pass at `AUTO_FIRST_SIDE_PX` / the image's longest
-      side (at most 1) measures the median side of the markers it finds, and the image is localized
-      again at the scale that makes it `localizer_marker_px`; the chosen scales of the last call are
-      in `Detector.localizer_scales`.
+      image, so only the localizer's input shrinks (and its cost, by the factor squared).  None (the
+      default): chosen per image (`auto_localizer_scale`): a first pass at `AUTO_FIRST_SIDE_PX` / the
+      image's longest side (at most 1) measures the median side of the markers it finds, and the
+      image is localized again at the scale that makes it `localizer_marker_px`; the chosen scales
+      of the last call are in `Detector.localizer_scales`.
     localizer_marker_px: the marker side (pixels, the square root of its area) that the automatic
       scale aims at: the best fixed scales measured were 0.4 on the 8-camera capture's 55 px markers
       (22 px), 0.75 on 1024 px renders' 32 px markers (24 px) and 1 on 512 px renders' 19.6 px ones.
@@ -120,7 +120,7 @@ class DetectorConfig:
     vote_min: int = 2
     vote_min_partial: int = 4
     vote_tolerance: float = 0.3
-    localizer_scale: float | None = 1.0
+    localizer_scale: float | None = None
     localizer_marker_px: float = 22.0
     grow_missing: bool = True
     grow_min_neighbours: int = 2

@@ -320,7 +320,7 @@ def _networks(seed):
 @pytest.fixture(scope="module")
 def detector(codebook, table):
     localizer, recognizer, crosspoints = _networks(0)
-    config = DetectorConfig(nms_radius_px=40.0)
+    config = DetectorConfig(nms_radius_px=40.0, localizer_scale=1.0)  # the tests' images at their own scale
     return Detector(localizer, recognizer, crosspoints, SPEC, batch_size=4, tables=[table], config=config,
                     codebook=codebook)
 

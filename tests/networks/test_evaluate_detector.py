@@ -174,7 +174,8 @@ def checkpoints(tmp_path_factory):
 
 
 def test_evaluate_detector_counts_add_up(dataset, checkpoints):
-    detector = load_detector(*checkpoints, dataset, device="cpu", config=DetectorConfig(nms_radius_px=40.0),
+    detector = load_detector(*checkpoints, dataset, device="cpu", config=DetectorConfig(nms_radius_px=40.0,
+                                                                                         localizer_scale=1.0),
                              batch_size=8)
     assert detector.layout is not None and len(garment_tables(dataset, detector.codebook)) == 1
     # untrained networks put centres tens of pixels off: a wide radius lets every metric see matches
