@@ -127,20 +127,28 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --chain: a number, or 'auto' (chosen per image, the default)")
     parser.add_argument("--radius", type=float, help="with --chain: match radius px (default 4 on renders, 12 on a "
                         "capture)")
+    parser.add_argument("--every-image", action="store_true", help="--rendered: every image of the folder (a "
+                        "held-out set such as the networks benchmark's --extra-heldout), not only its val and test")
+    parser.add_argument("--by-motion", action="store_true", help="--rendered: the top-1 per motion too")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
     from assets.garments import load_template  # needs triangle: here only, so top1 runs on the GPU machine
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
+    from foreshortening import rendered_pairs
     from vote_settings import images_and_truth
+
+    from networks.evaluate import read_manifest
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources, sizes, chains = {}, {}, {}
+    sources, sizes, chains, motions = {}, {}, {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
         pairs, template = images_and_truth(rendered, capture)
+        if rendered is not None and args.every_image:
+            pairs = rendered_pairs(rendered)
         if capture is not None and args.frames:
             wanted = set(args.frames.split(","))
             pairs = [p for p in pairs if p[0].stem in wanted]
@@ -151,6 +159,10 @@ def main(argv: list[str] | None = None) -> int:
         sources[source], sizes[source] = top1(detector, pairs)
         if args.chain:
             chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
+        if args.by_motion and rendered is not None:
+            motion_of = {rendered / e["image"]: e["motion"] for e in read_manifest(rendered)}
+            for motion in sorted({motion_of[image] for image, _ in pairs}):
+                motions[motion] = top1(detector, [p for p in pairs if motion_of[p[0]] == motion])[0]
     print(f"# recognizer top-1 given the true points, {args.checkpoints[1].name}")
     print("| images | markers | count | top-1 |\n|---|---|---|---|")
     for source, rows in sources.items():
@@ -170,7 +182,13 @@ def main(argv: list[str] | None = None) -> int:
             for name, r in rows.items():
                 print(f"| {source} | {name} | {r['markers']} | {r['found']:.3f} | {r['right_alone']:.3f} | "
                       f"{r['right_voted']:.3f} |")
-    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains}))
+    if motions:
+        print("\n# the same per motion (renders)")
+        print("| motion | markers | count | top-1 |\n|---|---|---|---|")
+        for motion, rows in motions.items():
+            for name, r in rows.items():
+                print(f"| {motion} | {name} | {r['markers']} | {r['top1']:.3f} |")
+    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions}))
     return 0
 
 

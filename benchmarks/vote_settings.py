@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from assets.cli import localizer_scale_arg  # noqa: E402
 from assets.garments import load_template  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
 from networks.detector import Detector, DetectorConfig, usable_points  # noqa: E402
@@ -50,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--rendered", type=Path, help="a factory dataset folder (its validation and test images)")
     source.add_argument("--capture", type=Path, help="a capture folder (every view)")
-    parser.add_argument("--localizer-scale", type=float, default=1.0)
+    parser.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
+                        help="a number, or 'auto' (chosen per image, the default)")
     parser.add_argument("--values", default="4,3,2", help="vote_min_partial values, the first the baseline")
     parser.add_argument("--radius", type=float, help="match radius px (default 4 on renders, 12 on a capture)")
     parser.add_argument("--device", default="cpu")
