@@ -28,6 +28,10 @@ TASK_DEFAULTS: dict[str, dict[str, int]] = {
     "crosspoints": {"steps": 50_000, "batch_size": 64},
 }
 
+#: the marker sides (pixels) a localizer scale may aim at (`TrainConfig.localizer_marker_px`,
+#: `networks.DetectorConfig.localizer_marker_px`, `networks.data.RenderedDataset` marker_px)
+MARKER_PX_RANGE = (4.0, 256.0)
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -116,9 +120,11 @@ class TrainConfig:
             problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
+        low, high = MARKER_PX_RANGE
         if self.localizer_marker_px is not None and not (
-                isinstance(self.localizer_marker_px, (int, float)) and 4 <= self.localizer_marker_px <= 256):
-            problems.append(f"localizer_marker_px must be in [4, 256] pixels or None, got {self.localizer_marker_px!r}")
+                isinstance(self.localizer_marker_px, (int, float)) and low <= self.localizer_marker_px <= high):
+            problems.append(f"localizer_marker_px must be in [{low:g}, {high:g}] pixels or None, "
+                            f"got {self.localizer_marker_px!r}")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):

@@ -52,7 +52,7 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
-from networks.config import TASKS
+from networks.config import MARKER_PX_RANGE, TASKS
 from networks.homography import auto_localizer_scale
 from networks.models import CELL
 from networks.synth import PatternSynthesizer, SynthConfig
@@ -220,9 +220,10 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
-        if marker_px is not None and (task != "localizer" or not 4 <= marker_px <= 256):
-            raise ValueError(f"marker_px is for the localizer's images, in [4, 256] px; got {marker_px} for the {task}")
-        self.marker_px = marker_px
+        low, high = MARKER_PX_RANGE
+        if marker_px is not None and (task != "localizer" or not low <= marker_px <= high):
+            raise ValueError(f"marker_px is for the localizer's images, in [{low:g}, {high:g}] px; got {marker_px} "
+                             f"for the {task}")
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
