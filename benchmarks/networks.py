@@ -20,10 +20,13 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    whole-marker recognizer read them 0.37 right) train until the budget's end.
    Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops,
    recognizer_jitter (jittered crops of whole markers only), crosspoints_rendered (the main
-   crosspoint run's crops at synth weight 0.25: which mix trains it best), and
+   crosspoint run's crops at synth weight 0.25: which mix trains it best), localizer_22px (the main
+   localizer's config with the renders read shrunk so markers measure 22 px, `RUN_MARKER_PX`, as the
+   Detector's automatic scale shows them; chained in its place at that scale), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
-   that step (validation on the rendered val split, logged every VAL_EVERY steps).  Data workers
+   that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
+   starts from a trained checkpoint (--init) peaks at the lower INIT_LR (--init-lr).  Data workers
    are sized to the cores.  The schedule's planned steps are long (the learning rate stays near its
    peak); `--final` has each main run fit its schedule to end within this call (`networks.train
    --fit-time-limit`: the step rate measured early in the call, then again), so its cosine decay completes; one
@@ -101,6 +104,9 @@ from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 #: the planned step (shortened by --final to what the last call reaches: more than any call reaches)
 SCHEDULE = {"localizer": (200_000, 32), "recognizer": (200_000, 256), "crosspoints": (200_000, 64)}
 LR, WARMUP = 3e-4, 300
+#: the peak learning rate of a run that starts from a trained checkpoint (`--init`): at LR, the
+#: ninth and thirteenth localizers lost accuracy in their warm-up before new data could help
+INIT_LR = 5e-5
 #: side of the localizer's training images (rendered ones are cut to it), pixels
 IMAGE_SIZE = 256
 #: the data-mix comparison: the localizer runs compared at this step
@@ -111,6 +117,8 @@ RUNS = {
     "localizer_mix": ("localizer", 0.5, None, 3, "localizer"),
     "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2, "localizer"),
     "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2, "localizer"),
+    # the main localizer's config with rendered images read shrunk to RUN_MARKER_PX, for its whole schedule
+    "localizer_22px": ("localizer", 0.5, None, 3, "localizer"),
     "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
     "recognizer_jitter": ("recognizer", 0.75, None, 6, "recognizer_jitter"),
     "recognizer_partial": ("recognizer", 0.75, None, 6, "recognizer_partial"),
@@ -119,6 +127,9 @@ RUNS = {
     # mostly rendered crops (20 ms each to a worker against a shard crop's 1.7 ms): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
 }
+#: runs that read the rendered images shrunk so their markers measure this many pixels
+#: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
+RUN_MARKER_PX = {"localizer_22px": 22.0}
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_jitter"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
@@ -305,24 +316,31 @@ def main_checkpoints(out: Path, init: dict[str, str] | None = None) -> list[Path
 
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
-               init: dict[str, str] | None = None, localizer_marker_px: float | None = None) -> TrainConfig:
+               init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
+               init_lr: float = INIT_LR) -> TrainConfig:
+    """The `networks.train` config of run `name`: from `init`'s checkpoint of it at peak `init_lr`, else
+    from `pretrained` (or scratch) at LR; `localizer_marker_px` for the localizer runs without their
+    own (`RUN_MARKER_PX`)."""
     task, synth_weight, _, _, folder = RUNS[name]
     start = (init or {}).get(name)
+    marker_px = RUN_MARKER_PX.get(name, localizer_marker_px) if task == "localizer" else None
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
-    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR, warmup_steps=WARMUP,
+    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=init_lr if start else LR,
+                       warmup_steps=WARMUP,
                        pretrained=None if start else pretrained.get(task), init=start,
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        recognizer_partial=SHARDS[folder][3],
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
-                       localizer_marker_px=localizer_marker_px if task == "localizer" else None)
+                       localizer_marker_px=marker_px)
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
               names: list[str], final: bool = False, ddp: bool = False, pretrained: dict[str, str] | None = None,
-              init: dict[str, str] | None = None, localizer_marker_px: float | None = None) -> dict[str, dict]:
+              init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
+              init_lr: float = INIT_LR) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
     to end within this call (`--fit-time-limit`).  Returns per run its steps, planned steps, wall time
@@ -344,7 +362,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         task = RUNS[name][0]
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        run_config(name, workers[name], max_steps, pretrained or {}, init, localizer_marker_px
+        run_config(name, workers[name], max_steps, pretrained or {}, init, localizer_marker_px, init_lr
                    ).save(folder / "config.in.json")
         launcher = [sys.executable]
         if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
@@ -448,12 +466,10 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     renders, with the
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
     baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
-    before; and with the comparison runs on exact crops in place of the main runs, where they exist;
+    before; and with the comparison runs on exact crops, and the localizers trained on shrunk images
+    (`shrunk_localizers`), in place of the main runs, where they exist;
     keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
     fields set in every variant."""
-    from networks.detector import DetectorConfig
-    from networks.evaluate_detector import evaluate_detector, load_detector
-
     paths = main_checkpoints(out, init)
     chains = {"defaults": (paths, {})}
     if variants:
@@ -466,12 +482,27 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
             chains["crosspoints on exact crops"] = ([paths[0], paths[1], exact[1]], {})
         if exact[0].exists() and exact[1].exists():
             chains["both on exact crops"] = ([paths[0], *exact], {})
-    results = {}
-    for label, (checkpoints, overrides) in chains.items():
-        detector = load_detector(*checkpoints, test, device=device,
-                                 config=DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), **config, **overrides))
-        results[label] = evaluate_detector(detector, test, split="heldout", progress=False)
-    return results
+        chains.update({label: ([localizer, *paths[1:]], {}) for label, localizer in shrunk_localizers(out).items()})
+    return {label: chain_metrics(checkpoints, test, device, smoke, **config, **overrides)
+            for label, (checkpoints, overrides) in chains.items()}
+
+
+def chain_metrics(checkpoints: list[Path], view: Path, device: str, smoke: bool = False, **config: object) -> dict:
+    """`networks.evaluate_detector` of a Detector chaining `checkpoints` (localizer, recognizer, crosspoints)
+    with `config` (DetectorConfig fields; smoke runs: `SMOKE_DETECTOR`) on the held-out split of `view`."""
+    from networks.detector import DetectorConfig
+    from networks.evaluate_detector import evaluate_detector, load_detector
+
+    detector = load_detector(*checkpoints, view, device=device,
+                             config=DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), **config))
+    return evaluate_detector(detector, view, split="heldout", progress=False)
+
+
+def shrunk_localizers(out: Path) -> dict[str, Path]:
+    """The localizer runs of RUN_MARKER_PX trained in `out`, by a chain label: they stand in for the main
+    localizer in a Detector at the automatic scale, the scale they trained at."""
+    return {f"{name} in place of {MAIN['localizer']}": out / name / "run" / "last.pt" for name in RUN_MARKER_PX
+            if (out / name / "run" / "last.pt").exists()}
 
 
 def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str] | None = None
@@ -502,7 +533,8 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     each network's `networks.evaluate` metrics, the chain with its defaults, and the recognizer's top-1
     given the true points by group and marker size (`partial_ids.top1`).  The chain runs three times:
     with the localizer at full size, at 512 / the image side (the scale of the renders it trained on,
-    as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None)."""
+    as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None);
+    at that scale also with each of `shrunk_localizers` in place of the main localizer."""
     from networks.evaluate_detector import load_detector
 
     from foreshortening import rendered_pairs
@@ -520,6 +552,10 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
         chosen = chain["localizer_scale"]
         label = f"{scale:.2g}" if scale is not None else f"auto ({chosen['min']:.2f}-{chosen['max']:.2f})"
         chains[f"localizer scale {label}"] = chain
+    for label, localizer in shrunk_localizers(out).items():
+        chain = chain_metrics([localizer, *paths[1:]], view, device, smoke)
+        chosen = chain["localizer_scale"]
+        chains[f"{label}, scale auto ({chosen['min']:.2f}-{chosen['max']:.2f})"] = chain
     return {"images": len(pairs), "checkpoints": [str(p) for p in paths], "metrics": metrics,
             "detector": chains, "recognizer_top1": {"groups": groups, "by_size": by_size}}
 
@@ -594,7 +630,10 @@ def main() -> None:
                         f"{RUNS[MAIN['localizer']][1]}); 0 with --init: a last phase on the renders alone")
     parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
                         help="the localizer runs read rendered images shrunk so their markers measure this many "
-                        "pixels, as the Detector's automatic scale shows them (TrainConfig.localizer_marker_px)")
+                        "pixels, as the Detector's automatic scale shows them (TrainConfig.localizer_marker_px; "
+                        f"the runs of {', '.join(RUN_MARKER_PX)} keep their own)")
+    parser.add_argument("--init-lr", type=float, default=INIT_LR, help="peak learning rate of the runs that start "
+                        f"from --init (default {INIT_LR:g}; {LR:g} from scratch)")
     parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
                         "--export-weights) that new runs start from (networks.train --init)")
     parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
@@ -606,6 +645,8 @@ def main() -> None:
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         sys.exit("benchmarks/networks.py trains on a CUDA GPU; none is visible")
     smoke = args.max_steps is not None
+    if not args.init_lr > 0:
+        sys.exit(f"--init-lr must be > 0, got {args.init_lr}")
     names = [n for n in args.runs.split(",") if n]
     unknown = sorted(set(names) - set(RUNS))
     if unknown:
@@ -638,12 +679,13 @@ def main() -> None:
     init = init_weights(args.init)
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
-                         args.ddp, pretrained, init, args.localizer_marker_px)
+                         args.ddp, pretrained, init, args.localizer_marker_px, args.init_lr)
     train_s = time.perf_counter() - t0
     gpu = f"{torch.cuda.device_count()} x {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
-              "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP}
+              "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP,
+                                  "init_lr": args.init_lr}
                            for t, (s, b) in SCHEDULE.items()},
               "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2],
                               "recognizer_partial": SHARDS[f][3]} for name, (t, w, s, _, f) in RUNS.items()},

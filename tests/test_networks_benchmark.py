@@ -175,3 +175,29 @@ def test_localizer_marker_px_reaches_the_localizer_runs_only(bench):
     assert bench.run_config("localizer_mix", 1, 2, {}, None, 22.0).localizer_marker_px == 22.0
     assert bench.run_config("crosspoints_jitter", 1, 2, {}, None, 22.0).localizer_marker_px is None
     assert bench.run_config("localizer_mix", 1, 2, {}).localizer_marker_px is None  # the renders' own scale
+
+
+def test_the_22px_localizer_run_keeps_its_marker_size_and_runs_from_init_start_low(bench):
+    assert bench.run_config("localizer_22px", 1, 2, {}).localizer_marker_px == 22.0
+    assert bench.run_config("localizer_22px", 1, 2, {}, None, 30.0).localizer_marker_px == 22.0
+    assert bench.run_config("localizer_mix", 1, 2, {}, None, 30.0).localizer_marker_px == 30.0
+    init = {"recognizer_partial": "/weights/recognizer_partial.pt"}
+    assert bench.run_config("recognizer_partial", 1, 2, {}, init).lr == bench.INIT_LR < bench.LR
+    assert bench.run_config("recognizer_partial", 1, 2, {}, init, init_lr=1e-5).lr == 1e-5
+    assert bench.run_config("crosspoints_jitter", 1, 2, {}, init, init_lr=1e-5).lr == bench.LR  # from scratch
+
+
+def test_a_shrunk_localizer_run_is_chained_in_place_of_the_main_one(bench, tmp_path, garment_dataset, init_folder):
+    init = bench.init_weights(init_folder)
+    trained = tmp_path / "localizer_22px" / "run" / "last.pt"
+    trained.parent.mkdir(parents=True)
+    shutil.copy(init_folder / "localizer_mix.pt", trained)
+    label = "localizer_22px in place of localizer_mix"
+    assert bench.shrunk_localizers(tmp_path) == {label: trained}
+    view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
+    extra = bench.evaluate_extra(tmp_path, view, "cpu", init, smoke=True)
+    shrunk = [key for key in extra["detector"] if key.startswith(label + ", scale auto (")]
+    assert len(shrunk) == 1 and extra["detector"][shrunk[0]]["localizer_scale"]["config"] is None
+    assert extra["detector"][shrunk[0]]["images"] == 3
+    chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
+    assert label in chains and chains[label]["images"] == 3 and "defaults" in chains
