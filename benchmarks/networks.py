@@ -26,7 +26,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
-   starts from a trained checkpoint (--init) peaks at the lower INIT_LR (--init-lr).  Data workers
+   starts from a trained checkpoint (--init) peaks at INIT_LR (--init-lr): lower for the localizer.  Data workers
    are sized to the cores.  The schedule's planned steps are long (the learning rate stays near its
    peak); `--final` has each main run fit its schedule to end within this call (`networks.train
    --fit-time-limit`: the step rate measured early in the call, then again), so its cosine decay completes; one
@@ -104,9 +104,10 @@ from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 #: the planned step (shortened by --final to what the last call reaches: more than any call reaches)
 SCHEDULE = {"localizer": (200_000, 32), "recognizer": (200_000, 256), "crosspoints": (200_000, 64)}
 LR, WARMUP = 3e-4, 300
-#: the peak learning rate of a run that starts from a trained checkpoint (`--init`): at LR, the
-#: ninth and thirteenth localizers lost accuracy in their warm-up before new data could help
-INIT_LR = 5e-5
+#: per task, the peak learning rate of a run that starts from a trained checkpoint (`--init`; other
+#: tasks: LR): at LR, the ninth and thirteenth localizers lost accuracy in their warm-up before new
+#: data could help, while the recognizer and crosspoint network, still learning, gained in every such run
+INIT_LR = {"localizer": 5e-5}
 #: side of the localizer's training images (rendered ones are cut to it), pixels
 IMAGE_SIZE = 256
 #: the data-mix comparison: the localizer runs compared at this step
@@ -317,9 +318,9 @@ def main_checkpoints(out: Path, init: dict[str, str] | None = None) -> list[Path
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
                init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
-               init_lr: float = INIT_LR) -> TrainConfig:
-    """The `networks.train` config of run `name`: from `init`'s checkpoint of it at peak `init_lr`, else
-    from `pretrained` (or scratch) at LR; `localizer_marker_px` for the localizer runs without their
+               init_lr: float | None = None) -> TrainConfig:
+    """The `networks.train` config of run `name`: from `init`'s checkpoint of it at peak `init_lr`
+    (default INIT_LR's for the task), else from `pretrained` (or scratch) at LR; `localizer_marker_px` for the localizer runs without their
     own (`RUN_MARKER_PX`)."""
     task, synth_weight, _, _, folder = RUNS[name]
     start = (init or {}).get(name)
@@ -327,7 +328,8 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
-    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=init_lr if start else LR,
+    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR if not start else
+                       init_lr if init_lr is not None else INIT_LR.get(task, LR),
                        warmup_steps=WARMUP,
                        pretrained=None if start else pretrained.get(task), init=start,
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
@@ -340,7 +342,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
               names: list[str], final: bool = False, ddp: bool = False, pretrained: dict[str, str] | None = None,
               init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
-              init_lr: float = INIT_LR) -> dict[str, dict]:
+              init_lr: float | None = None) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
     to end within this call (`--fit-time-limit`).  Returns per run its steps, planned steps, wall time
@@ -632,8 +634,8 @@ def main() -> None:
                         help="the localizer runs read rendered images shrunk so their markers measure this many "
                         "pixels, as the Detector's automatic scale shows them (TrainConfig.localizer_marker_px; "
                         f"the runs of {', '.join(RUN_MARKER_PX)} keep their own)")
-    parser.add_argument("--init-lr", type=float, default=INIT_LR, help="peak learning rate of the runs that start "
-                        f"from --init (default {INIT_LR:g}; {LR:g} from scratch)")
+    parser.add_argument("--init-lr", type=float, help="peak learning rate of the runs that start from --init "
+                        f"(default per task {INIT_LR}, else {LR:g} as from scratch)")
     parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
                         "--export-weights) that new runs start from (networks.train --init)")
     parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
@@ -645,7 +647,7 @@ def main() -> None:
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         sys.exit("benchmarks/networks.py trains on a CUDA GPU; none is visible")
     smoke = args.max_steps is not None
-    if not args.init_lr > 0:
+    if args.init_lr is not None and not args.init_lr > 0:
         sys.exit(f"--init-lr must be > 0, got {args.init_lr}")
     names = [n for n in args.runs.split(",") if n]
     unknown = sorted(set(names) - set(RUNS))
@@ -685,7 +687,7 @@ def main() -> None:
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
               "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP,
-                                  "init_lr": args.init_lr}
+                                  "init_lr": args.init_lr or INIT_LR.get(t, LR)}
                            for t, (s, b) in SCHEDULE.items()},
               "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2],
                               "recognizer_partial": SHARDS[f][3]} for name, (t, w, s, _, f) in RUNS.items()},

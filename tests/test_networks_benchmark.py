@@ -177,12 +177,14 @@ def test_localizer_marker_px_reaches_the_localizer_runs_only(bench):
     assert bench.run_config("localizer_mix", 1, 2, {}).localizer_marker_px is None  # the renders' own scale
 
 
-def test_the_22px_localizer_run_keeps_its_marker_size_and_runs_from_init_start_low(bench):
+def test_the_22px_localizer_keeps_its_marker_size_and_runs_from_init_take_their_task_s_rate(bench):
     assert bench.run_config("localizer_22px", 1, 2, {}).localizer_marker_px == 22.0
     assert bench.run_config("localizer_22px", 1, 2, {}, None, 30.0).localizer_marker_px == 22.0
     assert bench.run_config("localizer_mix", 1, 2, {}, None, 30.0).localizer_marker_px == 30.0
-    init = {"recognizer_partial": "/weights/recognizer_partial.pt"}
-    assert bench.run_config("recognizer_partial", 1, 2, {}, init).lr == bench.INIT_LR < bench.LR
+    init = {"localizer_22px": "/weights/localizer.pt", "recognizer_partial": "/weights/recognizer_partial.pt"}
+    assert bench.run_config("localizer_22px", 1, 2, {}, init).lr == bench.INIT_LR["localizer"] < bench.LR
+    assert bench.run_config("localizer_mix", 1, 2, {}, init).lr == bench.LR  # from scratch
+    assert bench.run_config("recognizer_partial", 1, 2, {}, init).lr == bench.LR  # no lower rate for its task
     assert bench.run_config("recognizer_partial", 1, 2, {}, init, init_lr=1e-5).lr == 1e-5
     assert bench.run_config("crosspoints_jitter", 1, 2, {}, init, init_lr=1e-5).lr == bench.LR  # from scratch
 
