@@ -2,6 +2,7 @@
 
     python -m networks.evaluate localizer --checkpoint runs/loc/best.pt --data out/ds --split test
     python -m networks.evaluate crosspoints --checkpoint runs/xp/best.pt --data out/ds --json xp.json
+    python -m networks.evaluate crosspoints --checkpoint runs/xp/best.pt --data xp_shards  # synthesized
 
 Reports (see `networks.metrics` for the definitions):
   localizer    marker precision / recall / F1 (a prediction matches a ground-truth marker whose centre
@@ -31,6 +32,7 @@ from typing import Iterable, Iterator
 import numpy as np
 import torch
 from torch import nn
+from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from assets.fileio import load_npz, save_json
@@ -38,6 +40,7 @@ from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, refe
 from assets.pattern.observation import ImageGroundTruth, completed_points, crosspoint_markers
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
+from networks.data import SHARD_META, ShardDataset
 from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
 from networks.data import dataset_spec
@@ -255,14 +258,19 @@ def evaluate_model(task: str, model: nn.Module, batches: Iterable[dict], device:
 def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task: str | None = None,
              device: str | torch.device | None = None, batch_size: int = 32, radius_px: float = MATCH_RADIUS_PX,
              threshold: float = 0.5, progress: bool = True) -> dict:
-    """Evaluate the checkpoint on `split` of the factory dataset folder `data`; a dict of metrics with
-    the checkpoint's task, step and the data it was measured on."""
+    """Evaluate the checkpoint on `split` of the factory dataset folder `data`, or on every item of a
+    shard folder of synthesized samples (`networks.synth write`; `split` is then "shards"); a dict of
+    metrics with the checkpoint's task, step and the data it was measured on."""
     device = resolve_device(device)
     model, config, saved = load_checkpoint(checkpoint, expected_task=task, device=device)
     spec = checkpoint_spec(saved)
     if (Path(data) / "template.npz").is_file():
         check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
-    batches = folder_batches(config.task, data, split, spec, batch_size)
+    if (Path(data) / SHARD_META).is_file():
+        split = "shards"
+        batches = iter(DataLoader(ShardDataset(data, config.task, spec=spec), batch_size=batch_size))
+    else:
+        batches = folder_batches(config.task, data, split, spec, batch_size)
     metrics = evaluate_model(config.task, model, batches, device, spec, config.mixed_precision, radius_px,
                              threshold, progress)
     return {"task": config.task, "checkpoint": str(checkpoint), "step": int(saved["step"]), "data": str(data),
@@ -294,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("task", choices=TASKS, help="which network the checkpoint holds")
     parser.add_argument("--checkpoint", type=Path, required=True, help="a checkpoint of networks.train (best.pt)")
-    parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder (manifest.jsonl)")
+    parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder (manifest.jsonl), or "
+                        "a shard folder of synthesized samples (shards.json; every item, no --split)")
     parser.add_argument("--split", default="test", help="train, val or test (default test)")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
     parser.add_argument("--batch-size", type=int, default=32, help="crops per batch (localizer: one image)")

@@ -249,3 +249,25 @@ def test_cli_writes_json(dataset, tmp_path, capsys):
     assert main(["localizer", "--checkpoint", str(path), "--data", str(dataset)]) == 2
     assert "a recognizer checkpoint, expected a localizer" in capsys.readouterr().err
     assert main(["recognizer", "--checkpoint", str(path), "--data", str(tmp_path / "none")]) == 2
+
+
+@pytest.mark.parametrize("task", ["localizer", "crosspoints"])
+def test_evaluate_on_a_shard_folder_of_synthesized_samples(task, tmp_path):
+    from networks.data import ShardDataset
+    from networks.shards import write_shards
+
+    config = SynthConfig(image_size=(96, 96), marker_px=(40.0, 48.0), seed=5)
+    write_shards(tmp_path / "shards", task, SPEC, count=2, config=config, workers=1, images_per_part=2,
+                 progress=False)
+    model = build_model(task, SPEC.num_ids, SPEC.crosspoints_per_side)
+    path = save_checkpoint(tmp_path / "best.pt", task, model, TrainConfig(task), SPEC, step=2)
+    metrics = evaluate(path, tmp_path / "shards", task=task, device="cpu", batch_size=4, progress=False)
+    assert metrics["split"] == "shards" and metrics["samples"] == len(ShardDataset(tmp_path / "shards", task)) > 0
+    if task == "crosspoints":  # the crop error of every visible crosspoint; no image to map it into
+        assert metrics["crop_error_px"]["count"] > 0 and metrics["image_error_px"] is None
+    else:
+        assert 0 <= metrics["all"]["recall"] <= 1 and "full" not in metrics
+    other = save_checkpoint(tmp_path / "other.pt", task, model, TrainConfig(task),
+                            PatternSpec(rows=2, cols=2, num_ids=64, seed=1), step=2)
+    with pytest.raises(ValueError, match="another codebook"):
+        evaluate(other, tmp_path / "shards", task=task, device="cpu", progress=False)
