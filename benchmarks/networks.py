@@ -143,6 +143,8 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "recognizer": ("recogni
           "recognizer_partial": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False)}
+#: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
+SYNTH_HELDOUT = (64, 1_000_003)
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
 #: localizer 15.3, recognizer 14.2, crosspoints 8.2 steps/s)
 GPU_COST = {"localizer": 1.0, "recognizer": 1.1, "crosspoints": 1.9}
@@ -251,6 +253,33 @@ def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: 
                                        workers, images_per_part=4 if smoke else 64,
                                        time_limit_s=max(left * count / sum(counts[k:]), 0.0), progress=False)
     return results
+
+
+def synth_heldout(out: Path, rendered: Path, workers: int, smoke: bool, names: list[str]) -> dict[str, Path]:
+    """Per shard folder that a run of `names` trains on, a small one of the same synthesizer config
+    from another seed (`SYNTH_HELDOUT`; the training shards use SynthConfig's): samples no run saw, on
+    which `evaluate_synthesized` measures the runs beside the renders."""
+    spec, ids = dataset_spec(rendered), garment_marker_ids(rendered)
+    images, seed = SYNTH_HELDOUT
+    folders = {}
+    for folder in dict.fromkeys(RUNS[name][4] for name in names if RUNS[name][1] > 0):
+        task, _, jitter, partial = SHARDS[folder]
+        config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter, recognizer_partial=partial,
+                             seed=seed)
+        folders[folder] = out / "shards_heldout" / folder
+        write_shards(folders[folder], task, spec, 2 if smoke else images, config, ids, workers,
+                     images_per_part=2 if smoke else 8, progress=False)
+    return folders
+
+
+def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
+                         ) -> dict[str, dict]:
+    """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
+    synthesized samples of its shard folder (`synth_heldout`)."""
+    checkpoints = {name: out / name / "run" / "last.pt" for name in RUNS if (out / name / "run" / "last.pt").exists()}
+    checkpoints.update({f"{name}, its --init": Path(path) for name, path in (init or {}).items()})
+    return {label: evaluate(path, folders[RUNS[label.split(",")[0]][4]], device=device, progress=False)
+            for label, path in checkpoints.items() if RUNS[label.split(",")[0]][4] in folders}
 
 
 def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
@@ -676,6 +705,7 @@ def main() -> None:
     shards = make_shards(args.out, rendered, max(1, args.cores - 1) if not smoke else 1,
                          min(args.shard_minutes * 60, deadline - time.monotonic() - RESERVE_S - START_S - 60), smoke,
                          names)
+    synthesized = synth_heldout(args.out, rendered, max(1, args.cores - 1) if not smoke else 1, smoke, names)
     t0 = time.perf_counter()
     pretrained = pretrained_weights(args.pretrained)
     init = init_weights(args.init)
@@ -694,12 +724,13 @@ def main() -> None:
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},
-              "init_metrics": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
+              "init_metrics": {}, "synthesized": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
     stage = Stages(result, args.out / "results.json", started)
     stage("metrics", evaluate_runs, args.out, test, args.device)
     stage("mixes", compare_mixes, args.out)
     if init:
         stage("init_metrics", evaluate_inits, init, test, args.device)
+    stage("synthesized", evaluate_synthesized, args.out, synthesized, args.device, init)
     if main_checkpoints(args.out, init) is not None:  # a main run not trained here is chained from its --init
         stage("detector", evaluate_chain, args.out, test, args.device, smoke, init)
         stage("partial_ids", evaluate_partial_ids, args.out, test, args.device, init)
@@ -796,6 +827,10 @@ def _print_tables(result: dict) -> None:
     print(f"\n| metric ({result['heldout_images']} held-out Blender renders) | value |\n|---|---|")
     inits = {f"{name}, its --init": m for name, m in result.get("init_metrics", {}).items()}
     _print_metrics({**result["metrics"], **inits})
+    if result.get("synthesized"):
+        print(f"\n| metric (held-out synthesized samples, {SYNTH_HELDOUT[0]} images per shard folder) | value |"
+              "\n|---|---|")
+        _print_metrics(result["synthesized"])
     if result["detector"]:
         _print_chains(f"{result['heldout_images']} held-out renders", result["detector"])
     if result.get("partial_ids"):

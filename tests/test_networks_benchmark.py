@@ -203,3 +203,22 @@ def test_a_shrunk_localizer_run_is_chained_in_place_of_the_main_one(bench, tmp_p
     assert extra["detector"][shrunk[0]]["images"] == 3
     chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
     assert label in chains and chains[label]["images"] == 3 and "defaults" in chains
+
+
+def test_runs_and_their_init_are_measured_on_held_out_synthesized_samples(bench, tmp_path, garment_dataset,
+                                                                          init_folder, capsys):
+    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_mix", "recognizer_partial",
+                                                                       "localizer_22px"])
+    assert set(folders) == {"localizer", "recognizer_partial"}  # one folder for both localizer runs
+    meta = json.loads((folders["localizer"] / "shards.json").read_text())
+    assert meta["synth"]["seed"] == bench.SYNTH_HELDOUT[1] != bench.SynthConfig().seed  # not the training samples
+    trained = tmp_path / "localizer_22px" / "run" / "last.pt"
+    trained.parent.mkdir(parents=True)
+    shutil.copy(init_folder / "localizer_mix.pt", trained)
+    init = {k: v for k, v in bench.init_weights(init_folder).items() if k != "crosspoints_jitter"}
+    measured = bench.evaluate_synthesized(tmp_path, folders, "cpu", init)
+    assert set(measured) == {"localizer_22px", "localizer_mix, its --init", "recognizer_partial, its --init"}
+    assert all(m["split"] == "shards" and m["samples"] > 0 for m in measured.values())
+    assert measured["localizer_22px"]["all"] == measured["localizer_mix, its --init"]["all"]  # the same weights
+    bench._print_metrics(measured)
+    assert "| recognizer_partial, its --init (step 0).top1 |" in capsys.readouterr().out
