@@ -37,7 +37,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    the manifest and template.npz need to travel and the folder itself is left as it is), and each
    checkpoint the runs started from (--init) beside them, the call's baseline; the three
    main runs chained as `networks.Detector`; and each recognizer's top-1 given the true points,
-   whole against partial markers, beside the checkpoint the main recognizer started from (--init).
+   whole against partial markers, beside the checkpoint the main recognizer started from (--init);
+   and each run and its --init on held-out synthesized samples (`synth_heldout`: the shard folders'
+   configs from another seed), where the gap between synthetic and rendered data shows.
 4. Inference throughput of `networks.Detector` (the three main runs chained, float32) on synthesized
    images framed as the renders (markers scaled with the image side; the localizer sees them at the
    scale it was trained on, `DetectorConfig.localizer_scale` = 512 / side), on the GPU and on the CPU,
@@ -278,10 +280,11 @@ def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init:
                          ) -> dict[str, dict]:
     """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
     synthesized samples of its shard folder (`synth_heldout`)."""
-    checkpoints = {name: out / name / "run" / "last.pt" for name in RUNS if (out / name / "run" / "last.pt").exists()}
-    checkpoints.update({f"{name}, its --init": Path(path) for name, path in (init or {}).items()})
-    return {label: evaluate(path, folders[RUNS[label.split(",")[0]][4]], device=device, progress=False)
-            for label, path in checkpoints.items() if RUNS[label.split(",")[0]][4] in folders}
+    checkpoints = {name: (name, out / name / "run" / "last.pt") for name in RUNS
+                   if (out / name / "run" / "last.pt").exists()}
+    checkpoints.update({f"{name}, its --init": (name, Path(path)) for name, path in (init or {}).items()})
+    return {label: evaluate(path, folders[RUNS[name][4]], device=device, progress=False)
+            for label, (name, path) in checkpoints.items() if RUNS[name][4] in folders}
 
 
 def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
@@ -351,17 +354,16 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
                init_lr: float | None = None) -> TrainConfig:
     """The `networks.train` config of run `name`: from `init`'s checkpoint of it at peak `init_lr`
-    (default INIT_LR's for the task), else from `pretrained` (or scratch) at LR; `localizer_marker_px` for the localizer runs without their
-    own (`RUN_MARKER_PX`)."""
+    (default: INIT_LR's for the task), else from `pretrained` (or scratch) at LR;
+    `localizer_marker_px` for the localizer runs without their own (`RUN_MARKER_PX`)."""
     task, synth_weight, _, _, folder = RUNS[name]
     start = (init or {}).get(name)
+    lr = LR if not start else init_lr if init_lr is not None else INIT_LR.get(task, LR)
     marker_px = RUN_MARKER_PX.get(name, localizer_marker_px) if task == "localizer" else None
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
-    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=LR if not start else
-                       init_lr if init_lr is not None else INIT_LR.get(task, LR),
-                       warmup_steps=WARMUP,
+    return TrainConfig(task=task, steps=steps, batch_size=batch, image_size=IMAGE_SIZE, lr=lr, warmup_steps=WARMUP,
                        pretrained=None if start else pretrained.get(task), init=start,
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        recognizer_partial=SHARDS[folder][3],
@@ -719,7 +721,7 @@ def main() -> None:
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "
               f"{os.cpu_count()} CPUs, torch {torch.__version__}", "codebook_hash": here, "samples_rebuilt": rebuilt,
               "schedule": {t: {"steps": s, "batch": b, "image": IMAGE_SIZE, "lr": LR, "warmup": WARMUP,
-                                  "init_lr": args.init_lr or INIT_LR.get(t, LR)}
+                                  "init_lr": args.init_lr if args.init_lr is not None else INIT_LR.get(t, LR)}
                            for t, (s, b) in SCHEDULE.items()},
               "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2],
                               "recognizer_partial": SHARDS[f][3]} for name, (t, w, s, _, f) in RUNS.items()},
