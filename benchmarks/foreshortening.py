@@ -5,8 +5,10 @@ a capture (`factory.dataset capture`), so training data can be matched to what a
 Per marker, from its four corners (TL, TR, BL, BR) in image pixels: the affine map from the printed
 square that fits them best (least squares); its singular values s_min <= s_max.  `ratio` = s_min /
 s_max is the foreshortening (1 frontal, 0.5 the marker seen at 60 degrees, 0 edge-on), `size` =
-sqrt(s_min s_max) * edge the marker's size in pixels (the square root of its area).  Markers are
-counted by status: fully visible (every on-fabric point visible) and all present (also partly).
+sqrt(s_min s_max) * edge the marker's size in pixels (the square root of its area), `rotation`
+the angle of the map's rotation part (degrees, 0 upright, positive clockwise in the image: the
+orientation the localizer must tell from the code to name its corners).  Markers are counted by
+status: fully visible (every on-fabric point visible) and all present (also partly).
 
     python benchmarks/foreshortening.py --rendered .bench/rendered2 --capture .bench/cap/capture \
         --synth 60 [--synth-config '{"foreshortening": 8}'] [--scale 0.3]
@@ -33,41 +35,60 @@ from networks.evaluate import read_manifest  # noqa: E402
 #: the printed square's corners TL, TR, BL, BR (unit edge), as `ImageGroundTruth.points_px[:, 1:]`
 SQUARE = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float64)
 OBLIQUE = 0.6
+#: markers turned by more than this from upright (degrees) count as rotated
+ROTATED_DEG = 45.0
+
+
+def _affine(points_px: np.ndarray) -> np.ndarray:
+    """(M, 5, 2) localization points -> (K, 2, 2) least-squares linear map from the printed square to
+    the four corners, per marker whose four corners are known (a partial marker's off-fabric corners
+    are NaN)."""
+    corners = np.asarray(points_px, np.float64)[:, 1:]
+    corners = corners[np.isfinite(corners).all(axis=(1, 2))]
+    centred = corners - corners.mean(axis=1, keepdims=True)
+    square = SQUARE - SQUARE.mean(axis=0)
+    # corners ~ square @ A.T: A = (square^+ corners).T for every marker at once
+    return np.einsum("ij,mjk->mki", np.linalg.pinv(square), centred)
+
+
+def marker_rotation(points_px: np.ndarray) -> np.ndarray:
+    """(M, 5, 2) localization points -> (K,) in-plane rotation in degrees, (-180, 180], of each marker
+    whose four corners are known: the angle of the rotation nearest its affine map (polar decomposition)."""
+    a = _affine(points_px)
+    return np.degrees(np.arctan2(a[:, 1, 0] - a[:, 0, 1], a[:, 0, 0] + a[:, 1, 1]))
 
 
 def marker_shape(points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(M, 5, 2) localization points -> (ratio, size) per marker whose four corners are known (see the
     module docstring)."""
-    corners = np.asarray(points_px, np.float64)[:, 1:]
-    corners = corners[np.isfinite(corners).all(axis=(1, 2))]  # a partial marker's off-fabric corners are NaN
-    centred = corners - corners.mean(axis=1, keepdims=True)
-    square = SQUARE - SQUARE.mean(axis=0)
-    # corners ~ square @ A.T: A = (square^+ corners).T for every marker at once
-    affine = np.einsum("ij,mjk->mki", np.linalg.pinv(square), centred)
-    singular = np.linalg.svd(affine, compute_uv=False)
+    singular = np.linalg.svd(_affine(points_px), compute_uv=False)
     ratio = singular[:, 1] / np.maximum(singular[:, 0], 1e-12)
     size = np.sqrt(singular[:, 0] * singular[:, 1])
     return ratio, size
 
 
-def summary(ratio: np.ndarray, size: np.ndarray) -> dict:
+def summary(ratio: np.ndarray, size: np.ndarray, rotation: np.ndarray | None = None) -> dict:
     if len(ratio) == 0:
         return {"markers": 0}
     q = np.percentile(ratio, [5, 25, 50])
     s = np.percentile(size, [5, 50, 95])
+    turned = {} if rotation is None else {"rotated_share": float(np.mean(np.abs(rotation) > ROTATED_DEG)),
+                                          "rotation_p95_deg": float(np.percentile(np.abs(rotation), 95))}
     return {"markers": int(len(ratio)), "ratio_p5": float(q[0]), "ratio_p25": float(q[1]), "ratio_median": float(q[2]),
             "oblique_share": float(np.mean(ratio < OBLIQUE)), "size_p5": float(s[0]), "size_median": float(s[1]),
-            "size_p95": float(s[2])}
+            "size_p95": float(s[2]), **turned}
 
 
 def measure(gts: list[ImageGroundTruth], scale: float = 1.0) -> dict:
     """Summaries of fully visible and of all present markers over ground-truth images."""
     rows = {}
     for name, least in (("fully visible", 2), ("present", 1)):
-        shapes = [marker_shape(gt.points_px[gt.status >= least]) for gt in gts if gt.num_markers]
+        points = [gt.points_px[gt.status >= least] for gt in gts if gt.num_markers]
+        shapes = [marker_shape(p) for p in points]
         ratio = np.concatenate([r for r, _ in shapes]) if shapes else np.zeros(0)
         size = np.concatenate([s for _, s in shapes]) * scale if shapes else np.zeros(0)
-        rows[name] = summary(ratio, size)
+        rotation = np.concatenate([marker_rotation(p) for p in points]) if points else np.zeros(0)
+        rows[name] = summary(ratio, size, rotation)
     return rows
 
 
@@ -119,16 +140,18 @@ def main(argv: list[str] | None = None) -> int:
             [ImageGroundTruth.load(gt) for _, gt in capture_pairs(args.capture)], args.scale)
     if not sources:
         parser.error("give at least one of --synth, --rendered, --capture")
-    print("| source | markers | count | ratio p5 / p25 / median | share < 0.6 | size p5 / median / p95 px |")
-    print("|---|---|---|---|---|---|")
+    print(f"| source | markers | count | ratio p5 / p25 / median | share < {OBLIQUE} | size p5 / median / p95 px "
+          f"| share turned > {ROTATED_DEG:g} deg | turn p95 deg |")
+    print("|---|---|---|---|---|---|---|---|")
     for source, rows in sources.items():
         for kind, r in rows.items():
             if not r["markers"]:
-                print(f"| {source} | {kind} | 0 | | | |")
+                print(f"| {source} | {kind} | 0 | | | | | |")
                 continue
             print(f"| {source} | {kind} | {r['markers']} | {r['ratio_p5']:.2f} / {r['ratio_p25']:.2f} / "
                   f"{r['ratio_median']:.2f} | {r['oblique_share']:.0%} | {r['size_p5']:.1f} / "
-                  f"{r['size_median']:.1f} / {r['size_p95']:.1f} |")
+                  f"{r['size_median']:.1f} / {r['size_p95']:.1f} | {r['rotated_share']:.1%} | "
+                  f"{r['rotation_p95_deg']:.0f} |")
     print("RESULT " + json.dumps(sources))
     return 0
 

@@ -34,3 +34,15 @@ def test_markers_with_an_unknown_corner_are_left_out(bench):
     assert len(ratio) == 1 and size[0] == pytest.approx(20.0)
     summary = bench.summary(np.array([0.3, 0.5, 0.9, 1.0]), np.array([10.0, 12.0, 14.0, 16.0]))
     assert summary["markers"] == 4 and summary["oblique_share"] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("degrees", [0.0, 30.0, -60.0, 120.0, 180.0])
+def test_a_marker_s_in_plane_rotation_is_measured_through_compression(bench, degrees):
+    angle, across = np.radians(degrees), np.radians(40.0)
+    rotate = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    direction = np.array([[np.cos(across), -np.sin(across)], [np.sin(across), np.cos(across)]])
+    compressed = direction @ np.diag([0.5, 1.0]) @ direction.T  # symmetric: no rotation of its own
+    measured = bench.marker_rotation(_points(rotate @ compressed, 20.0))
+    assert abs((measured[0] - degrees + 180) % 360 - 180) < 1e-6
+    summary = bench.summary(np.ones(4), np.full(4, 20.0), np.array([0.0, 10.0, -50.0, 170.0]))
+    assert summary["rotated_share"] == pytest.approx(0.5)
