@@ -22,7 +22,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    recognizer_jitter (jittered crops of whole markers only), crosspoints_rendered (the main
    crosspoint run's crops at synth weight 0.25: which mix trains it best), localizer_22px (the main
    localizer's config with the renders read shrunk so markers measure 22 px, `RUN_MARKER_PX`, as the
-   Detector's automatic scale shows them; chained in its place at that scale), and
+   Detector's automatic scale shows them; chained in its place at that scale), localizer_upright
+   (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
+   renders' are), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
@@ -124,6 +126,8 @@ RUNS = {
     "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2, "localizer"),
     # the main localizer's config with rendered images read shrunk to RUN_MARKER_PX, for its whole schedule
     "localizer_22px": ("localizer", 0.5, None, 3, "localizer"),
+    # the main localizer's config on synthesized markers turned as the renders' are (`SHARD_SYNTH`)
+    "localizer_upright": ("localizer", 0.5, None, 3, "localizer_upright"),
     "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
     "recognizer_jitter": ("recognizer", 0.75, None, 6, "recognizer_jitter"),
     "recognizer_partial": ("recognizer", 0.75, None, 6, "recognizer_partial"),
@@ -142,11 +146,16 @@ MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "cross
 CROP_JITTER_PX = 1.0
 #: shard folder -> (task, synthetic images (the crop tasks keep up to 32 crops of each), crop jitter px,
 #: recognizer crops of partial markers too (`SynthConfig.recognizer_partial`, `TrainConfig.recognizer_partial`))
-SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "recognizer": ("recognizer", 9600, 0.0, False),
+SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("localizer", 19200, 0.0, False),
+          "recognizer": ("recognizer", 9600, 0.0, False),
           "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX, False),
           "recognizer_partial": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False)}
+#: shard folder -> SynthConfig fields that differ from the defaults.  localizer_upright: every marker
+#: near upright (the defaults turn one in five uniformly: 17% of the synthesizer's fully visible
+#: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's)
+SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
@@ -250,11 +259,10 @@ def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: 
     counts = [SHARDS[f][1] for f in folders]
     started, results = time.perf_counter(), {}
     for k, folder in enumerate(folders):
-        task, count, jitter, partial = SHARDS[folder]
+        task, count = SHARDS[folder][:2]
         left = seconds - (time.perf_counter() - started)
-        config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter, recognizer_partial=partial)
-        results[folder] = write_shards(out / "shards" / folder, task, spec, 4 if smoke else count, config, ids,
-                                       workers, images_per_part=4 if smoke else 64,
+        results[folder] = write_shards(out / "shards" / folder, task, spec, 4 if smoke else count, shard_config(folder),
+                                       ids, workers, images_per_part=4 if smoke else 64,
                                        time_limit_s=max(left * count / sum(counts[k:]), 0.0), progress=False)
     return results
 
@@ -267,13 +275,18 @@ def synth_heldout(out: Path, rendered: Path, workers: int, smoke: bool, names: l
     images, seed = SYNTH_HELDOUT
     folders = {}
     for folder in dict.fromkeys(RUNS[name][4] for name in names if RUNS[name][1] > 0):
-        task, _, jitter, partial = SHARDS[folder]
-        config = SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter, recognizer_partial=partial,
-                             seed=seed)
         folders[folder] = out / "shards_heldout" / folder
-        write_shards(folders[folder], task, spec, 2 if smoke else images, config, ids, workers,
-                     images_per_part=2 if smoke else 8, progress=False)
+        write_shards(folders[folder], SHARDS[folder][0], spec, 2 if smoke else images, shard_config(folder, seed),
+                     ids, workers, images_per_part=2 if smoke else 8, progress=False)
     return folders
+
+
+def shard_config(folder: str, seed: int | None = None) -> SynthConfig:
+    """The synthesizer config of shard folder `folder` (`SHARDS`, `SHARD_SYNTH`); `seed`: another seed
+    than SynthConfig's (held-out samples)."""
+    _, _, jitter, partial = SHARDS[folder]
+    return SynthConfig(image_size=(IMAGE_SIZE, IMAGE_SIZE), crop_jitter_px=jitter, recognizer_partial=partial,
+                       **SHARD_SYNTH.get(folder, {}), **({} if seed is None else {"seed": seed}))
 
 
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
@@ -724,7 +737,8 @@ def main() -> None:
                                   "init_lr": args.init_lr if args.init_lr is not None else INIT_LR.get(t, LR)}
                            for t, (s, b) in SCHEDULE.items()},
               "runs": {name: {"task": t, "synth_weight": w, "stop": s, "shards": f, "crop_jitter_px": SHARDS[f][2],
-                              "recognizer_partial": SHARDS[f][3]} for name, (t, w, s, _, f) in RUNS.items()},
+                              "recognizer_partial": SHARDS[f][3], "synth": SHARD_SYNTH.get(f, {})}
+                       for name, (t, w, s, _, f) in RUNS.items()},
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},

@@ -222,3 +222,18 @@ def test_runs_and_their_init_are_measured_on_held_out_synthesized_samples(bench,
     assert measured["localizer_22px"]["all"] == measured["localizer_mix, its --init"]["all"]  # the same weights
     bench._print_metrics(measured)
     assert "| recognizer_partial, its --init (step 0).top1 |" in capsys.readouterr().out
+
+
+def test_the_upright_localizer_run_draws_its_own_shards_with_markers_near_upright(bench, tmp_path, garment_dataset):
+    assert bench.shard_config("localizer_upright").upright_probability == 1.0
+    assert bench.shard_config("localizer").upright_probability == bench.SynthConfig().upright_probability < 1.0
+    assert bench.shard_config("localizer_upright", 5).seed == 5
+    assert bench.shard_config("crosspoints_jitter").crop_jitter_px == bench.CROP_JITTER_PX
+    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_mix", "localizer_upright"])
+    assert set(folders) == {"localizer", "localizer_upright"}
+    meta = json.loads((folders["localizer_upright"] / "shards.json").read_text())
+    assert meta["synth"]["upright_probability"] == 1.0 and meta["synth"]["seed"] == bench.SYNTH_HELDOUT[1]
+    written = bench.make_shards(tmp_path, garment_dataset, 1, 60.0, True, ["localizer_upright"])
+    assert set(written) == {"localizer_upright"}
+    assert json.loads((tmp_path / "shards" / "localizer_upright" / "shards.json").read_text()
+                      )["synth"]["upright_probability"] == 1.0
