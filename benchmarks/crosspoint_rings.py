@@ -1,0 +1,96 @@
+"""Where in the crop does the crosspoint network err?  Its error by ring of the 25 x 25 crosspoint grid:
+ring 0 the outermost crosspoints (nearest the crop's edge, least context around them), ring 12 the
+marker's centre.  On a shard folder of synthesized samples (`networks.synth write`: exact ground
+truth, unlimited) or the crosspoint crops of a factory dataset's split.
+
+    python benchmarks/crosspoint_rings.py --checkpoint .bench/weights15/crosspoints_jitter.pt --data /tmp/xs_exact
+    python benchmarks/crosspoint_rings.py --checkpoint XP.pt --data .bench/rendered23 --split test --device cpu
+
+Prints a table (ring, crosspoints, median and p95 crop error of the crosspoints visible in the ground
+truth) and a `RESULT {json}` line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from torch.utils.data import DataLoader  # noqa: E402
+
+from networks.checkpoint import checkpoint_spec, load_checkpoint  # noqa: E402
+from networks.data import SHARD_META, ShardDataset  # noqa: E402
+from networks.evaluate import crosspoint_predictions, folder_batches, resolve_device  # noqa: E402
+from networks.tasks import forward  # noqa: E402
+
+
+def rings(k: int) -> np.ndarray:
+    """(k, k) ring index of each crosspoint: its distance in grid steps to the nearest edge of the grid."""
+    edge = np.minimum(np.arange(k), k - 1 - np.arange(k))  # per row (or column): steps to its nearer edge
+    return np.minimum(edge[:, None], edge[None, :])
+
+
+def crop_errors(checkpoint: Path, data: Path, split: str = "test", device: str | None = None, batch_size: int = 32
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(N, K, K) crop-pixel error of every predicted crosspoint and (N, K, K) its ground-truth
+    visibility, over a shard folder or a factory dataset's split."""
+    device = resolve_device(device)
+    model, config, saved = load_checkpoint(checkpoint, expected_task="crosspoints", device=device)
+    spec = checkpoint_spec(saved)
+    if (data / SHARD_META).is_file():
+        batches = DataLoader(ShardDataset(data, "crosspoints", spec=spec), batch_size=batch_size)
+    else:
+        batches = folder_batches("crosspoints", data, split, spec, batch_size)
+    errors, visible = [], []
+    with torch.no_grad():
+        for batch in batches:
+            output, _, _ = forward("crosspoints", model, batch, device)
+            _, xy = crosspoint_predictions(output)
+            errors.append(np.linalg.norm(xy - batch["xy"].numpy(), axis=-1))
+            visible.append(batch["visible"].numpy().astype(bool))
+    if not errors:
+        raise ValueError(f"{data}: no crosspoint crops to measure")
+    return np.concatenate(errors), np.concatenate(visible)
+
+
+def by_ring(errors: np.ndarray, visible: np.ndarray) -> list[dict]:
+    """Per ring: the count and the median and 95th-percentile error of its visible crosspoints."""
+    ring = np.broadcast_to(rings(errors.shape[-1]), errors.shape)
+    rows = []
+    for r in range(int(ring.max()) + 1):
+        values = errors[(ring == r) & visible]
+        rows.append({"ring": r, "crosspoints": int(values.size),
+                     "median": float(np.median(values)) if values.size else None,
+                     "p95": float(np.percentile(values, 95)) if values.size else None})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--checkpoint", type=Path, required=True, help="a crosspoint network checkpoint")
+    parser.add_argument("--data", type=Path, required=True, help="a shard folder or a factory dataset folder")
+    parser.add_argument("--split", default="test", help="the dataset's split (not for shards)")
+    parser.add_argument("--device", help="cuda or cpu (default: a CUDA GPU when there is one)")
+    args = parser.parse_args(argv)
+    errors, visible = crop_errors(args.checkpoint, args.data, args.split, args.device)
+    rows = by_ring(errors, visible)
+    print(f"| ring (0: the crop's edge) | crosspoints | crop error median px | p95 px |\n|---|---|---|---|")
+    for row in rows:
+        median = "-" if row["median"] is None else f"{row['median']:.3f}"
+        p95 = "-" if row["p95"] is None else f"{row['p95']:.2f}"
+        print(f"| {row['ring']} | {row['crosspoints']} | {median} | {p95} |")
+    overall = float(np.median(errors[visible]))
+    print(f"| all | {int(visible.sum())} | {overall:.3f} | {np.percentile(errors[visible], 95):.2f} |")
+    print("RESULT " + json.dumps({"checkpoint": str(args.checkpoint), "data": str(args.data), "rings": rows,
+                                  "median": overall}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
