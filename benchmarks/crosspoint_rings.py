@@ -22,11 +22,9 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from torch.utils.data import DataLoader  # noqa: E402
 
 from networks.checkpoint import checkpoint_spec, load_checkpoint  # noqa: E402
-from networks.data import SHARD_META, ShardDataset  # noqa: E402
-from networks.evaluate import crosspoint_predictions, folder_batches, resolve_device  # noqa: E402
+from networks.evaluate import crosspoint_predictions, data_batches, resolve_device  # noqa: E402
 from networks.tasks import forward  # noqa: E402
 
 
@@ -43,13 +41,9 @@ def crop_errors(checkpoint: Path, data: Path, split: str = "test", device: str |
     device = resolve_device(device)
     model, config, saved = load_checkpoint(checkpoint, expected_task="crosspoints", device=device)
     spec = checkpoint_spec(saved)
-    if (data / SHARD_META).is_file():
-        batches = DataLoader(ShardDataset(data, "crosspoints", spec=spec), batch_size=batch_size)
-    else:
-        batches = folder_batches("crosspoints", data, split, spec, batch_size)
     errors, visible = [], []
     with torch.no_grad():
-        for batch in batches:
+        for batch in data_batches("crosspoints", data, split, spec, batch_size):
             output, _, _ = forward("crosspoints", model, batch, device)
             _, xy = crosspoint_predictions(output)
             errors.append(np.linalg.norm(xy - batch["xy"].numpy(), axis=-1))

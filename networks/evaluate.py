@@ -164,6 +164,14 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
         yield from crop_batches(arrays, batch_size)
 
 
+def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32) -> Iterable[dict]:
+    """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
+    is not used), or of a factory dataset's split (`folder_batches`)."""
+    if (Path(data) / SHARD_META).is_file():
+        return DataLoader(ShardDataset(data, task, spec=spec), batch_size=batch_size)
+    return folder_batches(task, data, split, spec, batch_size)
+
+
 # ---- running a model -------------------------------------------------------------------------------
 
 def crosspoint_predictions(output: torch.Tensor, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -266,11 +274,9 @@ def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task
     spec = checkpoint_spec(saved)
     if (Path(data) / "template.npz").is_file():
         check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
+    batches = data_batches(config.task, data, split, spec, batch_size)
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
-        batches = iter(DataLoader(ShardDataset(data, config.task, spec=spec), batch_size=batch_size))
-    else:
-        batches = folder_batches(config.task, data, split, spec, batch_size)
     metrics = evaluate_model(config.task, model, batches, device, spec, config.mixed_precision, radius_px,
                              threshold, progress)
     return {"task": config.task, "checkpoint": str(checkpoint), "step": int(saved["step"]), "data": str(data),
