@@ -39,7 +39,7 @@ def crop_errors(checkpoint: Path, data: Path, split: str = "test", device: str |
     """(N, K, K) crop-pixel error of every predicted crosspoint and (N, K, K) its ground-truth
     visibility, over a shard folder or a factory dataset's split."""
     device = resolve_device(device)
-    model, config, saved = load_checkpoint(checkpoint, expected_task="crosspoints", device=device)
+    model, _, saved = load_checkpoint(checkpoint, expected_task="crosspoints", device=device)
     spec = checkpoint_spec(saved)
     errors, visible = [], []
     with torch.no_grad():
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     errors, visible = crop_errors(args.checkpoint, args.data, args.split, args.device)
     rows = by_ring(errors, visible)
-    print(f"| ring (0: the crop's edge) | crosspoints | crop error median px | p95 px |\n|---|---|---|---|")
+    print("| ring (0: the crop's edge) | crosspoints | crop error median px | p95 px |\n|---|---|---|---|")
     for row in rows:
         median = "-" if row["median"] is None else f"{row['median']:.3f}"
         p95 = "-" if row["p95"] is None else f"{row['p95']:.2f}"
