@@ -51,13 +51,12 @@ def size_bin(low: float, high: float) -> str:
     return f"size {low:.0f}-{high:.0f} px" if np.isfinite(high) else f"size >= {low:.0f} px"
 
 
-def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, dict], dict[str, dict]]:
-    """Per group, markers and top-1 given the true points; and the same per group and marker size
-    (`SIZES`): the recognizer's misses by how large the marker is in the image."""
+def recognized(detector: Detector, pairs: list[tuple[Path, Path]]) -> list[tuple[Path, str, np.ndarray, np.ndarray]]:
+    """Per image and group (`GROUPS`) that has markers: (image path, group, right (K,) bool: the
+    recognizer's ID given the true points is the marker's, size (K,) px: the marker's in the image)."""
     from foreshortening import marker_shape  # benchmarks/, on the path from main and networks.py
 
-    counts = {name: [0, 0] for name in GROUPS}
-    bins = {(name, size_bin(lo, hi)): [0, 0] for name in GROUPS for lo, hi in zip(SIZES[:-1], SIZES[1:])}
+    records = []
     for image_path, gt_path in pairs:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
         gt = ImageGroundTruth.load(gt_path)
@@ -67,18 +66,34 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, 
             if len(pick):
                 points = completed[pick].astype(np.float64)
                 ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), points)
-                right = ids == gt.marker_id[pick]
-                counts[name][0] += len(pick)
-                counts[name][1] += int(right.sum())
-                which = np.digitize(marker_shape(points)[1], SIZES[1:-1])  # crops' points are finite
-                for k, (lo, hi) in enumerate(zip(SIZES[:-1], SIZES[1:])):
-                    bins[name, size_bin(lo, hi)][0] += int((which == k).sum())
-                    bins[name, size_bin(lo, hi)][1] += int(right[which == k].sum())
+                # crops' points are finite: every marker has a size
+                records.append((image_path, name, ids == gt.marker_id[pick], marker_shape(points)[1]))
+    return records
+
+
+def tally(records: list[tuple[Path, str, np.ndarray, np.ndarray]]) -> tuple[dict[str, dict], dict[str, dict]]:
+    """Per group, markers and top-1 of `recognized`'s records; and the same per group and marker size
+    (`SIZES`): the recognizer's misses by how large the marker is in the image."""
+    counts = {name: [0, 0] for name in GROUPS}
+    bins = {(name, size_bin(lo, hi)): [0, 0] for name in GROUPS for lo, hi in zip(SIZES[:-1], SIZES[1:])}
+    for _, name, right, size in records:
+        counts[name][0] += len(right)
+        counts[name][1] += int(right.sum())
+        which = np.digitize(size, SIZES[1:-1])
+        for k, (lo, hi) in enumerate(zip(SIZES[:-1], SIZES[1:])):
+            bins[name, size_bin(lo, hi)][0] += int((which == k).sum())
+            bins[name, size_bin(lo, hi)][1] += int(right[which == k].sum())
     by_size: dict[str, dict] = {name: {} for name in GROUPS}
     for (name, label), (n, right) in bins.items():
         if n:
             by_size[name][label] = {"markers": n, "top1": right / n}
     return {name: {"markers": n, "top1": right / max(n, 1)} for name, (n, right) in counts.items()}, by_size
+
+
+def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, dict], dict[str, dict]]:
+    """Per group, markers and top-1 given the true points; and the same per group and marker size
+    (`tally` of `recognized`)."""
+    return tally(recognized(detector, pairs))
 
 #: the chain's groups: the two above, and partial markers with a visible centre whose five points do
 #: not give a sane crop (folded, seen edge-on, behind the camera, or cut with too little of it on the
@@ -156,13 +171,14 @@ def main(argv: list[str] | None = None) -> int:
                                              tables=load_template(template).layout.tables(),
                                              config=DetectorConfig(localizer_scale=args.localizer_scale))
         source = f"{label} ({len(pairs)} images)"
-        sources[source], sizes[source] = top1(detector, pairs)
+        records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
+        sources[source], sizes[source] = tally(records)
         if args.chain:
             chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
         if args.by_motion and rendered is not None:
             motion_of = {rendered / e["image"]: e["motion"] for e in read_manifest(rendered)}
             for motion in sorted({motion_of[image] for image, _ in pairs}):
-                motions[motion] = top1(detector, [p for p in pairs if motion_of[p[0]] == motion])[0]
+                motions[motion] = tally([r for r in records if motion_of[r[0]] == motion])[0]
     print(f"# recognizer top-1 given the true points, {args.checkpoints[1].name}")
     print("| images | markers | count | top-1 |\n|---|---|---|---|")
     for source, rows in sources.items():

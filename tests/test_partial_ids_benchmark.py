@@ -1,0 +1,27 @@
+"""`benchmarks/partial_ids.py`: the recognizer's top-1 tallied by group, marker size and (with
+--by-motion) any subset of the same per-image records."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def bench(load_benchmark):
+    return load_benchmark("partial_ids")
+
+
+def test_tally_counts_each_group_and_size_bin(bench):
+    whole, partial = bench.GROUPS
+    records = [(Path("a.png"), whole, np.array([True, True, False]), np.array([10.0, 20.0, 40.0])),
+               (Path("b.png"), whole, np.array([True]), np.array([40.0])),
+               (Path("b.png"), partial, np.array([False, True]), np.array([14.0, 14.0]))]
+    groups, by_size = bench.tally(records)
+    assert groups[whole] == {"markers": 4, "top1": 0.75} and groups[partial] == {"markers": 2, "top1": 0.5}
+    assert by_size[whole][bench.size_bin(32.0, np.inf)] == {"markers": 2, "top1": 0.5}
+    assert by_size[whole][bench.size_bin(0.0, 12.0)] == {"markers": 1, "top1": 1.0}
+    assert list(by_size[partial]) == [bench.size_bin(12.0, 16.0)]
+    only_b = bench.tally([r for r in records if r[0] == Path("b.png")])[0]  # as --by-motion takes a motion's
+    assert only_b[whole] == {"markers": 1, "top1": 1.0} and only_b[partial]["markers"] == 2
+    assert bench.tally([])[0][whole] == {"markers": 0, "top1": 0.0}
