@@ -33,6 +33,15 @@ TASK_DEFAULTS: dict[str, dict[str, int]] = {
 MARKER_PX_RANGE = (4.0, 256.0)
 
 
+def marker_px_problem(name: str, value: object) -> str | None:
+    """The problem with `value` as the marker side `name` a localizer scale aims at (a number in
+    MARKER_PX_RANGE), or None when it is one."""
+    low, high = MARKER_PX_RANGE
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and low <= value <= high:
+        return None
+    return f"{name} must be in [{low:g}, {high:g}] pixels, got {value!r}"
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """One training run of the network `task` (one of `TASKS`).
@@ -120,11 +129,9 @@ class TrainConfig:
             problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
-        low, high = MARKER_PX_RANGE
-        if self.localizer_marker_px is not None and not (
-                isinstance(self.localizer_marker_px, (int, float)) and low <= self.localizer_marker_px <= high):
-            problems.append(f"localizer_marker_px must be in [{low:g}, {high:g}] pixels or None, "
-                            f"got {self.localizer_marker_px!r}")
+        if self.localizer_marker_px is not None and (problem := marker_px_problem("localizer_marker_px",
+                                                                                   self.localizer_marker_px)):
+            problems.append(problem + " (or None)")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):

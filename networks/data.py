@@ -52,7 +52,7 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
-from networks.config import MARKER_PX_RANGE, TASKS
+from networks.config import TASKS, marker_px_problem
 from networks.homography import auto_localizer_scale
 from networks.models import CELL
 from networks.synth import PatternSynthesizer, SynthConfig
@@ -220,10 +220,10 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
-        low, high = MARKER_PX_RANGE
-        if marker_px is not None and (task != "localizer" or not low <= marker_px <= high):
-            raise ValueError(f"marker_px is for the localizer's images, in [{low:g}, {high:g}] px; got {marker_px} "
-                             f"for the {task}")
+        if marker_px is not None and task != "localizer":
+            raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
+        if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
+            raise ValueError(problem)
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]

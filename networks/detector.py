@@ -51,7 +51,7 @@ from assets.pattern import (
 )
 from assets.pattern.observation import is_convex_layout
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
-from networks.config import MARKER_PX_RANGE
+from networks.config import marker_px_problem
 from networks.decode import decode_localizer
 from networks.detections import Detections
 from networks.homography import (
@@ -145,8 +145,8 @@ class DetectorConfig:
             problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
         if self.localizer_scale is not None and not 0 < self.localizer_scale <= 4:
             problems.append(f"localizer_scale must be in (0, 4] or None (chosen per image), got {self.localizer_scale}")
-        if not MARKER_PX_RANGE[0] <= self.localizer_marker_px <= MARKER_PX_RANGE[1]:
-            problems.append(f"localizer_marker_px must be in {list(MARKER_PX_RANGE)}, got {self.localizer_marker_px}")
+        if problem := marker_px_problem("localizer_marker_px", self.localizer_marker_px):
+            problems.append(problem)
         if self.vote_min < 1 or self.vote_min_partial < 1 or not 0 < self.vote_tolerance < 0.5:
             problems.append(f"vote_min and vote_min_partial must be >= 1 and vote_tolerance in (0, 0.5), got "
                             f"{self.vote_min}, {self.vote_min_partial}, {self.vote_tolerance}")

@@ -476,3 +476,5 @@ def test_marker_px_reads_each_image_at_the_detectors_automatic_scale(folder):
     assert found > 0
     with pytest.raises(ValueError, match="marker_px"):
         RenderedDataset(folder, "train", "recognizer", marker_px=22.0)
+    with pytest.raises(ValueError, match=r"marker_px must be in \[4, 256\] pixels"):
+        RenderedDataset(folder, "train", "localizer", marker_px=1000.0)
