@@ -24,7 +24,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    localizer's config with the renders read shrunk so markers measure 22 px, `RUN_MARKER_PX`, as the
    Detector's automatic scale shows them; chained in its place at that scale), localizer_upright
    (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
-   renders' are), and
+   renders' are), crosspoints_margin4 (the main crosspoint run's config with a 4-cell crop margin,
+   128 x 128, `run_margin`; chained in its place), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
@@ -95,6 +96,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from assets.fileio import save_json, save_npz  # noqa: E402
+from assets.pattern import CROSSPOINT_CROP  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, training_samples  # noqa: E402
 from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
@@ -135,6 +137,9 @@ RUNS = {
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
     # mostly rendered crops (20 ms each to a worker against a shard crop's 1.7 ms): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
+    # the main crosspoint run's config with a 4-cell crop margin (128 x 128, `SHARD_SYNTH`), for its whole
+    # schedule: the error of the outer crosspoints, nearest the reference crop's edge, sets its floor
+    "crosspoints_margin4": ("crosspoints", 0.75, None, 3, "crosspoints_margin4"),
 }
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
@@ -151,11 +156,14 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
           "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX, False),
           "recognizer_partial": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
-          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False)}
+          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False),
+          "crosspoints_margin4": ("crosspoints", 4800, CROP_JITTER_PX, False)}
 #: shard folder -> SynthConfig fields that differ from the defaults.  localizer_upright: every marker
 #: near upright (the defaults turn one in five uniformly: 17% of the synthesizer's fully visible
-#: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's)
-SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0}}
+#: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's).
+#: crosspoint_margin_cells: the crop of the runs on that folder too (`run_margin`)
+SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
+               "crosspoints_margin4": {"crosspoint_margin_cells": 4}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
@@ -289,13 +297,29 @@ def shard_config(folder: str, seed: int | None = None) -> SynthConfig:
                        **SHARD_SYNTH.get(folder, {}), **({} if seed is None else {"seed": seed}))
 
 
+def run_margin(name: str) -> int:
+    """The crosspoint crop margin (cells) of run `name`: its shard folder's (`SHARD_SYNTH`), else the
+    reference's."""
+    return int(SHARD_SYNTH.get(RUNS[name][4], {}).get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
+
+
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
-    synthesized samples of its shard folder (`synth_heldout`)."""
+    synthesized samples of its shard folder (`synth_heldout`); an --init with another crosspoint crop
+    than its run's (a wider-crop run started from a reference-crop network) is measured on its own
+    crop's folder, under its run's label, when a run of that crop has one."""
     checkpoints = {name: (name, out / name / "run" / "last.pt") for name in RUNS
                    if (out / name / "run" / "last.pt").exists()}
-    checkpoints.update({f"{name}, its --init": (name, Path(path)) for name, path in (init or {}).items()})
+    for name, path in (init or {}).items():
+        config = TrainConfig.from_dict(read_checkpoint(path)["config"], source=f"{path}:config")
+        if config.task != "crosspoints" or config.crosspoint_margin_cells == run_margin(name):
+            checkpoints[f"{name}, its --init"] = (name, Path(path))
+            continue
+        same = [other for other in RUNS if RUNS[other][4] in folders and RUNS[other][0] == "crosspoints"
+                and run_margin(other) == config.crosspoint_margin_cells]
+        if same:
+            checkpoints[f"{name}, its --init (on {same[0]}'s samples)"] = (same[0], Path(path))
     return {label: evaluate(path, folders[RUNS[name][4]], device=device, progress=False)
             for label, (name, path) in checkpoints.items() if RUNS[name][4] in folders}
 
@@ -380,6 +404,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        pretrained=None if start else pretrained.get(task), init=start,
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        recognizer_partial=SHARDS[folder][3],
+                       crosspoint_margin_cells=run_margin(name) if task == "crosspoints" else CROSSPOINT_CROP.margin_cells,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
                        localizer_marker_px=marker_px)
@@ -515,7 +540,7 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
     baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
     before; and with the comparison runs on exact crops, and the localizers trained on shrunk images
-    (`shrunk_localizers`), in place of the main runs, where they exist;
+    and the crosspoint runs with a wider crop (`stand_ins`), in place of the main runs, where they exist;
     keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
     fields set in every variant."""
     paths = main_checkpoints(out, init)
@@ -530,7 +555,7 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
             chains["crosspoints on exact crops"] = ([paths[0], paths[1], exact[1]], {})
         if exact[0].exists() and exact[1].exists():
             chains["both on exact crops"] = ([paths[0], *exact], {})
-        chains.update({label: ([localizer, *paths[1:]], {}) for label, localizer in shrunk_localizers(out).items()})
+        chains.update({label: (checkpoints, {}) for label, checkpoints in stand_ins(out, paths).items()})
     return {label: chain_metrics(checkpoints, test, device, smoke, **config, **overrides)
             for label, (checkpoints, overrides) in chains.items()}
 
@@ -546,11 +571,20 @@ def chain_metrics(checkpoints: list[Path], view: Path, device: str, smoke: bool 
     return evaluate_detector(detector, view, split="heldout", progress=False)
 
 
-def shrunk_localizers(out: Path) -> dict[str, Path]:
-    """The localizer runs of RUN_MARKER_PX trained in `out`, by a chain label: they stand in for the main
-    localizer in a Detector at the automatic scale, the scale they trained at."""
-    return {f"{name} in place of {MAIN['localizer']}": out / name / "run" / "last.pt" for name in RUN_MARKER_PX
-            if (out / name / "run" / "last.pt").exists()}
+def stand_ins(out: Path, paths: list[Path]) -> dict[str, list[Path]]:
+    """The comparison runs trained in `out` that stand in for a main run of the chain `paths`
+    (localizer, recognizer, crosspoints), by a chain label, each with `paths` with that one network
+    replaced: the localizers of RUN_MARKER_PX (in a Detector at the automatic scale, the scale they
+    trained at) and the crosspoint runs with a wider crop than the reference's (`run_margin`)."""
+    slots = {name: 0 for name in RUN_MARKER_PX}
+    slots.update({name: 2 for name in RUNS if RUNS[name][0] == "crosspoints"
+                  and run_margin(name) != CROSSPOINT_CROP.margin_cells})
+    chains = {}
+    for name, slot in slots.items():
+        last = out / name / "run" / "last.pt"
+        if last.exists():
+            chains[f"{name} in place of {MAIN[RUNS[name][0]]}"] = [*paths[:slot], last, *paths[slot + 1:]]
+    return chains
 
 
 def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str] | None = None
@@ -582,7 +616,7 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     given the true points by group and marker size (`partial_ids.top1`).  The chain runs three times:
     with the localizer at full size, at 512 / the image side (the scale of the renders it trained on,
     as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None);
-    at that scale also with each of `shrunk_localizers` in place of the main localizer."""
+    at that scale also with each of `stand_ins` in place of its main run."""
     from networks.evaluate_detector import load_detector
 
     from foreshortening import rendered_pairs
@@ -600,8 +634,8 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
         chosen = chain["localizer_scale"]
         label = f"{scale:.2g}" if scale is not None else f"auto ({chosen['min']:.2f}-{chosen['max']:.2f})"
         chains[f"localizer scale {label}"] = chain
-    for label, localizer in shrunk_localizers(out).items():
-        chain = chain_metrics([localizer, *paths[1:]], view, device, smoke)
+    for label, checkpoints in stand_ins(out, paths).items():
+        chain = chain_metrics(checkpoints, view, device, smoke)
         chosen = chain["localizer_scale"]
         chains[f"{label}, scale auto ({chosen['min']:.2f}-{chosen['max']:.2f})"] = chain
     return {"images": len(pairs), "checkpoints": [str(p) for p in paths], "metrics": metrics,

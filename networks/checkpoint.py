@@ -177,7 +177,8 @@ def load_checkpoint(
         raise ValueError(f"{path}: task {data['task']!r} but config.task {config.task!r}")
     if spec is not None:
         check_pattern(data, spec, source=str(path))
-    model = build_model(data["task"], int(data["num_ids"]), int(data["crosspoints_per_side"]))
+    model = build_model(data["task"], int(data["num_ids"]), int(data["crosspoints_per_side"]),
+                        crosspoint_margin_cells=config.crosspoint_margin_cells)
     try:
         model.load_state_dict(data["model"])
     except RuntimeError as exc:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from assets.fileio import check_json_object, load_json, save_json
+from assets.pattern.crops import crosspoint_crop
 
 #: The three networks, by the name used in checkpoints, datasets and the CLIs.
 TASKS = ("localizer", "recognizer", "crosspoints")
@@ -80,6 +81,10 @@ class TrainConfig:
     are read shrunk so their markers' median side is this many pixels, the size the Detector's
     automatic scale shows them at (`networks.DetectorConfig.localizer_marker_px`, 22; the renders'
     `RenderedDataset` marker_px); None: at their own scale, as the reference.
+    crosspoint_margin_cells (crosspoints): the crop's margin around the marker in cells (2: the
+    reference's 112 x 112; 4: 128 x 128, `assets.pattern.crosspoint_crop`), so the outer crosspoints
+    have more image around them; shards must have been written with the same
+    (`networks.synth write --crosspoint-margin`).
     """
 
     task: str
@@ -106,6 +111,7 @@ class TrainConfig:
     view_warp: bool = True
     recognizer_partial: bool = True
     localizer_marker_px: float | None = None
+    crosspoint_margin_cells: int = 2
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -132,6 +138,10 @@ class TrainConfig:
         if self.localizer_marker_px is not None and (problem := marker_px_problem("localizer_marker_px",
                                                                                    self.localizer_marker_px)):
             problems.append(problem + " (or None)")
+        try:
+            crosspoint_crop(self.crosspoint_margin_cells)
+        except ValueError as exc:
+            problems.append(f"crosspoint_margin_cells: {exc}")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):

@@ -45,7 +45,7 @@ from tqdm import tqdm
 from assets.fileio import load_json, load_npz, save_npz
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
-from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
+from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, CropSpec, crosspoint_crop, reference_textures, unwarp
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
                                         localizer_targets, marker_cells, recognizer_crops, recognizer_markers,
                                         training_samples)
@@ -136,6 +136,8 @@ class _Items:
     spec: PatternSpec | None
     codebook: np.ndarray | None
     _references: dict[int, np.ndarray]
+    #: the crosspoint crops' (and so their references') crop (`assets.pattern.crosspoint_crop`)
+    crosspoint_crop: CropSpec = CROSSPOINT_CROP
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -151,7 +153,8 @@ class _Items:
         if marker_id not in cache:
             if not 0 <= marker_id < len(self.codebook):
                 raise ValueError(f"marker ID {marker_id} is outside the codebook of {len(self.codebook)} IDs")
-            cache[marker_id] = reference_textures(self.spec, self.codebook[marker_id][None], CROSSPOINT_CROP)[0]
+            cache[marker_id] = reference_textures(self.spec, self.codebook[marker_id][None],
+                                                  self.crosspoint_crop)[0]
         return cache[marker_id]
 
     def _item(self, index: int, image=None, cells=None, crop=None, marker_id=None, xy=None, visible=None) -> dict:
@@ -195,12 +198,15 @@ class RenderedDataset(_Items, Dataset):
     median side of its fully visible markers is this many pixels, as the Detector's automatic scale
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
     from the ground-truth points; crops and view warps are then taken from it.  None: the renders'
-    own scale."""
+    own scale.
+    crosspoint_margin_cells (crosspoints): the crops' margin (`assets.pattern.crosspoint_crop`); other
+    than the reference's 2, the crops are cut anew from the images (the stored ones are 112 x 112),
+    of the markers that pass the crop-sanity test in that crop."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
-                 partial_markers: bool = False, marker_px: float | None = None):
+                 partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -220,6 +226,9 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
+        if crosspoint_margin_cells != CROSSPOINT_CROP.margin_cells and task != "crosspoints":
+            raise ValueError(f"crosspoint_margin_cells is for the crosspoint network's crops, not the {task} task's")
+        self.crosspoint_crop = crosspoint_crop(crosspoint_margin_cells)
         if marker_px is not None and task != "localizer":
             raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
         if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
@@ -296,12 +305,14 @@ class RenderedDataset(_Items, Dataset):
                 cut = unwarp(arrays["image"], self.spec, RECOGNIZER_CROP, points)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
-        if self.crop_jitter_px > 0:
+        if self._cut_anew:
             one = arrays["gt"].select(np.array([crop]))
-            made = crosspoint_crops(arrays["image"], one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
-                                    self.spec)
-            if not len(made[0]):  # the jittered fit fails the crop-sanity test: the crop of the true points
-                made = crosspoint_crops(arrays["image"], one, self.spec)
+            made = ((),)
+            if self.crop_jitter_px > 0:
+                made = crosspoint_crops(arrays["image"], one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
+                                        self.spec, self.crosspoint_crop)
+            if not len(made[0]):  # unjittered, or the jittered fit fails the crop-sanity test: the true points
+                made = crosspoint_crops(arrays["image"], one, self.spec, self.crosspoint_crop)
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
@@ -352,14 +363,16 @@ class RenderedDataset(_Items, Dataset):
 
     @property
     def _cut_anew(self) -> bool:
-        """Crops are cut from the image per item (crop jitter, or partial markers), not read stored."""
-        return self.crop_jitter_px > 0 or self.partial_markers
+        """Crops are cut from the image per item (crop jitter, partial markers or another crosspoint
+        crop than the stored ones'), not read stored."""
+        return self.crop_jitter_px > 0 or self.partial_markers or self.crosspoint_crop != CROSSPOINT_CROP
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
         crop (`recognizer_markers`; with partial_markers, `completed_points`) or the crosspoint network's
-        markers (`pick`, indices into gt/<name>.npz: `crosspoint_markers`), with their IDs.  Without
-        partial_markers they are checked against the samples' stored crops: the markers of those."""
+        markers (`pick`, indices into gt/<name>.npz: `crosspoint_markers` in the dataset's crop), with
+        their IDs.  Without partial_markers or a wider crosspoint crop they are checked against the
+        samples' stored crops: the markers of those."""
         entry = self.entries[image_index]
         gt = ImageGroundTruth.load(self.root / entry["gt"])
         key = _CROP_KEYS[self.task][1]
@@ -367,6 +380,9 @@ class RenderedDataset(_Items, Dataset):
             completed = completed_points(gt)
             pick = recognizer_markers(gt, self.spec, True, completed)
             return {"points_px": completed[pick].astype(np.float64), key: gt.marker_id[pick]}
+        if self.task == "crosspoints" and self.crosspoint_crop != CROSSPOINT_CROP:  # stored: other markers' crops
+            pick = crosspoint_markers(gt, self.spec, crop=self.crosspoint_crop)[0]
+            return {"pick": pick, key: gt.marker_id[pick]}
         pick = recognizer_markers(gt, self.spec) if self.task == "recognizer" else crosspoint_markers(gt, self.spec)[0]
         stored = load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
@@ -437,6 +453,7 @@ class SynthDataset(_Items, Dataset):
         self.crops_per_sample = 1 if task == "localizer" else int(crops_per_sample)
         self.synthesizer = PatternSynthesizer(spec, config, codebook, marker_ids)
         self.codebook = self.synthesizer.codebook
+        self.crosspoint_crop = crosspoint_crop(config.crosspoint_margin_cells)
         self._references = {}
         self._last: tuple[tuple[int, int], list[tuple]] | None = None
 
@@ -486,7 +503,7 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
         return recognizer_crops(image, gt, spec, partial=(config or SynthConfig()).recognizer_partial)
-    made = crosspoint_crops(image, gt, spec)
+    made = crosspoint_crops(image, gt, spec, crosspoint_crop((config or SynthConfig()).crosspoint_margin_cells))
     centre = spec.crosspoints_per_side // 2
     return tuple(a[made[3][:, centre, centre]] for a in made)
 
@@ -496,7 +513,8 @@ class ShardDataset(_Items, Dataset):
 
     Arrays are memory-mapped per worker on first use (the dataset pickles without them, so spawned
     DataLoader workers each open their own).  spec: the pattern to train on; the shards' codebook
-    must be its codebook.  Items are augmented per (seed, epoch, index) as the other datasets'."""
+    must be its codebook.  Items are augmented per (seed, epoch, index) as the other datasets'.
+    Crosspoint crops are in the crop the shards were written with (`shard_margin_cells`)."""
 
     def __init__(self, root: str | Path, task: str, augment: Augment | None = None, spec: PatternSpec | None = None,
                  seed: int = 0):
@@ -517,6 +535,7 @@ class ShardDataset(_Items, Dataset):
         counts = [len(np.load(part / f"{key}.npy", mmap_mode="r")) for part in self.parts]
         self._starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self.codebook = generate_codebook(self.spec) if task == "crosspoints" else None
+        self.crosspoint_crop = crosspoint_crop(shard_margin_cells(self.meta))
         self._references = {}
         self._open: dict[int, dict[str, np.ndarray]] = {}
 
@@ -541,6 +560,12 @@ class ShardDataset(_Items, Dataset):
             return self._item(index, image=row["image"], cells=row["cells"])
         return self._item(index, crop=row["crop"], marker_id=row["marker_id"], xy=row.get("xy"),
                           visible=row.get("visible"))
+
+
+def shard_margin_cells(meta: dict) -> int:
+    """The crosspoint crop margin (cells) a shard folder's shards.json says its crops were cut with
+    (2, the reference's, for folders written before the option)."""
+    return int(meta["synth"].get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
 
 
 def read_shard_meta(root: str | Path) -> dict:

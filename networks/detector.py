@@ -17,8 +17,8 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        garment's `tables`, their points are re-estimated from the fully visible neighbours on the
        pattern (`networks.homography.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
-    5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the reference texture of its ID ->
-       Crosspoint Localizer -> crop (x, y) mapped to image pixels through the inverse crop homography;
+    5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`; wider for a network trained so) and the
+       reference texture of its ID -> Crosspoint Localizer -> crop (x, y) mapped to image pixels through the inverse crop homography;
        visible = sigmoid > `visibility_threshold` and inside the image.
 
 All crops of one call go through the recognizer and crosspoint networks in batches of `batch_size`,
@@ -39,7 +39,6 @@ import torch
 from torch import nn
 
 from assets.pattern import (
-    CROSSPOINT_CROP,
     RECOGNIZER_CROP,
     CropSpec,
     MarkerTable,
@@ -405,13 +404,14 @@ class Detector:
         return ids, probability
 
     def references(self, marker_id: np.ndarray) -> np.ndarray:
-        """(N, 112, 112, 3) uint8 reference textures (`CROSSPOINT_CROP`) of the IDs, cached per ID."""
+        """(N, S, S, 3) uint8 reference textures of the IDs in the crosspoint network's crop
+        (`CROSSPOINT_CROP`, S = 112, unless it was trained with a wider margin), cached per ID."""
         marker_id = np.asarray(marker_id, dtype=np.int64)
         missing = np.array(sorted(set(marker_id.tolist()) - set(self._references)), dtype=np.int64)
         if len(missing):
-            textures = reference_textures(self.spec, self.codebook[missing], CROSSPOINT_CROP)
+            textures = reference_textures(self.spec, self.codebook[missing], self.crosspoints.crop)
             self._references.update(zip(missing.tolist(), textures))
-        size = CROSSPOINT_CROP.size_px
+        size = self.crosspoints.crop.size_px
         if len(marker_id) == 0:
             return np.zeros((0, size, size, 3), dtype=np.uint8)
         return np.stack([self._references[i] for i in marker_id.tolist()])
@@ -424,11 +424,11 @@ class Detector:
         visible = np.zeros((len(image_index), k, k), dtype=bool)
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):
-                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, CROSSPOINT_CROP)
+                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, self.crosspoints.crop)
                 output = self.crosspoints(self._to_device(crops), self._to_device(self.references(marker_id[part])))
                 output = output.float().cpu().numpy()
                 crop_xy = output[:, 1:].transpose(0, 2, 3, 1)
-                xy[part] = crop_to_image(self.spec, CROSSPOINT_CROP, points_px[part], crop_xy)
+                xy[part] = crop_to_image(self.spec, self.crosspoints.crop, points_px[part], crop_xy)
                 with np.errstate(over="ignore"):
                     visible[part] = 1.0 / (1.0 + np.exp(-output[:, 0])) > self.config.visibility_threshold
         for i in np.unique(image_index):

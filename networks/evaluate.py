@@ -36,8 +36,8 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from assets.fileio import load_npz, save_json
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
-from assets.pattern.observation import ImageGroundTruth, completed_points, crosspoint_markers
+from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_codebook, reference_textures
+from assets.pattern.observation import ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
 from networks.data import SHARD_META, ShardDataset
@@ -89,12 +89,12 @@ def split_entries(root: str | Path, split: str) -> list[dict]:
     return chosen
 
 
-def crosspoint_crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: np.ndarray, source: Path
-                           ) -> tuple[np.ndarray, np.ndarray]:
+def crosspoint_crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: np.ndarray, source: Path,
+                           crop: CropSpec = CROSSPOINT_CROP) -> tuple[np.ndarray, np.ndarray]:
     """Five image points and image crosspoints of each crosspoint crop, picked as
-    `assets.pattern.observation.crosspoint_crops` picks them (`crosspoint_markers`); `marker_id`: the
-    crops' IDs, checked against that pick (`source` names the ground truth in the error)."""
-    pick, _ = crosspoint_markers(gt, spec)
+    `assets.pattern.observation.crosspoint_crops` picks them in `crop` (`crosspoint_markers`);
+    `marker_id`: the crops' IDs, checked against that pick (`source` names the ground truth in the error)."""
+    pick, _ = crosspoint_markers(gt, spec, crop=crop)
     if not np.array_equal(gt.marker_id[pick], marker_id):
         raise ValueError(f"{source}: its markers do not match the crosspoint crops of the sample "
                          f"({len(pick)} usable markers, {len(marker_id)} crops); build samples/ again with "
@@ -103,11 +103,11 @@ def crosspoint_crop_points(gt: ImageGroundTruth, spec: PatternSpec, marker_id: n
 
 
 def crosspoint_arrays(spec: PatternSpec, codebook: np.ndarray, crops: np.ndarray, marker_id: np.ndarray,
-                      xy: np.ndarray, visible: np.ndarray) -> dict[str, np.ndarray]:
-    """A crosspoint crop set (`crosspoint_crops`' four arrays) as `crop_batches` takes it, with each
-    ID's reference texture."""
+                      xy: np.ndarray, visible: np.ndarray, crop: CropSpec = CROSSPOINT_CROP) -> dict[str, np.ndarray]:
+    """A crosspoint crop set (`crosspoint_crops`' four arrays, cut in `crop`) as `crop_batches` takes
+    it, with each ID's reference texture."""
     ids = np.asarray(marker_id, np.int64)
-    return {"crop": crops, "reference": reference_textures(spec, codebook[ids], CROSSPOINT_CROP),
+    return {"crop": crops, "reference": reference_textures(spec, codebook[ids], crop),
             "xy": np.asarray(xy, np.float32), "visible": np.asarray(visible, bool)}
 
 
@@ -123,14 +123,16 @@ def crop_batches(arrays: dict[str, np.ndarray], batch_size: int = 32) -> Iterato
         yield batch
 
 
-def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32
-                   ) -> Iterator[dict]:
+def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
+                   crop: CropSpec = CROSSPOINT_CROP) -> Iterator[dict]:
     """Batches of the split's samples as the datasets' items collated (`networks.tasks`), with the
     ground truth the metrics need beside them: localizer batches carry "gt_full" (per image (M,)
     bool, matching `cells_to_markers`) and "gt_ignore" (per image (L, 2) centres of the markers the
     image shows that are not targets: `localizer_metrics` counts a prediction on one as neither
     true nor false), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
-    (B, K, K, 2) image pixels when `gt/<name>.npz` exists.  Localizer batches hold one image each."""
+    (B, K, K, 2) image pixels when `gt/<name>.npz` exists.  Localizer batches hold one image each.
+    crop: the crosspoint crops' (a network's `crop`); other than the reference's, whose crops the
+    samples store, they are cut from the images with their ground truth (`crosspoint_crops`)."""
     root = Path(root)
     codebook = generate_codebook(spec) if task == "crosspoints" else None
     for entry in split_entries(root, split):
@@ -156,20 +158,37 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
         if task == "recognizer":
             arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
         else:
-            arrays = crosspoint_arrays(spec, codebook, samples["crosspoint_crops"], samples["crosspoint_ids"],
-                                       samples["crosspoint_xy"], samples["crosspoint_visible"])
+            if crop == CROSSPOINT_CROP:
+                made = tuple(samples[key] for key in SAMPLE_KEYS["crosspoints"])
+            elif gt is None:
+                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a {crop.size_px} x "
+                                 f"{crop.size_px} crosspoint crop is cut with (the samples store 112 x 112 ones)")
+            else:
+                made = crosspoint_crops(read_png(root / entry["image"]), gt, spec, crop)
+            arrays = crosspoint_arrays(spec, codebook, *made, crop=crop)
             if gt is not None:
-                arrays["points_px"], arrays["gt_xy_image"] = crosspoint_crop_points(
-                    gt, spec, samples["crosspoint_ids"], gt_path)
+                arrays["points_px"], arrays["gt_xy_image"] = crosspoint_crop_points(gt, spec, made[1], gt_path, crop)
         yield from crop_batches(arrays, batch_size)
 
 
-def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32) -> Iterable[dict]:
+def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
+                 crop: CropSpec = CROSSPOINT_CROP) -> Iterable[dict]:
     """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
-    is not used), or of a factory dataset's split (`folder_batches`)."""
+    is not used), or of a factory dataset's split (`folder_batches`); crop: the crosspoint crops' (a
+    shard folder's must be it)."""
     if (Path(data) / SHARD_META).is_file():
-        return DataLoader(ShardDataset(data, task, spec=spec), batch_size=batch_size)
-    return folder_batches(task, data, split, spec, batch_size)
+        shards = ShardDataset(data, task, spec=spec)
+        if task == "crosspoints" and shards.crosspoint_crop != crop:
+            raise ValueError(f"{data}: crosspoint crops of {shards.crosspoint_crop.size_px} px, but the network's "
+                             f"are {crop.size_px} px; write shards with --crosspoint-margin {crop.margin_cells:g}")
+        return DataLoader(shards, batch_size=batch_size)
+    return folder_batches(task, data, split, spec, batch_size, crop)
+
+
+def model_crop(model: nn.Module) -> CropSpec:
+    """The crosspoint crop a network (or its DDP wrapper) takes: a `CrosspointLocalizer`'s `crop`,
+    the reference's for the others."""
+    return getattr(getattr(model, "module", model), "crop", CROSSPOINT_CROP)
 
 
 # ---- running a model -------------------------------------------------------------------------------
@@ -184,8 +203,9 @@ def crosspoint_predictions(output: torch.Tensor, threshold: float = 0.5) -> tupl
 class _Results:
     """Accumulates one task's predictions, ground truth and loss over batches."""
 
-    def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float) -> None:
-        self.task, self.spec, self.radius_px, self.threshold = task, spec, radius_px, threshold
+    def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float,
+                 crop: CropSpec = CROSSPOINT_CROP) -> None:
+        self.task, self.spec, self.radius_px, self.threshold, self.crop = task, spec, radius_px, threshold, crop
         self.samples = 0
         self.loss: dict[str, float] = {}
         self.store: dict[str, list] = {}
@@ -214,7 +234,7 @@ class _Results:
                       gt_xy=batch["xy"].numpy())
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
-                self._add(pred_image=crop_to_image(self.spec, CROSSPOINT_CROP, points, pred_xy),
+                self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy),
                           gt_image=np.asarray(batch["gt_xy_image"]))
 
     def result(self) -> dict:
@@ -252,7 +272,7 @@ def evaluate_model(task: str, model: nn.Module, batches: Iterable[dict], device:
     device = torch.device(device)
     was_training = model.training
     model.eval()
-    results = _Results(task, spec, radius_px, threshold)
+    results = _Results(task, spec, radius_px, threshold, model_crop(model))
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):
@@ -274,7 +294,7 @@ def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task
     spec = checkpoint_spec(saved)
     if (Path(data) / "template.npz").is_file():
         check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
-    batches = data_batches(config.task, data, split, spec, batch_size)
+    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model))
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
     metrics = evaluate_model(config.task, model, batches, device, spec, config.mixed_precision, radius_px,

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, crosspoint_crop
 from networks.backbone import ResNet, load_pretrained, resnet18, resnet50
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -155,6 +155,10 @@ class CrosspointLocalizer(nn.Module):
       decoder ``decoder.up`` ConvTranspose2d(2048 -> 512, 2, stride 2) -> ReLU ->
       ``decoder.conv`` Conv2d(512 -> 64, 4, no padding) -> ReLU -> ``decoder.out`` Conv2d(64 -> 3, 1)
       sizes 112 -> 56 -> 28 (maxpool) -> 28 -> 28 -> 14 (layer4) -> 28 -> 25.
+    margin_cells (not the reference's, which is 2): the crop `assets.pattern.crosspoint_crop` with
+    that margin (4 -> 128 x 128); its up-convolved features (one per 4 px) lose the extra cells on
+    every side before ``decoder.conv``, so the output is still K x K and each output's 4 x 4 window
+    is centred on its crosspoint as in the reference.  The weights are the same either way.
     ``decoder.out`` starts at zero (visibility 0.5, every crosspoint at its canonical position).
     ``fuse`` starts as the identity on the crop's features and zero on the reference's, so the
     pretrained layers first see what ImageNet trained them on; with `pretrained` the reference stem
@@ -168,10 +172,15 @@ class CrosspointLocalizer(nn.Module):
     fronto-parallel marker).
     """
 
-    def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25) -> None:
+    def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25,
+                 margin_cells: int = 2) -> None:
         super().__init__()
         k = crosspoints_per_side
-        size = CROSSPOINT_CROP.size_px // 4  # feature size after the decoder's up-convolution
+        self.crop = crosspoint_crop(margin_cells)
+        # feature cells (4 px each) beyond the reference crop's on every side, cut off before the
+        # decoder's convolution so its window stays centred on each crosspoint
+        self.trim = (self.crop.size_px - CROSSPOINT_CROP.size_px) // 8
+        size = CROSSPOINT_CROP.size_px // 4  # feature size after the decoder's up-convolution and the trim
         if not 1 <= k <= size:
             raise ValueError(f"CrosspointLocalizer: crosspoints_per_side must be in 1..{size}, got {k}")
         self.crosspoints_per_side = k
@@ -199,23 +208,27 @@ class CrosspointLocalizer(nn.Module):
         nn.init.zeros_(self.decoder.out.weight)
         nn.init.zeros_(self.decoder.out.bias)
         spec = PatternSpec(crosspoints_per_side=k)
-        canonical = torch.as_tensor(crop_crosspoints_px(spec, CROSSPOINT_CROP), dtype=torch.float32)
+        canonical = torch.as_tensor(crop_crosspoints_px(spec, self.crop), dtype=torch.float32)
         self.register_buffer("canonical_px", canonical.permute(2, 0, 1).contiguous(), persistent=False)
 
     def forward(self, crop: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-        size = CROSSPOINT_CROP.size_px
+        size = self.crop.size_px
         for name, x in (("crop", crop), ("reference", reference)):
             _check_images(x, f"CrosspointLocalizer {name}")
             if tuple(x.shape[2:]) != (size, size):
                 raise ValueError(f"CrosspointLocalizer {name}: expected {size} x {size} crops "
-                                 f"(assets.pattern.CROSSPOINT_CROP), got {x.shape[2]} x {x.shape[3]}; the decoder "
-                                 f"yields {self.crosspoints_per_side} x {self.crosspoints_per_side} only from that size")
+                                 f"(assets.pattern.crosspoint_crop({self.crop.margin_cells:g})), got {x.shape[2]} x "
+                                 f"{x.shape[3]}; the decoder yields {self.crosspoints_per_side} x "
+                                 f"{self.crosspoints_per_side} only from that size")
         if crop.shape[0] != reference.shape[0]:
             raise ValueError(f"CrosspointLocalizer: {crop.shape[0]} crops but {reference.shape[0]} references")
         image = self.backbone.stem(crop)
         ref = F.relu(self.reference_bn(self.reference_conv(reference)))
         fused = F.relu(self.fuse(torch.cat([image, ref], dim=1)))
-        out = self.decoder(self.backbone.stages(fused))
+        features = self.decoder.relu1(self.decoder.up(self.backbone.stages(fused)))
+        if self.trim:
+            features = features[:, :, self.trim:-self.trim, self.trim:-self.trim]
+        out = self.decoder.out(self.decoder.relu2(self.decoder.conv(features)))
         return torch.cat([out[:, :1], out[:, 1:] + self.canonical_px], dim=1)
 
 

@@ -201,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     write.add_argument("--whole-markers-only", action="store_true", help="recognizer: crops of whole markers only, "
                        "the reference's (default: partial markers with a visible centre too; "
                        "SynthConfig.recognizer_partial)")
+    write.add_argument("--crosspoint-margin", type=int, metavar="CELLS", help="crosspoints: the crops' margin "
+                       "around the marker (SynthConfig.crosspoint_margin_cells; default 2, the reference's 112 px "
+                       "crop; 4: 128 px)")
     write.add_argument("--images-per-part", type=int, default=64)
     write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
     write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
@@ -218,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(crop_jitter_px=args.crop_jitter)
         if args.whole_markers_only:
             config = config.replace(recognizer_partial=False)
+        if args.crosspoint_margin is not None:
+            config = config.replace(crosspoint_margin_cells=args.crosspoint_margin)
         if args.pattern is not None:
             spec = PatternSpec.load(args.pattern)
         else:

@@ -55,6 +55,7 @@ import numpy as np
 from assets.fileio import check_json_object
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
+from assets.pattern.crops import crosspoint_crop
 from assets.pattern.observation import ImageGroundTruth
 from assets.pattern.raster import render_grid_view
 from assets.pattern.spec import PatternSpec
@@ -89,6 +90,8 @@ class SynthConfig:
     points, the reference's crops).  recognizer_partial: recognizer crops of partial markers with a
     visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones
     (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).
+    crosspoint_margin_cells: the crosspoint crops' margin around the marker, cells
+    (`assets.pattern.crosspoint_crop`; 2: the reference's 112 x 112; `TrainConfig.crosspoint_margin_cells`).
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -120,12 +123,17 @@ class SynthConfig:
     seed: int = 0
     crop_jitter_px: float = 0.0
     recognizer_partial: bool = True
+    crosspoint_margin_cells: int = 2
 
     def __post_init__(self) -> None:
         w, h = self.image_size
         problems = []
         if not self.crop_jitter_px >= 0:
             problems.append(f"crop_jitter_px must be >= 0, got {self.crop_jitter_px}")
+        try:
+            crosspoint_crop(self.crosspoint_margin_cells)
+        except ValueError as exc:
+            problems.append(f"crosspoint_margin_cells: {exc}")
         if w < 8 or h < 8 or w % 8 or h % 8:
             problems.append(f"image_size must be multiples of 8, got {self.image_size}")
         if not 0 < self.marker_px[0] <= self.marker_px[1]:

@@ -35,14 +35,17 @@ BATCH_KEYS = {
 }
 
 
-def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None) -> nn.Module:
-    """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file."""
+def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None,
+                crosspoint_margin_cells: int = 2) -> nn.Module:
+    """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file;
+    crosspoint_margin_cells: the crosspoint network's crop margin (`TrainConfig.crosspoint_margin_cells`)."""
     if task == "localizer":
         return MarkerLocalizer(pretrained=pretrained)
     if task == "recognizer":
         return MarkerRecognizer(num_ids, pretrained=pretrained)
     if task == "crosspoints":
-        return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side)
+        return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side,
+                                   margin_cells=crosspoint_margin_cells)
     raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
 
 

@@ -35,6 +35,21 @@ def test_by_ring_takes_the_visible_crosspoints_of_each_ring(bench):
     assert [r["median"] for r in rows] == [1.0, 0.0, 3.0]
 
 
+def test_by_ring_and_displacement_bins_each_visible_crosspoint_once(bench):
+    errors = np.zeros((1, 25, 25))
+    errors[0][bench.rings(25) == 0] = 2.0
+    displacement = np.full((1, 25, 25), 0.7)
+    displacement[0, 12, 12] = 9.0  # the centre: the last bin
+    visible = np.ones((1, 25, 25), bool)
+    visible[0, 0, 0] = False
+    grid = bench.by_ring_and_displacement(errors, visible, displacement)
+    assert [row["rings"] for row in grid] == [list(g) for g in bench.RING_GROUPS]
+    counts = [[b["crosspoints"] for b in row["bins"]] for row in grid]
+    assert sum(map(sum, counts)) == 624 and counts[0] == [0, 95, 0, 0, 0] and counts[3][-1] == 1
+    assert grid[0]["bins"][1]["median"] == 2.0 and grid[1]["bins"][1]["median"] == 0.0
+    assert grid[0]["bins"][0]["median"] is None
+
+
 def test_an_untrained_network_on_a_shard_folder(bench, tmp_path, capsys):
     spec = PatternSpec(rows=2, cols=2, num_ids=64)
     write_shards(tmp_path / "xp", "crosspoints", spec, count=1, config=SynthConfig(image_size=(96, 96),
@@ -42,7 +57,10 @@ def test_an_untrained_network_on_a_shard_folder(bench, tmp_path, capsys):
     torch.manual_seed(0)
     path = save_checkpoint(tmp_path / "xp.pt", "crosspoints", build_model("crosspoints", spec.num_ids),
                            TrainConfig("crosspoints"), spec)
-    errors, visible = bench.crop_errors(path, tmp_path / "xp", device="cpu")
-    assert errors.shape[1:] == visible.shape[1:] == (25, 25) and visible.any()
+    errors, visible, displacement = bench.crop_errors(path, tmp_path / "xp", device="cpu")
+    assert errors.shape[1:] == visible.shape[1:] == displacement.shape[1:] == (25, 25) and visible.any()
+    # an untrained network answers near the canonical positions: its error is about the displacement
+    assert np.median(np.abs(errors - displacement)[visible]) < 0.5
     assert bench.main(["--checkpoint", str(path), "--data", str(tmp_path / "xp"), "--device", "cpu"]) == 0
-    assert "| 12 |" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "| 12 |" in printed and "| 6-12 |" in printed

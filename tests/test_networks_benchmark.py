@@ -195,7 +195,8 @@ def test_a_shrunk_localizer_run_is_chained_in_place_of_the_main_one(bench, tmp_p
     trained.parent.mkdir(parents=True)
     shutil.copy(init_folder / "localizer_mix.pt", trained)
     label = "localizer_22px in place of localizer_mix"
-    assert bench.shrunk_localizers(tmp_path) == {label: trained}
+    paths = bench.main_checkpoints(tmp_path, init)
+    assert bench.stand_ins(tmp_path, paths) == {label: [trained, *paths[1:]]}
     view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
     extra = bench.evaluate_extra(tmp_path, view, "cpu", init, smoke=True)
     shrunk = [key for key in extra["detector"] if key.startswith(label + ", scale auto (")]
@@ -237,3 +238,41 @@ def test_the_upright_localizer_run_draws_its_own_shards_with_markers_near_uprigh
     assert set(written) == {"localizer_upright"}
     assert json.loads((tmp_path / "shards" / "localizer_upright" / "shards.json").read_text()
                       )["synth"]["upright_probability"] == 1.0
+
+
+def test_the_wider_crop_crosspoint_run_trains_measures_and_chains_in_its_own_crop(bench, tmp_path, garment_dataset,
+                                                                                  init_folder):
+    """crosspoints_margin4: its config, shards and held-out shards have the 4-cell margin; it starts
+    from the reference-crop network (whose held-out samples measure that --init), and stands in for
+    the main crosspoint run in a chain."""
+    import torch
+    from networks.checkpoint import read_checkpoint
+
+    assert bench.run_config("crosspoints_margin4", 1, 2, {}).crosspoint_margin_cells == 4
+    assert bench.run_config("crosspoints_jitter", 1, 2, {}).crosspoint_margin_cells == 2
+    assert bench.run_config("localizer_mix", 1, 2, {}).crosspoint_margin_cells == 2
+    assert bench.shard_config("crosspoints_margin4").crosspoint_margin_cells == 4
+    assert bench.shard_config("crosspoints_margin4").crop_jitter_px == bench.CROP_JITTER_PX
+    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["crosspoints_jitter", "crosspoints_margin4"])
+    assert json.loads((folders["crosspoints_margin4"] / "shards.json").read_text()
+                      )["synth"]["crosspoint_margin_cells"] == 4
+    # the run's last.pt: the reference-crop network's weights in the wider network
+    saved = read_checkpoint(init_folder / "crosspoints_jitter.pt")
+    saved["config"] = {**saved["config"], "crosspoint_margin_cells": 4}
+    trained = tmp_path / "crosspoints_margin4" / "run" / "last.pt"
+    trained.parent.mkdir(parents=True)
+    torch.save(saved, trained)
+    init = {**bench.init_weights(init_folder), "crosspoints_margin4": str(init_folder / "crosspoints_jitter.pt")}
+    measured = bench.evaluate_synthesized(tmp_path, {k: v for k, v in folders.items()}, "cpu",
+                                          {k: v for k, v in init.items() if k.startswith("crosspoints")})
+    assert set(measured) == {"crosspoints_margin4", "crosspoints_jitter, its --init",
+                             "crosspoints_margin4, its --init (on crosspoints_jitter's samples)"}
+    assert measured["crosspoints_margin4, its --init (on crosspoints_jitter's samples)"]["crop_error_px"] == \
+        measured["crosspoints_jitter, its --init"]["crop_error_px"]
+    paths = bench.main_checkpoints(tmp_path, init)
+    label = "crosspoints_margin4 in place of crosspoints_jitter"
+    assert bench.stand_ins(tmp_path, paths) == {label: [*paths[:2], trained]}
+    view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
+    chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
+    # a Detector that cut 112 px crops for it would stop at the network's size check
+    assert chains[label]["images"] == 3 and chains["defaults"]["images"] == 3

@@ -227,35 +227,36 @@ def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec,
 
 
 def crosspoint_crops(
-    image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec
+    image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Crosspoint localizer samples for the markers of `crosspoint_markers`.
 
-    Returns crops (N, 112, 112, C) of the image's dtype (`CROSSPOINT_CROP`), marker IDs (N,) int32,
-    xy (N, K, K, 2) float32 crosspoint positions in crop pixels (the crop's homography applied to
-    the projected crosspoints; NaN off the fabric) and visible (N, K, K) bool: the crosspoint is
-    visible in the image and its xy lies in the crop, [0, 112] x [0, 112] (a visible crosspoint of
-    a curved marker can fall outside; the network cannot see it there)."""
+    Returns crops (N, S, S, C) of the image's dtype (`crop`: the reference's `CROSSPOINT_CROP`, S =
+    112, or a wider `crosspoint_crop`), marker IDs (N,) int32, xy (N, K, K, 2) float32 crosspoint
+    positions in crop pixels (the crop's homography applied to the projected crosspoints; NaN off
+    the fabric) and visible (N, K, K) bool: the crosspoint is visible in the image and its xy lies
+    in the crop, [0, S] x [0, S] (a visible crosspoint of a curved marker can fall outside; the
+    network cannot see it there)."""
     image = _image(image, gt)
     if gt.crosspoints_px.shape[1] != spec.crosspoints_per_side:
         raise ValueError(f"spec has {spec.crosspoints_per_side} crosspoints per side, the ground truth "
                          f"{gt.crosspoints_px.shape[1]}")
     completed = completed_points(gt)
-    pick, homography = crosspoint_markers(gt, spec, completed=completed)
-    crops = _unwarp(image, spec, CROSSPOINT_CROP, completed[pick])
+    pick, homography = crosspoint_markers(gt, spec, completed=completed, crop=crop)
+    crops = _unwarp(image, spec, crop, completed[pick])
     k = spec.crosspoints_per_side
     projected = gt.crosspoints_px[pick].astype(np.float64).reshape(len(pick), k * k, 2)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         xy = apply_homography(homography, projected).reshape(-1, k, k, 2)
-        inside = ((xy >= 0) & (xy <= CROSSPOINT_CROP.size_px)).all(axis=-1)
+        inside = ((xy >= 0) & (xy <= crop.size_px)).all(axis=-1)
     return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick] & inside
 
 
 def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: float = MAX_CROP_FIT_CELLS,
-                       completed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       completed: np.ndarray | None = None, crop: CropSpec = CROSSPOINT_CROP
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """The markers that get a crosspoint crop: (indices (N,) int64 into `gt`, their crop homographies
-    (N, 3, 3) float64 image -> `CROSSPOINT_CROP` pixels, `crop_homography` of their five
-    `completed_points`).
+    (N, 3, 3) float64 image -> `crop` pixels, `crop_homography` of their five `completed_points`).
 
     A marker qualifies when its status is > 0, its five localization points are known (on the
     fabric, or off it and completed from its crosspoints: a marker cut by the garment's edge) and in
@@ -272,8 +273,8 @@ def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: f
         return pick, np.zeros((0, 3, 3))
     points = completed[pick].astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        homography = crop_homography(spec, CROSSPOINT_CROP, points)
-    sane = sane_crop_homography(spec, CROSSPOINT_CROP, points, homography, max_fit_cells)
+        homography = crop_homography(spec, crop, points)
+    sane = sane_crop_homography(spec, crop, points, homography, max_fit_cells)
     return pick[sane], homography[sane]
 
 

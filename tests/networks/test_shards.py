@@ -116,3 +116,17 @@ def test_time_limit_stops_submitting_parts_that_would_end_after_it(tmp_path):
                                                                                                    None, 0.0)
     rest = write_shards(out, "localizer", SPEC, count=8, config=CONFIG, workers=2, images_per_part=2, progress=False)
     assert (rest["written_parts"], rest["complete"]) == (3, True)
+
+
+def test_cli_writes_crosspoint_crops_with_a_wider_margin(tmp_path):
+    """--crosspoint-margin 4: shards.json records it and the crops are 128 x 128, read back so."""
+    pattern = tmp_path / "pattern.json"
+    SPEC.save(pattern)
+    out = tmp_path / "wide"
+    assert main(["write", "--out", str(out), "--task", "crosspoints", "--count", "2", "--pattern", str(pattern),
+                 "--image-size", "128", "--images-per-part", "2", "--crosspoint-margin", "4", "--quiet"]) == 0
+    assert read_shard_meta(out)["synth"]["crosspoint_margin_cells"] == 4
+    stored = ShardDataset(out, "crosspoints")
+    assert len(stored) > 0 and stored[0]["crop"].shape == stored[0]["reference"].shape == (3, 128, 128)
+    assert main(["write", "--out", str(tmp_path / "bad"), "--task", "crosspoints", "--count", "1",
+                 "--pattern", str(pattern), "--crosspoint-margin", "1", "--quiet"]) != 0
