@@ -43,6 +43,56 @@ def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop
     return apply_homography(to_image, crop_xy.reshape(n, -1, 2)).reshape(crop_xy.shape)
 
 
+#: `smooth_crosspoints`: the polynomial's degree (3 measured best on exact synthesized and rendered crops:
+#: 2 cannot follow the renders' folds, 4 and more follow the network's noise) and the fewest visible
+#: crosspoints, per coefficient, that a marker's fit needs
+SMOOTH_DEGREE, SMOOTH_POINTS_PER_TERM = 3, 3
+
+
+def smooth_crosspoints(crop_xy: np.ndarray, visible: np.ndarray, tolerance_px: float, degree: int = SMOOTH_DEGREE
+                       ) -> np.ndarray:
+    """Each marker's visible crosspoints moved onto a smooth field fitted to them, where they lie near it.
+
+    crop_xy (N, K, K, 2) crop pixels, visible (N, K, K) bool.  Per marker, a polynomial of `degree` in
+    the grid position (row, column) is fitted by least squares to its visible crosspoints, once more
+    without those further than `tolerance_px` from the first fit; a visible crosspoint within
+    `tolerance_px` of the second fit takes its value, the others (a fold the polynomial cannot follow,
+    a wrong prediction) keep their own.  Cloth is smooth across one marker, the network's errors are
+    not: the fit averages them out.  A marker with fewer than `SMOOTH_POINTS_PER_TERM` visible
+    crosspoints per coefficient is left as it is, as are hidden crosspoints.  Returns a new array."""
+    crop_xy = np.asarray(crop_xy, dtype=np.float64)
+    visible = np.asarray(visible, dtype=bool)
+    if crop_xy.ndim != 4 or crop_xy.shape[1] != crop_xy.shape[2] or crop_xy.shape[-1] != 2 \
+            or visible.shape != crop_xy.shape[:3]:
+        raise ValueError(f"smooth_crosspoints: crop_xy must be (N, K, K, 2) and visible (N, K, K), got "
+                         f"{crop_xy.shape} and {visible.shape}")
+    if not tolerance_px > 0 or degree < 1:
+        raise ValueError(f"smooth_crosspoints: tolerance_px must be > 0 and degree >= 1, got {tolerance_px}, {degree}")
+    n, k = crop_xy.shape[:2]
+    grid = np.linspace(-1.0, 1.0, k)
+    row, col = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    terms = np.stack([col ** i * row ** j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=1)  # (P, T)
+    points = np.where(visible[..., None], crop_xy, 0.0).reshape(n, k * k, 2)
+    weight = visible.reshape(n, k * k).astype(np.float64)
+    enough = weight.sum(axis=1) >= SMOOTH_POINTS_PER_TERM * terms.shape[1]
+
+    def fit(w: np.ndarray) -> np.ndarray:
+        normal = np.einsum("np,pi,pj->nij", w, terms, terms)
+        normal += np.eye(terms.shape[1]) * 1e-9 * np.trace(normal, axis1=1, axis2=2)[:, None, None].clip(min=1.0)
+        coef = np.linalg.solve(normal, np.einsum("np,pi,npc->nic", w, terms, points))
+        return np.einsum("pi,nic->npc", terms, coef)
+
+    out = crop_xy.reshape(n, k * k, 2).copy()
+    if not enough.any():
+        return out.reshape(crop_xy.shape)
+    fitted = fit(weight)
+    near = (np.linalg.norm(points - fitted, axis=-1) <= tolerance_px) & (weight > 0)
+    fitted = fit(np.where(near.sum(axis=1, keepdims=True) >= SMOOTH_POINTS_PER_TERM * terms.shape[1], near, weight))
+    move = (np.linalg.norm(points - fitted, axis=-1) <= tolerance_px) & (weight > 0) & enough[:, None]
+    out[move] = fitted[move]
+    return out.reshape(crop_xy.shape)
+
+
 def canonical_layout(spec: PatternSpec) -> np.ndarray:
     """(5, 2) float64: the five localization points in the marker's own frame, in cells (x=col, y=row)."""
     return localization_rc(spec)[:, ::-1].astype(np.float64)

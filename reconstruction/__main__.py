@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--grow-rounds", type=int, default=1, metavar="N",
                        help="networks mode: rounds of growth, each later one from the markers placed before "
                        "(default %(default)s)")
+        p.add_argument("--smooth-crosspoints", type=float, metavar="PX",
+                       help="networks mode: move each marker's visible crosspoints within this many crop pixels "
+                       "of a cubic field fitted to them onto it (default: off, the networks' raw outputs; e.g. 0.5)")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")
@@ -122,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
                                             checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
                                             initial_shape=str(Path(initial).resolve()) if initial else "",
                                             localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
-                                            grow_rounds=args.grow_rounds)
+                                            grow_rounds=args.grow_rounds,
+                                            smooth_crosspoints_px=args.smooth_crosspoints)
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")

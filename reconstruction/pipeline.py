@@ -57,7 +57,8 @@ class RunSettings:
     64 px across; None, the default: chosen per view); grow_missing: networks mode,
     `networks.DetectorConfig.grow_missing` (the markers the localizer missed next to fully observed
     ones are added); grow_rounds: networks mode,
-    `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before)."""
+    `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before);
+    smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off)."""
 
     template: str
     level_mm: int = 12
@@ -70,6 +71,7 @@ class RunSettings:
     localizer_scale: float | None = None
     grow_missing: bool = True
     grow_rounds: int = 1
+    smooth_crosspoints_px: float | None = None
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -84,6 +86,9 @@ class RunSettings:
             raise ValueError(f"localizer_scale must be in (0, 4] or None (chosen per view), got {self.localizer_scale}")
         if self.initial_shape and not Path(self.initial_shape).is_file():
             raise ValueError(f"initial shape {self.initial_shape}: no such file")
+        if self.smooth_crosspoints_px is not None and not 0 < self.smooth_crosspoints_px <= 8:
+            raise ValueError(f"smooth_crosspoints_px must be in (0, 8] crop pixels or None, got "
+                             f"{self.smooth_crosspoints_px}")
 
     @property
     def source(self) -> str:
@@ -180,10 +185,10 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
                 continue
             if detector is None:  # the garment's tables: its IDs only, and cut markers from their neighbours
                 tables = load_template(settings.template).layout.tables()
-                detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables,
-                                                     config=DetectorConfig(localizer_scale=settings.localizer_scale,
-                                                                           grow_missing=settings.grow_missing,
-                                                                           grow_rounds=settings.grow_rounds))
+                config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
+                                        grow_rounds=settings.grow_rounds,
+                                        smooth_crosspoints_px=settings.smooth_crosspoints_px)
+                detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables, config=config)
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))
     save_json(out / "detections" / "cameras.json", {"cameras": [c.to_dict() for c in cameras]})

@@ -37,6 +37,7 @@ from networks.homography import (
     points_from_crosspoints,
     vote_ids,
 )
+from networks import homography as homography_module
 from networks.models import CrosspointLocalizer, MarkerLocalizer, MarkerRecognizer
 
 #: 64 IDs keep the codebook fast; 2 x 3 markers with IDs from 7 and an off-zero origin
@@ -119,6 +120,37 @@ def test_layout_checks_tell_full_markers_from_cut_ones(scene):
     degenerate[1] = points[1, :1]  # all five points at the centre
     degenerate[3, 2] = np.nan
     assert usable_points(SPEC, degenerate).tolist() == [True, False, True, False, True, True]
+
+
+def test_smoothing_averages_noise_out_of_a_smooth_field_and_keeps_what_it_cannot_follow():
+    """A smooth (cubic) crosspoint field with noise: the smoothed field is nearer the truth; a fold (a
+    crosspoint 3 px off the field) keeps its own value; hidden crosspoints and markers with too few
+    visible ones are untouched."""
+    rng = np.random.default_rng(5)
+    k = 25
+    row, col = np.meshgrid(np.linspace(-1, 1, k), np.linspace(-1, 1, k), indexing="ij")
+    truth = np.stack([8 + 96 * (col + 1) / 2 + 1.5 * col * row ** 2 - 0.8 * col ** 3,
+                      8 + 96 * (row + 1) / 2 + 1.2 * row * col + 0.6 * row ** 3], axis=-1)
+    truth = np.broadcast_to(truth, (3, k, k, 2)).copy()
+    predicted = truth + rng.normal(0.0, 0.3, truth.shape)
+    predicted[0, 10, 10] += [3.0, 0.0]  # a fold the network saw
+    visible = np.ones((3, k, k), bool)
+    visible[0, :, 20:] = False  # part of the first marker hidden
+    visible[2] = False
+    visible[2, :2, :3] = True  # six visible: too few for ten coefficients
+    smoothed = homography_module.smooth_crosspoints(predicted, visible, 1.0)
+    error = np.linalg.norm(smoothed - truth, axis=-1)
+    before = np.linalg.norm(predicted - truth, axis=-1)
+    seen = visible[:2].copy()
+    seen[0, 10, 10] = False
+    assert np.median(error[:2][seen]) < 0.5 * np.median(before[:2][seen])
+    assert np.array_equal(smoothed[0, 10, 10], predicted[0, 10, 10])  # the fold is kept
+    assert np.array_equal(smoothed[~visible], predicted[~visible])  # hidden ones untouched
+    assert np.array_equal(smoothed[2], predicted[2])  # too few to fit
+    with pytest.raises(ValueError, match="tolerance_px must be > 0"):
+        homography_module.smooth_crosspoints(predicted, visible, 0.0)
+    with pytest.raises(ValueError, match="must be in \\(0, 8\\]"):
+        DetectorConfig(smooth_crosspoints_px=0.0)
 
 
 def test_masked_homography_fit_ignores_masked_points():
@@ -390,6 +422,31 @@ def test_a_wider_crop_network_gets_its_crops_and_maps_its_output_back(codebook, 
     m = len(points)
     xy, _ = detector.locate_crosspoints([image], np.zeros(m, np.int64), points, table.marker_ids)
     assert np.abs(xy - crosspoints).max() < 1e-3
+
+
+def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, scene):
+    """smooth_crosspoints_px: the same markers and visibility, the visible crosspoints moved (a
+    crosspoint network with a noisy last layer), the hidden ones not."""
+    image = [np.ascontiguousarray(scene[0][200:296, 200:328])]
+    localizer, recognizer, crosspoints = _networks(0)
+    with torch.no_grad():
+        crosspoints.decoder.out.weight.normal_(0.0, 0.02)
+    made = {}
+    for smooth in (None, 0.5):
+        config = DetectorConfig(nms_radius_px=40.0, localizer_scale=1.0, smooth_crosspoints_px=smooth)
+        made[smooth] = Detector(localizer, recognizer, crosspoints, SPEC, tables=[table], config=config,
+                                codebook=codebook)(image)[0]
+    raw, smoothed = made[None], made[0.5]
+    assert np.array_equal(raw.marker_id, smoothed.marker_id) and np.array_equal(raw.points_px, smoothed.points_px)
+    # visibility may change only at the image's edge, which a moved crosspoint can cross
+    height, width = image[0].shape[:2]
+    xy = raw.crosspoints_px
+    at_edge = (xy < 2).any(axis=-1) | (xy[..., 0] > width - 2) | (xy[..., 1] > height - 2)
+    assert np.array_equal(raw.crosspoint_visible[~at_edge], smoothed.crosspoint_visible[~at_edge])
+    seen = raw.crosspoint_visible & smoothed.crosspoint_visible
+    hidden = ~raw.crosspoint_visible & ~smoothed.crosspoint_visible & ~at_edge
+    moved = np.linalg.norm(smoothed.crosspoints_px - raw.crosspoints_px, axis=-1)
+    assert seen.sum() > 100 and (moved[seen] > 1e-3).mean() > 0.2 and np.allclose(moved[hidden], 0.0)
 
 
 def test_later_rounds_of_growth_only_add_markers(detector, scene):
