@@ -307,11 +307,11 @@ class RenderedDataset(_Items, Dataset):
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
             one = arrays["gt"].select(np.array([crop]))
-            made = ((),)
+            made = None
             if self.crop_jitter_px > 0:
                 made = crosspoint_crops(arrays["image"], one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
                                         self.spec, self.crosspoint_crop)
-            if not len(made[0]):  # unjittered, or the jittered fit fails the crop-sanity test: the true points
+            if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the crop-sanity test
                 made = crosspoint_crops(arrays["image"], one, self.spec, self.crosspoint_crop)
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
