@@ -113,8 +113,9 @@ LR, WARMUP = 3e-4, 300
 #: per task, the peak learning rate of a run that starts from a trained checkpoint (`--init`; other
 #: tasks: LR, at which the recognizer and crosspoint network gained in every such run).  From the
 #: eleventh localizer (its last phase on renders alone), the thirteenth run at LR lost recall on the
-#: held-out renders (0.978 -> 0.950) and the fifteenth at this rate less (0.970): not the rate but,
-#: most likely, the synthetic half of the data moved it (its recall on synthesized samples rose 0.76 -> 0.91)
+#: held-out renders (0.978 -> 0.950) and the fifteenth at this rate less (0.970): not the rate alone.
+#: The sixteenth, on the renders alone at this rate, still moved its corners (0.51-0.54 -> 0.53-0.58 px):
+#: restarting a converged localizer's schedule costs them whatever the data; the synthetic half adds to it
 INIT_LR = {"localizer": 5e-5}
 #: side of the localizer's training images (rendered ones are cut to it), pixels
 IMAGE_SIZE = 256
