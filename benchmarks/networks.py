@@ -539,7 +539,8 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     """`networks.evaluate_detector` of the three main runs chained (`main_checkpoints`), on the held-out
     renders, with the
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
-    baseline of that step); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
+    baseline of that step); without crosspoint smoothing (`DetectorConfig.smooth_crosspoints_px`, the
+    network's raw outputs); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
     before; and with the comparison runs on exact crops, and the localizers trained on shrunk images
     and the crosspoint runs with a wider crop (`stand_ins`), in place of the main runs, where they exist;
     keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
@@ -548,6 +549,7 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     chains = {"defaults": (paths, {})}
     if variants:
         chains.update({"no ID votes": (paths, {"vote_ids": False}),
+                       "no crosspoint smoothing": (paths, {"smooth_crosspoints_px": None}),
                        "cut above 1 cell": (paths, {"max_layout_residual_cells": 1.0})})
         exact = [out / name / "run" / "last.pt" for name in ("recognizer", "crosspoints")]
         if exact[0].exists():

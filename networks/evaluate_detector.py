@@ -144,9 +144,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grow-rounds", type=int, default=defaults.grow_rounds, metavar="N",
                         help="rounds of growth, each later one also from the markers placed before "
                              "(default %(default)s)")
-    parser.add_argument("--smooth-crosspoints", type=float, metavar="PX",
+    parser.add_argument("--smooth-crosspoints", type=float, default=defaults.smooth_crosspoints_px, metavar="PX",
                         help="move each marker's visible crosspoints within this many crop pixels of a cubic field "
-                             "fitted to them onto it (DetectorConfig.smooth_crosspoints_px; default: off, e.g. 0.5)")
+                             "fitted to them onto it (DetectorConfig.smooth_crosspoints_px; default %(default)s)")
+    parser.add_argument("--no-smooth-crosspoints", action="store_true",
+                        help="the crosspoint network's raw outputs, unsmoothed (the reference's)")
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -164,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
                                                 max_layout_residual_cells=args.max_layout_residual,
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
                                                 grow_rounds=args.grow_rounds,
-                                                smooth_crosspoints_px=args.smooth_crosspoints),
+                                                smooth_crosspoints_px=None if args.no_smooth_crosspoints
+                                                else args.smooth_crosspoints),
                                  args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),

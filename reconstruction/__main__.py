@@ -64,9 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--grow-rounds", type=int, default=1, metavar="N",
                        help="networks mode: rounds of growth, each later one from the markers placed before "
                        "(default %(default)s)")
-        p.add_argument("--smooth-crosspoints", type=float, metavar="PX",
+        p.add_argument("--smooth-crosspoints", type=float, default=0.5, metavar="PX",
                        help="networks mode: move each marker's visible crosspoints within this many crop pixels "
-                       "of a cubic field fitted to them onto it (default: off, the networks' raw outputs; e.g. 0.5)")
+                       "of a cubic field fitted to them onto it (default %(default)s)")
+        p.add_argument("--no-smooth-crosspoints", action="store_true",
+                       help="networks mode: the crosspoint network's raw outputs, unsmoothed (the reference's)")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")
@@ -126,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
                                             initial_shape=str(Path(initial).resolve()) if initial else "",
                                             localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
                                             grow_rounds=args.grow_rounds,
-                                            smooth_crosspoints_px=args.smooth_crosspoints)
+                                            smooth_crosspoints_px=None if args.no_smooth_crosspoints
+                                            else args.smooth_crosspoints)
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")

@@ -71,7 +71,7 @@ class RunSettings:
     localizer_scale: float | None = None
     grow_missing: bool = True
     grow_rounds: int = 1
-    smooth_crosspoints_px: float | None = None
+    smooth_crosspoints_px: float | None = 0.5
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -104,8 +104,9 @@ class RunSettings:
 
 
 #: what a folder written before a setting existed was made with, where that is not the setting's
-#: default (otherwise the default): detections before the Detector grew missed markers had none
-BEFORE = {"grow_missing": False}
+#: default (otherwise the default): detections before the Detector grew missed markers had none, and
+#: before it smoothed crosspoints they were the network's raw outputs
+BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None}
 
 
 def start(out: str | Path, settings: RunSettings) -> Path:

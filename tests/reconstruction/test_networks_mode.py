@@ -45,6 +45,7 @@ def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capt
     assert json.loads((out / "run.json").read_text())["localizer_scale"] == 0.25
     assert json.loads((out / "run.json").read_text())["grow_missing"] is True  # the default; --no-grow: False
     assert json.loads((out / "run.json").read_text())["grow_rounds"] == 2
+    assert json.loads((out / "run.json").read_text())["smooth_crosspoints_px"] == 0.5  # the default
     cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
     found = []
     for camera in cameras:
@@ -102,3 +103,29 @@ def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
     pipeline.start(older, plain)
     with pytest.raises(ValueError, match="grow_missing"):
         pipeline.start(older, grown)
+
+
+def test_crosspoint_smoothing_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
+    """The default 0.5 px and --no-smooth-crosspoints (None) go to run.json; a folder made before the
+    setting existed holds raw outputs, so a default run there is refused."""
+    from reconstruction import pipeline
+    from reconstruction.__main__ import build_parser
+
+    args = build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
+                                      "--no-smooth-crosspoints"])
+    assert args.no_smooth_crosspoints and args.smooth_crosspoints == 0.5
+    checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
+    smoothed = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
+    raw = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, smooth_crosspoints_px=None)
+    assert smoothed.smooth_crosspoints_px == 0.5
+    with pytest.raises(ValueError, match="smooth_crosspoints_px must be in"):
+        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, smooth_crosspoints_px=0.0)
+    older = tmp_path / "older"
+    pipeline.start(older, smoothed)
+    record = json.loads((older / "run.json").read_text())
+    del record["smooth_crosspoints_px"]
+    (older / "run.json").write_text(json.dumps(record))
+    assert pipeline.settings_of(older).smooth_crosspoints_px is None
+    pipeline.start(older, raw)
+    with pytest.raises(ValueError, match="smooth_crosspoints_px"):
+        pipeline.start(older, smoothed)
