@@ -79,6 +79,18 @@ def test_networks_mode_reads_the_cameras_of_a_capture_folder(capture_folder, tmp
     assert f"put cameras.json in {bare}" in capsys.readouterr().err
 
 
+def _older_folder(out, settings, field: str):
+    """A reconstruction folder started with `settings`, its run.json then written without `field`, as a
+    folder made before that setting existed."""
+    from reconstruction import pipeline
+
+    pipeline.start(out, settings)
+    record = json.loads((out / "run.json").read_text())
+    del record[field]
+    (out / "run.json").write_text(json.dumps(record))
+    return out
+
+
 def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
     """`--no-grow` goes to run.json; a folder made before growth existed (no grow_missing in its
     run.json) was made without it, so a default run there is refused and a --no-grow one resumes."""
@@ -94,11 +106,7 @@ def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
     assert json.loads((tmp_path / "new" / "run.json").read_text())["grow_missing"] is False
     with pytest.raises(ValueError, match=r"other settings \(grow_missing\)"):
         pipeline.start(tmp_path / "new", grown)
-    older = tmp_path / "older"
-    pipeline.start(older, grown)
-    record = json.loads((older / "run.json").read_text())
-    del record["grow_missing"]
-    (older / "run.json").write_text(json.dumps(record))
+    older = _older_folder(tmp_path / "older", grown, "grow_missing")
     assert pipeline.settings_of(older).grow_missing is False
     pipeline.start(older, plain)
     with pytest.raises(ValueError, match="grow_missing"):
@@ -120,11 +128,7 @@ def test_crosspoint_smoothing_is_a_recorded_setting_and_older_folders_had_none(t
     assert smoothed.smooth_crosspoints_px == 0.5
     with pytest.raises(ValueError, match="smooth_crosspoints_px must be in"):
         pipeline.RunSettings(template="shirt", checkpoints=checkpoints, smooth_crosspoints_px=0.0)
-    older = tmp_path / "older"
-    pipeline.start(older, smoothed)
-    record = json.loads((older / "run.json").read_text())
-    del record["smooth_crosspoints_px"]
-    (older / "run.json").write_text(json.dumps(record))
+    older = _older_folder(tmp_path / "older", smoothed, "smooth_crosspoints_px")
     assert pipeline.settings_of(older).smooth_crosspoints_px is None
     pipeline.start(older, raw)
     with pytest.raises(ValueError, match="smooth_crosspoints_px"):
