@@ -18,8 +18,10 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        pattern (`networks.homography.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
     5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`; wider for a network trained so) and the
-       reference texture of its ID -> Crosspoint Localizer -> crop (x, y) mapped to image pixels through the inverse crop homography;
-       visible = sigmoid > `visibility_threshold` and inside the image.
+       reference texture of its ID -> Crosspoint Localizer; visible = sigmoid > `visibility_threshold`;
+       the visible crosspoints near a cubic field fitted to them take its value
+       (`smooth_crosspoints_px`); crop (x, y) mapped to image pixels through the inverse crop
+       homography, and those outside the image hidden.
 
 All crops of one call go through the recognizer and crosspoint networks in batches of `batch_size`,
 under `torch.inference_mode()`, on `device` (uint8 crops are moved there and normalised there).

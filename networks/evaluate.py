@@ -186,9 +186,9 @@ def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, bat
 
 
 def model_crop(model: nn.Module) -> CropSpec:
-    """The crosspoint crop a network (or its DDP wrapper) takes: a `CrosspointLocalizer`'s `crop`,
-    the reference's for the others."""
-    return getattr(getattr(model, "module", model), "crop", CROSSPOINT_CROP)
+    """The crosspoint crop a network takes: a `CrosspointLocalizer`'s `crop`, the reference's for the
+    others (which cut none)."""
+    return getattr(model, "crop", CROSSPOINT_CROP)
 
 
 # ---- running a model -------------------------------------------------------------------------------

@@ -73,10 +73,12 @@ def smooth_crosspoints(crop_xy: np.ndarray, visible: np.ndarray, tolerance_px: f
     row, col = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
     terms = np.stack([col ** i * row ** j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=1)  # (P, T)
     points = np.where(visible[..., None], crop_xy, 0.0).reshape(n, k * k, 2)
-    weight = visible.reshape(n, k * k).astype(np.float64)
-    enough = weight.sum(axis=1) >= SMOOTH_POINTS_PER_TERM * terms.shape[1]
+    seen = visible.reshape(n, k * k)
+    needed = SMOOTH_POINTS_PER_TERM * terms.shape[1]
+    enough = seen.sum(axis=1) >= needed
 
-    def fit(w: np.ndarray) -> np.ndarray:
+    def fit(w: np.ndarray) -> np.ndarray:  # (N, P) bool weights -> (N, P, 2) fitted field
+        w = w.astype(np.float64)
         normal = np.einsum("np,pi,pj->nij", w, terms, terms)
         normal += np.eye(terms.shape[1]) * 1e-9 * np.trace(normal, axis1=1, axis2=2)[:, None, None].clip(min=1.0)
         coef = np.linalg.solve(normal, np.einsum("np,pi,npc->nic", w, terms, points))
@@ -85,10 +87,10 @@ def smooth_crosspoints(crop_xy: np.ndarray, visible: np.ndarray, tolerance_px: f
     out = crop_xy.reshape(n, k * k, 2).copy()
     if not enough.any():
         return out.reshape(crop_xy.shape)
-    fitted = fit(weight)
-    near = (np.linalg.norm(points - fitted, axis=-1) <= tolerance_px) & (weight > 0)
-    fitted = fit(np.where(near.sum(axis=1, keepdims=True) >= SMOOTH_POINTS_PER_TERM * terms.shape[1], near, weight))
-    move = (np.linalg.norm(points - fitted, axis=-1) <= tolerance_px) & (weight > 0) & enough[:, None]
+    near = (np.linalg.norm(points - fit(seen), axis=-1) <= tolerance_px) & seen
+    # refit without the far ones, where enough are near (else on all the visible ones again)
+    fitted = fit(np.where((near.sum(axis=1) >= needed)[:, None], near, seen))
+    move = (np.linalg.norm(points - fitted, axis=-1) <= tolerance_px) & seen & enough[:, None]
     out[move] = fitted[move]
     return out.reshape(crop_xy.shape)
 
