@@ -8,6 +8,10 @@ read with ``torch.load(path, weights_only=True)`` (no code runs on load)::
      "num_ids": int, "crosspoints_per_side": int, "model": state dict, "optimizer": state dict | None,
      "scheduler": state dict | None, "step": int, "metrics": dict, "rng": {"torch", "cuda"}, ...extra}
 
+A compact checkpoint (`slim_checkpoint(..., dtype=torch.int8)`) also holds "int8_scales": {key: (out,)
+float32}, one scale per output channel of each weight stored as int8; `read_checkpoint` returns its
+weights dequantized to float32, so everything else reads it as any other.
+
 The pattern record ties a checkpoint to the codebook its recognizer learned: loading with another
 pattern (another codebook, or other marker appearance) is refused.  The fabric's extent (rows, cols,
 origin) is not part of a marker's appearance and is not compared.
@@ -125,8 +129,39 @@ def _describe(data: object) -> str:
     return f"a {type(data).__name__}"
 
 
+def quantize_weights(state: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """(state with each floating-point weight of 2 or more dimensions as int8, {key: (out,) float32
+    scale}).  Symmetric, per output channel (dim 0): the channel's largest magnitude maps to 127, so
+    each weight moves by at most half its channel's step.  Other tensors (biases, normalisation
+    parameters and statistics) stay float32: they are a few percent of a ResNet's bytes."""
+    stored, scales = {}, {}
+    for key, value in state.items():
+        if value.is_floating_point() and value.dim() >= 2:
+            weight = value.detach().float()
+            scale = weight.abs().amax(dim=tuple(range(1, weight.dim()))).clamp_min(1e-12) / 127.0
+            view = scale.view(-1, *[1] * (weight.dim() - 1))
+            stored[key] = torch.round(weight / view).clamp(-127, 127).to(torch.int8)
+            scales[key] = scale
+        else:
+            stored[key] = value.detach().float() if value.is_floating_point() else value.detach()
+    return stored, scales
+
+
+def dequantize_weights(state: dict[str, torch.Tensor], scales: dict[str, torch.Tensor],
+                       source: str = "checkpoint") -> dict[str, torch.Tensor]:
+    """The float32 state dict of `quantize_weights`' output; a scale that fits no int8 weight is an error."""
+    model = dict(state)
+    for key, scale in scales.items():
+        value = state.get(key)
+        if value is None or value.dtype != torch.int8 or scale.shape != (value.shape[0],):
+            raise ValueError(f"{source}: int8_scales[{key!r}] fits no int8 weight of that name")
+        model[key] = value.float() * scale.float().view(-1, *[1] * (value.dim() - 1))
+    return model
+
+
 def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict:
-    """The checkpoint dict at `path`, checked to be one of ours (format, version); no model built."""
+    """The checkpoint dict at `path`, checked to be one of ours (format, version); no model built.
+    A compact checkpoint's int8 weights come back as float32 ("int8_scales" stays, for the record)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such checkpoint file")
@@ -143,6 +178,8 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
                if k not in data]
     if missing:
         raise ValueError(f"{path}: checkpoint lacks {', '.join(missing)}")
+    if data.get("int8_scales"):
+        data["model"] = dequantize_weights(data["model"], data["int8_scales"], source=str(path))
     return data
 
 
@@ -188,15 +225,21 @@ def load_checkpoint(
 
 def slim_checkpoint(source: str | Path, target: str | Path, dtype: torch.dtype | None = torch.bfloat16) -> Path:
     """Write `source` without its optimizer, scheduler and random states, its floating-point weights
-    cast to `dtype` (None: kept), to `target` (atomically); returns the target.
+    cast to `dtype` (None: kept; torch.int8: `quantize_weights`, a compact checkpoint), to `target`
+    (atomically); returns the target.
 
     A slim checkpoint is for inference (`load_checkpoint`, `networks.Detector`) and for starting a new
     run from it (`networks.train --init`); it cannot resume a run.  ResNet-50 weights in bf16 are
-    about a quarter of a checkpoint with Adam's state in float32."""
+    about a quarter of a checkpoint with Adam's state in float32, in int8 an eighth."""
     data = read_checkpoint(source)
-    model = {k: v.to(dtype) if dtype is not None and v.is_floating_point() else v for k, v in data["model"].items()}
-    slim = {**data, "model": model, "optimizer": None, "scheduler": None, "rng": {"torch": torch.get_rng_state(),
-                                                                               "cuda": []}}
+    scales: dict[str, torch.Tensor] = {}
+    if dtype == torch.int8:
+        model, scales = quantize_weights(data["model"])
+    else:
+        model = {k: v.to(dtype) if dtype is not None and v.is_floating_point() else v
+                 for k, v in data["model"].items()}
+    slim = {**data, "model": model, "optimizer": None, "scheduler": None, "int8_scales": scales,
+            "rng": {"torch": torch.get_rng_state(), "cuda": []}}
     target = Path(target)
     with atomic_path(target) as tmp:
         torch.save(slim, tmp)
@@ -211,13 +254,17 @@ def main(argv: list[str] | None = None) -> int:
     slim = commands.add_parser("slim", help="weights only, cast to bf16 (for inference and --init)")
     slim.add_argument("source", type=Path, help="a checkpoint (last.pt, best.pt)")
     slim.add_argument("target", type=Path, help="the slim checkpoint to write")
-    slim.add_argument("--keep-dtype", action="store_true", help="keep the weights' dtype (float32)")
+    kind = slim.add_mutually_exclusive_group()
+    kind.add_argument("--keep-dtype", action="store_true", help="keep the weights' dtype (float32)")
+    kind.add_argument("--int8", action="store_true",
+                      help="weights as int8 per output channel, half of bf16 (networks.weights stores these)")
     args = parser.parse_args(argv)
 
     def action() -> None:
         if args.source.resolve() == args.target.resolve():
             raise ValueError(f"{args.target}: would overwrite its source; name another file")
-        out = slim_checkpoint(args.source, args.target, None if args.keep_dtype else torch.bfloat16)
+        dtype = None if args.keep_dtype else torch.int8 if args.int8 else torch.bfloat16
+        out = slim_checkpoint(args.source, args.target, dtype)
         print(f"{out}: {out.stat().st_size / 2**20:.1f} MiB (from {args.source.stat().st_size / 2**20:.1f} MiB)")
 
     return run_cli(action)
