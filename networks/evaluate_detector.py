@@ -149,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
                              "fitted to them onto it (DetectorConfig.smooth_crosspoints_px; default %(default)s)")
     parser.add_argument("--no-smooth-crosspoints", action="store_true",
                         help="the crosspoint network's raw outputs, unsmoothed (the reference's)")
+    parser.add_argument("--crosspoint-shift", type=float, metavar="PX",
+                        help="also read each crosspoint crop shifted by PX crop pixels four ways and average the "
+                             "five (DetectorConfig.crosspoint_shift_px; 5x the stage's cost; default: one pass)")
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -167,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
                                                 grow_rounds=args.grow_rounds,
                                                 smooth_crosspoints_px=None if args.no_smooth_crosspoints
-                                                else args.smooth_crosspoints),
+                                                else args.smooth_crosspoints,
+                                                crosspoint_shift_px=args.crosspoint_shift),
                                  args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),

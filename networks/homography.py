@@ -43,6 +43,14 @@ def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop
     return apply_homography(to_image, crop_xy.reshape(n, -1, 2)).reshape(crop_xy.shape)
 
 
+def shifted_points(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """The five points (N, 5, 2) whose crop is the crop of `points_px` (N, 5, 2) moved by `shift` (2,)
+    crop pixels: crop'(u) = crop(u + shift), so a position found at u' in crop' is u' + shift in crop."""
+    points_px = np.asarray(points_px, dtype=np.float64)
+    moved = crop_localization_px(spec, crop) + np.asarray(shift, dtype=np.float64)
+    return crop_to_image(spec, crop, points_px, np.broadcast_to(moved, points_px.shape))
+
+
 #: `smooth_crosspoints`: the polynomial's degree (3 measured best on exact synthesized and rendered crops:
 #: 2 cannot follow the renders' folds, 4 and more follow the network's noise) and the fewest visible
 #: crosspoints, per coefficient, that a marker's fit needs

@@ -69,6 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "of a cubic field fitted to them onto it (default %(default)s)")
         p.add_argument("--no-smooth-crosspoints", action="store_true",
                        help="networks mode: the crosspoint network's raw outputs, unsmoothed (the reference's)")
+        p.add_argument("--crosspoint-shift", type=float, metavar="PX",
+                       help="networks mode: also read each crosspoint crop shifted by PX crop pixels four ways and "
+                       "average the five (5x the crosspoint stage's cost; default: one pass)")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")
@@ -129,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
                                             localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
                                             grow_rounds=args.grow_rounds,
                                             smooth_crosspoints_px=None if args.no_smooth_crosspoints
-                                            else args.smooth_crosspoints)
+                                            else args.smooth_crosspoints,
+                                            crosspoint_shift_px=args.crosspoint_shift)
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")

@@ -58,7 +58,8 @@ class RunSettings:
     `networks.DetectorConfig.grow_missing` (the markers the localizer missed next to fully observed
     ones are added); grow_rounds: networks mode,
     `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before);
-    smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off)."""
+    smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off);
+    crosspoint_shift_px: networks mode, `networks.DetectorConfig.crosspoint_shift_px` (None: one pass)."""
 
     template: str
     level_mm: int = 12
@@ -72,6 +73,7 @@ class RunSettings:
     grow_missing: bool = True
     grow_rounds: int = 1
     smooth_crosspoints_px: float | None = 0.5
+    crosspoint_shift_px: float | None = None
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -89,6 +91,8 @@ class RunSettings:
         if self.smooth_crosspoints_px is not None and not 0 < self.smooth_crosspoints_px <= 8:
             raise ValueError(f"smooth_crosspoints_px must be in (0, 8] crop pixels or None, got "
                              f"{self.smooth_crosspoints_px}")
+        if self.crosspoint_shift_px is not None and not 0 < self.crosspoint_shift_px <= 8:
+            raise ValueError(f"crosspoint_shift_px must be in (0, 8] crop pixels or None, got {self.crosspoint_shift_px}")
 
     @property
     def source(self) -> str:
@@ -188,7 +192,8 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
                 tables = load_template(settings.template).layout.tables()
                 config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
                                         grow_rounds=settings.grow_rounds,
-                                        smooth_crosspoints_px=settings.smooth_crosspoints_px)
+                                        smooth_crosspoints_px=settings.smooth_crosspoints_px,
+                                        crosspoint_shift_px=settings.crosspoint_shift_px)
                 detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables, config=config)
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))

@@ -133,3 +133,25 @@ def test_crosspoint_smoothing_is_a_recorded_setting_and_older_folders_had_none(t
     pipeline.start(older, raw)
     with pytest.raises(ValueError, match="smooth_crosspoints_px"):
         pipeline.start(older, smoothed)
+
+
+def test_crosspoint_shift_is_a_recorded_setting_off_by_default(tmp_path):
+    """--crosspoint-shift PX reaches run.json; a folder made before the setting read one pass, the default."""
+    from reconstruction import pipeline
+    from reconstruction.__main__ import build_parser
+
+    args = build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
+                                      "--crosspoint-shift", "1.5"])
+    assert args.crosspoint_shift == 1.5
+    checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
+    one = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
+    five = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, crosspoint_shift_px=1.5)
+    assert one.crosspoint_shift_px is None
+    with pytest.raises(ValueError, match="crosspoint_shift_px must be in"):
+        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, crosspoint_shift_px=-1.0)
+    pipeline.start(tmp_path / "new", five)
+    assert json.loads((tmp_path / "new" / "run.json").read_text())["crosspoint_shift_px"] == 1.5
+    older = _older_folder(tmp_path / "older", one, "crosspoint_shift_px")
+    assert pipeline.settings_of(older).crosspoint_shift_px is None
+    with pytest.raises(ValueError, match="crosspoint_shift_px"):
+        pipeline.start(older, five)
