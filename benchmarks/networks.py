@@ -369,11 +369,17 @@ def pretrained_weights(folder: Path | None) -> dict[str, str]:
 
 
 def init_weights(folder: Path | None) -> dict[str, str]:
-    """Per run name, a checkpoint `<run>.pt` in `folder` (a slim one from an earlier `--export-weights`)
-    that the new run starts from (`networks.train --init`); runs without one are left out."""
+    """Per run name, the checkpoint in `folder` that the new run starts from (`networks.train --init`):
+    `<run>.pt` (a slim one from an earlier `--export-weights`), else its task's `<task>.pt` (the
+    repository's stored weights, `python -m networks.weights fetch`); runs with neither are left out."""
     if folder is None or not folder.is_dir():
         return {}
-    return {name: str((folder / f"{name}.pt").resolve()) for name in RUNS if (folder / f"{name}.pt").is_file()}
+    found = {}
+    for name, (task, *_) in RUNS.items():
+        path = next((p for p in (folder / f"{name}.pt", folder / f"{task}.pt") if p.is_file()), None)
+        if path is not None:
+            found[name] = str(path.resolve())
+    return found
 
 
 def main_checkpoints(out: Path, init: dict[str, str] | None = None) -> list[Path] | None:
@@ -722,7 +728,8 @@ def main() -> None:
     parser.add_argument("--init-lr", type=float, help="peak learning rate of the runs that start from --init "
                         f"(default per task {INIT_LR}, else {LR:g} as from scratch)")
     parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
-                        "--export-weights) that new runs start from (networks.train --init)")
+                        "--export-weights) or <task>.pt (networks.weights fetch) that new runs start from "
+                        "(networks.train --init)")
     parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
                         "as a slim bf16 checkpoint to <export>/weights/<run>.pt (for --init elsewhere)")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")

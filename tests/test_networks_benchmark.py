@@ -148,6 +148,21 @@ def test_a_main_run_not_trained_this_call_is_chained_from_its_init(bench, tmp_pa
     assert bench.main_checkpoints(tmp_path, {"localizer_mix": init["localizer_mix"]}) is None
 
 
+def test_init_takes_a_run_s_own_checkpoint_else_its_task_s_stored_one(bench, tmp_path, init_folder):
+    stored = tmp_path / "stored"
+    stored.mkdir()
+    shutil.copy(init_folder / "localizer_mix.pt", stored / "localizer.pt")  # as networks.weights fetch names it
+    shutil.copy(init_folder / "crosspoints_jitter.pt", stored / "crosspoints_jitter.pt")
+    init = bench.init_weights(stored)
+    localizers = [name for name, run in bench.RUNS.items() if run[0] == "localizer"]
+    assert {name: Path(path).name for name, path in init.items() if name in localizers} == \
+        {name: "localizer.pt" for name in localizers}
+    assert Path(init["crosspoints_jitter"]).name == "crosspoints_jitter.pt"
+    assert "crosspoints_margin4" not in init  # another run's checkpoint is not its own nor its task's
+    assert not any(bench.RUNS[name][0] == "recognizer" for name in init)
+    assert bench.init_weights(tmp_path / "missing") == {}
+
+
 def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, garment_dataset, init_folder, capsys):
     # two markers kept of each image: every crop through an untrained ResNet-50 takes seconds on a CPU
     view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
