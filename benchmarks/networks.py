@@ -51,9 +51,13 @@ inference.  One call fits a 10-minute device command; calling it again with the 
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
     python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn --final   # the last call
 
+Each main run is also written as a compact int8 checkpoint and evaluated on the held-out renders
+beside its float weights (`evaluate_compact`, "compact" in results.json): the form the repository
+keeps (`networks.weights store`).
 Trained networks leave the machine (checkpoints with Adam's state, about 1 GB, cannot):
 `--export-weights` writes each trained run as a slim bf16 checkpoint (localizer 24 MB, recognizer
-64 MB, crosspoints about 57 MB) under <export>/weights, and they come back in checked parts over
+64 MB, crosspoints about 57 MB) under <export>/weights, the main runs' compact ones (about half
+that) under <export>/store, and they come back in checked parts over
 back-to-back calls (`benchmarks/device_files.py`, whose docstring lists a session's calls: a call
 returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes back 30 s after a
 call, and a path a call does not carry is removed from its working tree).  A later run starts from
@@ -536,6 +540,21 @@ def evaluate_runs(out: Path, test: Path, device: str) -> dict[str, dict]:
     return metrics
 
 
+def evaluate_compact(out: Path, test: Path, device: str) -> dict[str, dict]:
+    """Each main run's last.pt as a compact int8 checkpoint in `out`/compact/<task>.pt (the form
+    `networks.weights store` keeps, named as it wants them), evaluated on the held-out renders beside
+    the float weights' "metrics": what the rounding costs.  Per task: the run, the file's bytes, the
+    metrics."""
+    metrics = {}
+    for task, name in MAIN.items():
+        last = out / name / "run" / "last.pt"
+        if last.exists():
+            compact = slim_checkpoint(last, out / "compact" / f"{task}.pt", dtype=torch.int8)
+            metrics[task] = {"run": name, "bytes": compact.stat().st_size,
+                             **evaluate(compact, test, split="heldout", device=device, progress=False)}
+    return metrics
+
+
 def evaluate_inits(init: dict[str, str], test: Path, device: str) -> dict[str, dict]:
     """Each checkpoint a run started from (`--init`) on the same held-out renders: the baseline of
     this call's training, measured beside it."""
@@ -788,9 +807,10 @@ def main() -> None:
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},
-              "init_metrics": {}, "synthesized": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
+              "init_metrics": {}, "compact": {}, "synthesized": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
     stage = Stages(result, args.out / "results.json", started)
     stage("metrics", evaluate_runs, args.out, test, args.device)
+    stage("compact", evaluate_compact, args.out, test, args.device)
     stage("mixes", compare_mixes, args.out)
     if init:
         stage("init_metrics", evaluate_inits, init, test, args.device)
@@ -840,11 +860,15 @@ class Stages:
 def export(out: Path, to: Path, weights: bool = False) -> None:
     """Copy results.json to `to`, with logs.tar.gz of each run's config, log.jsonl, train.log and
     held-out metrics (two files: the device machine returns few); `weights`: each run's last.pt as a
-    slim bf16 checkpoint in `to`/weights/<run>.pt (`networks.checkpoint.slim_checkpoint`)."""
+    slim bf16 checkpoint in `to`/weights/<run>.pt (`networks.checkpoint.slim_checkpoint`), and the main
+    runs' compact ones (`evaluate_compact`) in `to`/store/<task>.pt, for `networks.weights store`."""
     to.mkdir(parents=True, exist_ok=True)
     for name in RUNS if weights else ():
         if (out / name / "run" / "last.pt").exists():
             slim_checkpoint(out / name / "run" / "last.pt", to / "weights" / f"{name}.pt")
+    for compact in sorted((out / "compact").glob("*.pt")) if weights else ():
+        (to / "store").mkdir(parents=True, exist_ok=True)
+        shutil.copy2(compact, to / "store" / compact.name)
     shutil.copy2(out / "results.json", to / "results.json")
     with tarfile.open(to / "logs.tar.gz", "w:gz") as tar:
         for name in RUNS:
@@ -890,7 +914,8 @@ def _print_tables(result: dict) -> None:
                   f"{a['recall']:.3f} | {a['f1']:.3f} | {full} | {a['error_px']['centre']['median']:.2f} |")
     print(f"\n| metric ({result['heldout_images']} held-out Blender renders) | value |\n|---|---|")
     inits = {f"{name}, its --init": m for name, m in result.get("init_metrics", {}).items()}
-    _print_metrics({**result["metrics"], **inits})
+    compact = {f"{m['run']}, int8": m for m in result.get("compact", {}).values()}
+    _print_metrics({**result["metrics"], **inits, **compact})
     if result.get("synthesized"):
         print(f"\n| metric (held-out synthesized samples, {SYNTH_HELDOUT[0]} images per shard folder) | value |"
               "\n|---|---|")

@@ -163,6 +163,33 @@ def test_init_takes_a_run_s_own_checkpoint_else_its_task_s_stored_one(bench, tmp
     assert bench.init_weights(tmp_path / "missing") == {}
 
 
+def test_main_runs_are_evaluated_and_exported_as_compact_checkpoints(bench, tmp_path, garment_dataset, init_folder):
+    """evaluate_compact: each main run's last.pt as int8 <task>.pt, evaluated on the held-out renders;
+    export --export-weights puts them in store/ as networks.weights store takes them."""
+    import torch
+
+    from networks.checkpoint import read_checkpoint
+
+    out = tmp_path / "bn"
+    for name in MAIN3:
+        (out / name / "run").mkdir(parents=True)
+        shutil.copy(init_folder / f"{name}.pt", out / name / "run" / "last.pt")
+    test = bench.heldout(garment_dataset, out, markers=2)
+    compact = bench.evaluate_compact(out, test, "cpu")
+    assert list(compact) == ["localizer", "recognizer", "crosspoints"]
+    for task, name in zip(compact, MAIN3):
+        record = read_checkpoint(out / "compact" / f"{task}.pt")
+        assert record["task"] == task and record["int8_scales"] and record["optimizer"] is None
+        assert compact[task]["run"] == name and compact[task]["bytes"] == (out / "compact" / f"{task}.pt").stat().st_size
+        assert compact[task]["checkpoint"] == str(out / "compact" / f"{task}.pt") and compact[task]["split"] == "heldout"
+    assert "all" in compact["localizer"] and "top1" in compact["recognizer"] and "crop_error_px" in compact["crosspoints"]
+    (out / "results.json").write_text("{}")
+    bench.export(out, tmp_path / "export", weights=True)
+    assert sorted(p.name for p in (tmp_path / "export" / "store").iterdir()) == \
+        ["crosspoints.pt", "localizer.pt", "recognizer.pt"]
+    assert torch.load(tmp_path / "export" / "store" / "localizer.pt", weights_only=True)["int8_scales"]
+
+
 def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, garment_dataset, init_folder, capsys):
     # two markers kept of each image: every crop through an untrained ResNet-50 takes seconds on a CPU
     view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
