@@ -86,11 +86,12 @@ def smooth_crosspoints(crop_xy: np.ndarray, visible: np.ndarray, tolerance_px: f
     enough = seen.sum(axis=1) >= needed
 
     def fit(w: np.ndarray) -> np.ndarray:  # (N, P) bool weights -> (N, P, 2) fitted field
-        w = w.astype(np.float64)
-        normal = np.einsum("np,pi,pj->nij", w, terms, terms)
+        # matrix products, not a three-operand einsum (which numpy loops over without BLAS: 1 ms a marker)
+        weighted = np.swapaxes(w[:, :, None] * terms, 1, 2)  # (N, T, P)
+        normal = weighted @ terms
         normal += np.eye(terms.shape[1]) * 1e-9 * np.trace(normal, axis1=1, axis2=2)[:, None, None].clip(min=1.0)
-        coef = np.linalg.solve(normal, np.einsum("np,pi,npc->nic", w, terms, points))
-        return np.einsum("pi,nic->npc", terms, coef)
+        coef = np.linalg.solve(normal, weighted @ points)
+        return terms @ coef
 
     out = crop_xy.reshape(n, k * k, 2).copy()
     if not enough.any():
