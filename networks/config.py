@@ -34,6 +34,20 @@ TASK_DEFAULTS: dict[str, dict[str, int]] = {
 MARKER_PX_RANGE = (4.0, 256.0)
 
 
+#: the crop pixels within which the Detector moves a crosspoint onto its marker's smooth field by
+#: default (`networks.DetectorConfig.smooth_crosspoints_px`), and the largest crop-pixel setting of the
+#: crosspoint stage (smoothing tolerance, shift) that is accepted
+SMOOTH_CROSSPOINTS_PX, MAX_CROP_SETTING_PX = 0.5, 8.0
+
+
+def crop_px_problem(name: str, value: float | None) -> str | None:
+    """The problem with `value` as the crosspoint stage's crop-pixel setting `name` (None: off, or a
+    number in (0, MAX_CROP_SETTING_PX]), or None when there is none."""
+    if value is None or 0 < value <= MAX_CROP_SETTING_PX:
+        return None
+    return f"{name} must be in (0, {MAX_CROP_SETTING_PX:g}] crop pixels or None, got {value}"
+
+
 def marker_px_problem(name: str, value: object) -> str | None:
     """The problem with `value` as the marker side `name` a localizer scale aims at (a number in
     MARKER_PX_RANGE), or None when it is one."""

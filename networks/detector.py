@@ -53,7 +53,7 @@ from assets.pattern import (
 )
 from assets.pattern.observation import is_convex_layout
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
-from networks.config import marker_px_problem
+from networks.config import SMOOTH_CROSSPOINTS_PX, crop_px_problem, marker_px_problem
 from networks.decode import decode_localizer
 from networks.detections import Detections
 from networks.homography import (
@@ -143,16 +143,12 @@ class DetectorConfig:
     grow_min_neighbours: int = 2
     grow_min_visible: float = 0.3
     grow_rounds: int = 1
-    smooth_crosspoints_px: float | None = 0.5
+    smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     crosspoint_shift_px: float | None = None
 
     def __post_init__(self) -> None:
-        problems = []
-        if self.crosspoint_shift_px is not None and not 0 < self.crosspoint_shift_px <= 8:
-            problems.append(f"crosspoint_shift_px must be in (0, 8] crop pixels or None, got {self.crosspoint_shift_px}")
-        if self.smooth_crosspoints_px is not None and not 0 < self.smooth_crosspoints_px <= 8:
-            problems.append(f"smooth_crosspoints_px must be in (0, 8] crop pixels or None, got "
-                            f"{self.smooth_crosspoints_px}")
+        problems = [problem for name in ("smooth_crosspoints_px", "crosspoint_shift_px")
+                    if (problem := crop_px_problem(name, getattr(self, name)))]
         if self.grow_rounds < 1:
             problems.append(f"grow_rounds must be >= 1, got {self.grow_rounds}")
         if not 1 <= self.grow_min_neighbours <= 8 or not 0 <= self.grow_min_visible <= 1:

@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from assets.cli import localizer_scale_arg
+from assets.cli import add_crosspoint_options, crosspoint_options, localizer_scale_arg
 from assets.fileio import save_json
 from assets.pattern import MarkerTable, PatternSpec
 from assets.pattern.observation import ImageGroundTruth
@@ -144,14 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grow-rounds", type=int, default=defaults.grow_rounds, metavar="N",
                         help="rounds of growth, each later one also from the markers placed before "
                              "(default %(default)s)")
-    parser.add_argument("--smooth-crosspoints", type=float, default=defaults.smooth_crosspoints_px, metavar="PX",
-                        help="move each marker's visible crosspoints within this many crop pixels of a cubic field "
-                             "fitted to them onto it (DetectorConfig.smooth_crosspoints_px; default %(default)s)")
-    parser.add_argument("--no-smooth-crosspoints", action="store_true",
-                        help="the crosspoint network's raw outputs, unsmoothed (the reference's)")
-    parser.add_argument("--crosspoint-shift", type=float, metavar="PX",
-                        help="also read each crosspoint crop shifted by PX crop pixels four ways and average the "
-                             "five (DetectorConfig.crosspoint_shift_px; 5x the stage's cost; default: one pass)")
+    add_crosspoint_options(parser, defaults.smooth_crosspoints_px)
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -168,10 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
                                                 max_layout_residual_cells=args.max_layout_residual,
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
-                                                grow_rounds=args.grow_rounds,
-                                                smooth_crosspoints_px=None if args.no_smooth_crosspoints
-                                                else args.smooth_crosspoints,
-                                                crosspoint_shift_px=args.crosspoint_shift),
+                                                grow_rounds=args.grow_rounds, **crosspoint_options(args)),
                                  args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),

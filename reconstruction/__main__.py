@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from assets.cli import localizer_scale_arg, run_cli
+from assets.cli import add_crosspoint_options, crosspoint_options, localizer_scale_arg, run_cli
 
 
 def _frames(text: str | None) -> list[int] | None:
@@ -36,6 +36,8 @@ def _levels(text: str | None) -> tuple[int, ...] | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from networks.config import SMOOTH_CROSSPOINTS_PX  # torch-free
+
     parser = argparse.ArgumentParser(prog="python -m reconstruction", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -64,14 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--grow-rounds", type=int, default=1, metavar="N",
                        help="networks mode: rounds of growth, each later one from the markers placed before "
                        "(default %(default)s)")
-        p.add_argument("--smooth-crosspoints", type=float, default=0.5, metavar="PX",
-                       help="networks mode: move each marker's visible crosspoints within this many crop pixels "
-                       "of a cubic field fitted to them onto it (default %(default)s)")
-        p.add_argument("--no-smooth-crosspoints", action="store_true",
-                       help="networks mode: the crosspoint network's raw outputs, unsmoothed (the reference's)")
-        p.add_argument("--crosspoint-shift", type=float, metavar="PX",
-                       help="networks mode: also read each crosspoint crop shifted by PX crop pixels four ways and "
-                       "average the five (5x the crosspoint stage's cost; default: one pass)")
+        add_crosspoint_options(p, SMOOTH_CROSSPOINTS_PX, prefix="networks mode: ")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")
@@ -130,10 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                                             checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
                                             initial_shape=str(Path(initial).resolve()) if initial else "",
                                             localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
-                                            grow_rounds=args.grow_rounds,
-                                            smooth_crosspoints_px=None if args.no_smooth_crosspoints
-                                            else args.smooth_crosspoints,
-                                            crosspoint_shift_px=args.crosspoint_shift)
+                                            grow_rounds=args.grow_rounds, **crosspoint_options(args))
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")

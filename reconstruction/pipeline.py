@@ -35,6 +35,7 @@ from tqdm import tqdm
 from assets.cameras import Camera
 from assets.fileio import load_json, save_json
 from assets.garments import Template, load_template
+from networks.config import SMOOTH_CROSSPOINTS_PX, crop_px_problem
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +73,7 @@ class RunSettings:
     localizer_scale: float | None = None
     grow_missing: bool = True
     grow_rounds: int = 1
-    smooth_crosspoints_px: float | None = 0.5
+    smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     crosspoint_shift_px: float | None = None
 
     def __post_init__(self) -> None:
@@ -88,11 +89,9 @@ class RunSettings:
             raise ValueError(f"localizer_scale must be in (0, 4] or None (chosen per view), got {self.localizer_scale}")
         if self.initial_shape and not Path(self.initial_shape).is_file():
             raise ValueError(f"initial shape {self.initial_shape}: no such file")
-        if self.smooth_crosspoints_px is not None and not 0 < self.smooth_crosspoints_px <= 8:
-            raise ValueError(f"smooth_crosspoints_px must be in (0, 8] crop pixels or None, got "
-                             f"{self.smooth_crosspoints_px}")
-        if self.crosspoint_shift_px is not None and not 0 < self.crosspoint_shift_px <= 8:
-            raise ValueError(f"crosspoint_shift_px must be in (0, 8] crop pixels or None, got {self.crosspoint_shift_px}")
+        for name in ("smooth_crosspoints_px", "crosspoint_shift_px"):
+            if problem := crop_px_problem(name, getattr(self, name)):
+                raise ValueError(problem)
 
     @property
     def source(self) -> str:

@@ -91,67 +91,55 @@ def _older_folder(out, settings, field: str):
     return out
 
 
-def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
-    """`--no-grow` goes to run.json; a folder made before growth existed (no grow_missing in its
-    run.json) was made without it, so a default run there is refused and a --no-grow one resumes."""
+def _check_recorded_setting(tmp_path, field: str, default, other, before, bad: dict, match: str):
+    """A RunSettings `field`: `default` unless given, `bad` refused (`match`), `other` written to run.json
+    and a folder started so refusing the default; a folder made before the field existed reads
+    `before`, resumes with the settings holding it and refuses the others."""
     from reconstruction import pipeline
 
     checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
-    grown = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
-    plain = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, grow_missing=False)
-    assert grown.grow_missing
-    with pytest.raises(ValueError, match="grow_rounds must be >= 1"):
-        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, grow_rounds=0)
-    pipeline.start(tmp_path / "new", plain)
-    assert json.loads((tmp_path / "new" / "run.json").read_text())["grow_missing"] is False
-    with pytest.raises(ValueError, match=r"other settings \(grow_missing\)"):
-        pipeline.start(tmp_path / "new", grown)
-    older = _older_folder(tmp_path / "older", grown, "grow_missing")
-    assert pipeline.settings_of(older).grow_missing is False
-    pipeline.start(older, plain)
-    with pytest.raises(ValueError, match="grow_missing"):
-        pipeline.start(older, grown)
+    plain = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
+    changed = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, **{field: other})
+    assert getattr(plain, field) == default
+    with pytest.raises(ValueError, match=match):
+        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, **bad)
+    pipeline.start(tmp_path / "new", changed)
+    assert json.loads((tmp_path / "new" / "run.json").read_text())[field] == other
+    with pytest.raises(ValueError, match=rf"other settings \({field}\)"):
+        pipeline.start(tmp_path / "new", plain)
+    older = _older_folder(tmp_path / "older", plain, field)
+    assert getattr(pipeline.settings_of(older), field) == before
+    same, differ = (changed, plain) if before == other else (plain, changed)
+    pipeline.start(older, same)
+    with pytest.raises(ValueError, match=field):
+        pipeline.start(older, differ)
+
+
+def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
+    """`--no-grow` goes to run.json; a folder made before growth existed (no grow_missing in its
+    run.json) was made without it, so a default run there is refused and a --no-grow one resumes."""
+    _check_recorded_setting(tmp_path, "grow_missing", default=True, other=False, before=False,
+                            bad={"grow_rounds": 0}, match="grow_rounds must be >= 1")
 
 
 def test_crosspoint_smoothing_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
     """The default 0.5 px and --no-smooth-crosspoints (None) go to run.json; a folder made before the
     setting existed holds raw outputs, so a default run there is refused."""
-    from reconstruction import pipeline
     from reconstruction.__main__ import build_parser
 
     args = build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
                                       "--no-smooth-crosspoints"])
     assert args.no_smooth_crosspoints and args.smooth_crosspoints == 0.5
-    checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
-    smoothed = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
-    raw = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, smooth_crosspoints_px=None)
-    assert smoothed.smooth_crosspoints_px == 0.5
-    with pytest.raises(ValueError, match="smooth_crosspoints_px must be in"):
-        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, smooth_crosspoints_px=0.0)
-    older = _older_folder(tmp_path / "older", smoothed, "smooth_crosspoints_px")
-    assert pipeline.settings_of(older).smooth_crosspoints_px is None
-    pipeline.start(older, raw)
-    with pytest.raises(ValueError, match="smooth_crosspoints_px"):
-        pipeline.start(older, smoothed)
+    _check_recorded_setting(tmp_path, "smooth_crosspoints_px", default=0.5, other=None, before=None,
+                            bad={"smooth_crosspoints_px": 0.0}, match="smooth_crosspoints_px must be in")
 
 
 def test_crosspoint_shift_is_a_recorded_setting_off_by_default(tmp_path):
     """--crosspoint-shift PX reaches run.json; a folder made before the setting read one pass, the default."""
-    from reconstruction import pipeline
     from reconstruction.__main__ import build_parser
 
     args = build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
                                       "--crosspoint-shift", "1.5"])
     assert args.crosspoint_shift == 1.5
-    checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
-    one = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
-    five = pipeline.RunSettings(template="shirt", checkpoints=checkpoints, crosspoint_shift_px=1.5)
-    assert one.crosspoint_shift_px is None
-    with pytest.raises(ValueError, match="crosspoint_shift_px must be in"):
-        pipeline.RunSettings(template="shirt", checkpoints=checkpoints, crosspoint_shift_px=-1.0)
-    pipeline.start(tmp_path / "new", five)
-    assert json.loads((tmp_path / "new" / "run.json").read_text())["crosspoint_shift_px"] == 1.5
-    older = _older_folder(tmp_path / "older", one, "crosspoint_shift_px")
-    assert pipeline.settings_of(older).crosspoint_shift_px is None
-    with pytest.raises(ValueError, match="crosspoint_shift_px"):
-        pipeline.start(older, five)
+    _check_recorded_setting(tmp_path, "crosspoint_shift_px", default=None, other=1.5, before=None,
+                            bad={"crosspoint_shift_px": -1.0}, match="crosspoint_shift_px must be in")
