@@ -47,7 +47,7 @@ def _git(root, *args):
     return subprocess.run(["git", "-C", str(root), *args], check=True, capture_output=True, text=True).stdout
 
 
-def test_int8_checkpoint_is_an_eighth_and_computes_the_same(localizer, tmp_path):
+def test_int8_checkpoint_is_half_of_bf16_and_computes_the_same(localizer, tmp_path):
     path, model = localizer
     compact = slim_checkpoint(path, tmp_path / "loc8.pt", dtype=torch.int8)
     bf16 = slim_checkpoint(path, tmp_path / "loc16.pt")
