@@ -182,6 +182,9 @@ CHECKPOINT_EVERY = 2000
 #: smoke runs' Detector: only the surest guesses of an untrained localizer, far apart (hundreds of crops
 #: through the crosspoint network take minutes on a CPU)
 SMOKE_DETECTOR = {"presence_threshold": 0.9, "nms_radius_px": 40.0}
+#: Detector settings timed beside its defaults in the throughput table (`throughput`): the crosspoint
+#: smoothing's cost went unnoticed once (it cut 1024 px throughput on the H200 from 4.7 to 1.43 images/s)
+THROUGHPUT_VARIANTS = {"no crosspoint smoothing": {"smooth_crosspoints_px": None}}
 #: seconds kept after training for evaluation and throughput, and allowed for a run's start
 RESERVE_S, START_S = 210.0, 45.0
 
@@ -679,38 +682,49 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smo
     was trained on), after a warm-up call on the first and with every ID's reference texture rendered;
     with the stage times (`Detector.stage_seconds`) and the markers found on the
     first image (the same on every device) and the markers the images show (smoke runs:
-    `SMOKE_DETECTOR`)."""
+    `SMOKE_DETECTOR`).  Each size is timed with the Detector's defaults and with each of
+    `THROUGHPUT_VARIANTS`, on the same images: the baseline a slower default shows against."""
     from networks import Detector, DetectorConfig
 
     paths = main_checkpoints(out, init)
     rows = []
     for size in sizes:
         scale = min(1.0, 512 / size)
-        config = DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), localizer_scale=scale)
-        detector = Detector.from_checkpoints(*paths, device=device, config=config)
         marker = tuple(v * size / 512 for v in SynthConfig().marker_px)
-        synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), marker_px=marker, seed=7))
-        samples = [synth.sample(i) for i in range(repeats)]
-        images = [image for image, *_ in samples]
-        shown = [int((gt.status > 0).sum()) for _, gt, *_ in samples]
-        # every ID's reference texture once (a garment's Detector renders its IDs when built), and a
-        # warm-up call (CUDA kernels, cuDNN's algorithm choice: the first image on a GPU, a corner on a CPU)
-        detector.references(np.arange(len(detector.codebook)))
-        detector([images[0] if device.startswith("cuda") else np.ascontiguousarray(images[0][:256, :256])])
-        stages_before = dict(detector.stage_seconds)
-        if device.startswith("cuda"):
-            torch.cuda.synchronize()
-        start = time.perf_counter()
-        found = [len(d) for d in detector(images)]
-        if device.startswith("cuda"):
-            torch.cuda.synchronize()
-        seconds = time.perf_counter() - start
-        rows.append({"device": device, "precision": "float32", "size": size, "localizer_scale": scale,
-                     "images": repeats, "seconds": seconds, "images_per_s": repeats / seconds,
-                     "markers_per_image": float(np.mean(found)), "shown_per_image": float(np.mean(shown)),
-                     "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()},
-                     "found_first_image": found[0], "shown_first_image": shown[0]})
+        samples = None
+        for variant, overrides in {"defaults": {}, **THROUGHPUT_VARIANTS}.items():
+            config = DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), localizer_scale=scale, **overrides)
+            detector = Detector.from_checkpoints(*paths, device=device, config=config)
+            if samples is None:  # the same images for every variant
+                synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), marker_px=marker,
+                                                                      seed=7))
+                samples = [synth.sample(i) for i in range(repeats)]
+                images = [image for image, *_ in samples]
+                shown = [int((gt.status > 0).sum()) for _, gt, *_ in samples]
+            rows.append({"variant": variant, **_time_detector(detector, images, device),
+                         "size": size, "localizer_scale": scale, "shown_per_image": float(np.mean(shown)),
+                         "shown_first_image": shown[0]})
     return rows
+
+
+def _time_detector(detector, images: list[np.ndarray], device: str) -> dict:
+    """One Detector's images per second on `images`, after every ID's reference texture was rendered
+    (a garment's Detector renders its IDs when built) and a warm-up call (CUDA kernels, cuDNN's
+    algorithm choice: the first image on a GPU, a corner on a CPU)."""
+    detector.references(np.arange(len(detector.codebook)))
+    detector([images[0] if device.startswith("cuda") else np.ascontiguousarray(images[0][:256, :256])])
+    stages_before = dict(detector.stage_seconds)
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    found = [len(d) for d in detector(images)]
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    seconds = time.perf_counter() - start
+    return {"device": device, "precision": "float32", "images": len(images), "seconds": seconds,
+            "images_per_s": len(images) / seconds, "markers_per_image": float(np.mean(found)),
+            "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()},
+            "found_first_image": found[0]}
 
 
 def main() -> None:
@@ -930,11 +944,12 @@ def _print_tables(result: dict) -> None:
                 print(f"| {label} | {group} | {r['markers']} | {r['top1']:.3f} |")
     if result.get("extra"):
         _print_extra(result["extra"])
-    print("\n| device (float32) | image | localizer scale | images/s | markers found / shown per image "
+    print("\n| device (float32) | image | Detector | localizer scale | images/s | markers found / shown per image "
           "| first image: found / shown | stages s/image: localize, recognize, vote, complete, crosspoints "
-          "|\n|---|---|---|---|---|---|---|")
+          "|\n|---|---|---|---|---|---|---|---|")
     for r in result["throughput"]:
-        print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('localizer_scale', 1.0):.2g} | "
+        print(f"| {r['device']} | {r['size']} x {r['size']} | {r.get('variant', 'defaults')} | "
+              f"{r.get('localizer_scale', 1.0):.2g} | "
               f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
               f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} | {_stages(r, r['images'])} |")
 

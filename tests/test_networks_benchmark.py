@@ -318,3 +318,18 @@ def test_the_wider_crop_crosspoint_run_trains_measures_and_chains_in_its_own_cro
     chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
     # a Detector that cut 112 px crops for it would stop at the network's size check
     assert chains[label]["images"] == 3 and chains["defaults"]["images"] == 3
+
+
+def test_throughput_times_each_size_with_the_defaults_and_each_variant_on_the_same_images(bench, tmp_path,
+                                                                                        init_folder, capsys):
+    rows = bench.throughput(tmp_path, "cpu", (256,), 1, smoke=True, init=bench.init_weights(init_folder))
+    variants = ["defaults", *bench.THROUGHPUT_VARIANTS]
+    assert [(r["size"], r["variant"]) for r in rows] == [(256, v) for v in variants]
+    assert len({(r["shown_per_image"], r["shown_first_image"]) for r in rows}) == 1  # the same images
+    assert len({r["found_first_image"] for r in rows}) == 1  # smoothing moves crosspoints, never markers
+    assert all(r["images_per_s"] > 0 and r["stage_seconds"]["crosspoints"] >= 0 for r in rows)
+    bench._print_tables({"date": "2026-11-27", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {},
+                         "runs": {}, "training": {}, "heldout_images": 0, "metrics": {}, "detector": {},
+                         "throughput": rows})
+    printed = capsys.readouterr().out
+    assert "| cpu | 256 x 256 | no crosspoint smoothing | 1 |" in printed
