@@ -375,14 +375,17 @@ def pretrained_weights(folder: Path | None) -> dict[str, str]:
             (("localizer", 18), ("recognizer", 50), ("crosspoints", 50)) if found[depth]}
 
 
-def init_weights(folder: Path | None) -> dict[str, str]:
-    """Per run name, the checkpoint in `folder` that the new run starts from (`networks.train --init`):
-    `<run>.pt` (a slim one from an earlier `--export-weights`), else its task's `<task>.pt` (the
-    repository's stored weights, `python -m networks.weights fetch`); runs with neither are left out."""
+def init_weights(folder: Path | None, runs: list[str] | None = None) -> dict[str, str]:
+    """Per run name (of `runs`, default all), the checkpoint in `folder` that the new run starts from
+    (`networks.train --init`): `<run>.pt` (a slim one from an earlier `--export-weights`), else its
+    task's `<task>.pt` (the repository's stored weights, `python -m networks.weights fetch`); runs with
+    neither are left out."""
     if folder is None or not folder.is_dir():
         return {}
     found = {}
     for name, (task, *_) in RUNS.items():
+        if runs is not None and name not in runs:
+            continue
         path = next((p for p in (folder / f"{name}.pt", folder / f"{task}.pt") if p.is_file()), None)
         if path is not None:
             found[name] = str(path.resolve())
@@ -560,8 +563,11 @@ def evaluate_compact(out: Path, test: Path, device: str) -> dict[str, dict]:
 
 def evaluate_inits(init: dict[str, str], test: Path, device: str) -> dict[str, dict]:
     """Each checkpoint a run started from (`--init`) on the same held-out renders: the baseline of
-    this call's training, measured beside it."""
-    return {name: evaluate(path, test, split="heldout", device=device, progress=False) for name, path in init.items()}
+    this call's training, measured beside it (a checkpoint that several runs start from, once)."""
+    metrics: dict[str, dict] = {}
+    for path in dict.fromkeys(init.values()):
+        metrics[path] = evaluate(path, test, split="heldout", device=device, progress=False)
+    return {name: metrics[path] for name, path in init.items()}
 
 
 def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init: dict[str, str] | None = None,
@@ -804,7 +810,8 @@ def main() -> None:
     synthesized = synth_heldout(args.out, rendered, max(1, args.cores - 1) if not smoke else 1, smoke, names)
     t0 = time.perf_counter()
     pretrained = pretrained_weights(args.pretrained)
-    init = init_weights(args.init)
+    # the runs of this call, and the main runs a Detector chains from their start when not trained here
+    init = init_weights(args.init, names + list(MAIN.values()))
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
                          args.ddp, pretrained, init, args.localizer_marker_px, args.init_lr)

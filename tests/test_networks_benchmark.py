@@ -161,6 +161,8 @@ def test_init_takes_a_run_s_own_checkpoint_else_its_task_s_stored_one(bench, tmp
     assert "crosspoints_margin4" not in init  # another run's checkpoint is not its own nor its task's
     assert not any(bench.RUNS[name][0] == "recognizer" for name in init)
     assert bench.init_weights(tmp_path / "missing") == {}
+    assert set(bench.init_weights(stored, ["localizer_upright", "crosspoints_jitter", "recognizer"])) == \
+        {"localizer_upright", "crosspoints_jitter"}  # this call's runs only
 
 
 def test_main_runs_are_evaluated_and_exported_as_compact_checkpoints(bench, tmp_path, garment_dataset, init_folder):
@@ -188,6 +190,18 @@ def test_main_runs_are_evaluated_and_exported_as_compact_checkpoints(bench, tmp_
     assert sorted(p.name for p in (tmp_path / "export" / "store").iterdir()) == \
         ["crosspoints.pt", "localizer.pt", "recognizer.pt"]
     assert torch.load(tmp_path / "export" / "store" / "localizer.pt", weights_only=True)["int8_scales"]
+
+
+def test_a_checkpoint_several_runs_start_from_is_evaluated_once(bench, tmp_path, garment_dataset, init_folder):
+    test = bench.heldout(garment_dataset, tmp_path, markers=2)
+    localizer = str(init_folder / "localizer_mix.pt")
+    init = {"localizer_mix": localizer, "localizer_upright": localizer,
+            "recognizer_partial": str(init_folder / "recognizer_partial.pt")}
+    metrics = bench.evaluate_inits(init, test, "cpu")
+    assert list(metrics) == list(init)
+    assert metrics["localizer_mix"] is metrics["localizer_upright"]  # one evaluation, both runs' baseline
+    assert metrics["localizer_mix"]["checkpoint"] == localizer and metrics["localizer_mix"]["split"] == "heldout"
+    assert metrics["recognizer_partial"]["task"] == "recognizer"
 
 
 def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, garment_dataset, init_folder, capsys):
