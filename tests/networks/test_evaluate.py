@@ -23,6 +23,7 @@ from networks.metrics import (
     crosspoint_metrics,
     detection_scores,
     localizer_metrics,
+    marker_reach_px,
     match_markers,
     recognizer_metrics,
 )
@@ -135,6 +136,31 @@ def test_a_prediction_on_a_marker_that_is_not_a_target_is_neither_true_nor_false
     assert localizer_metrics([gt[0]], gt, full, gt_ignore=[gt[0][:1, 0]])["all"]["true_positive"] == 3
     with pytest.raises(ValueError, match="1 ignore sets"):
         localizer_metrics([pred, pred], gt * 2, full * 2, gt_ignore=[other])
+
+
+def test_a_prediction_on_a_partial_marker_beyond_the_radius_is_no_false_positive_of_the_full_ones():
+    """A partial marker placed 6 px off misses its match (4 px), so it is a false positive and a miss
+    over all markers; over the fully visible ones it is neither (it lies on a partial marker, within
+    the markers' reach).  Placed so far off a full marker, or away from every marker, it counts."""
+    gt = [_markers(3, 0)]
+    full = [np.array([True, True, False])]
+    reach = marker_reach_px(gt[0][:2])
+    assert reach > 6.0
+    shift = np.array([6.0, 0.0], np.float32)
+    on_partial = np.concatenate([gt[0][:2], gt[0][2:] + shift])
+    result = localizer_metrics([on_partial], gt, full, radius_px=4.0)
+    assert (result["all"]["true_positive"], result["all"]["false_positive"], result["all"]["false_negative"]) == (2, 1, 1)
+    assert (result["full"]["true_positive"], result["full"]["false_positive"], result["full"]["false_negative"]) == (2, 0, 0)
+    assert result["full"]["on_other_markers"] == 1 and result["full"]["precision"] == 1.0
+    on_full = np.concatenate([gt[0][:1] + shift, gt[0][1:]])
+    assert localizer_metrics([on_full], gt, full, radius_px=4.0)["full"]["false_positive"] == 1
+    beyond = np.concatenate([gt[0][:2], gt[0][2:] + np.array([reach + 1.0, 0.0], np.float32)])
+    assert localizer_metrics([beyond], gt, full, radius_px=4.0)["full"]["false_positive"] == 1
+    # a marker shown but no target (gt_ignore) is not fully visible either
+    other = np.concatenate([np.full((1, 2), np.nan, np.float32), gt[0][2:, 0]])  # NaN: its centre is off the fabric
+    result = localizer_metrics([on_partial[:2].tolist() + [(gt[0][2] + shift).tolist()]], [gt[0][:2]], [full[0][:2]],
+                               radius_px=4.0, gt_ignore=[other])
+    assert result["full"]["false_positive"] == 0 and result["full"]["on_other_markers"] == 1
 
 
 def test_match_markers_one_to_one_within_radius():
