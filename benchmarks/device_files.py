@@ -19,7 +19,7 @@ A device session's weights, for instance (`benchmarks/networks.py --export-weigh
     (a benchmark started in the background does not keep the machine: it goes back 30 s after a call
     returns, so the wait calls follow one another with nothing in between; the tenth run lost one so)
     call 2 (on the machine):  python3 benchmarks/device_files.py wait /tmp/bn/export/results.json --timeout 570
-                              python3 benchmarks/device_files.py pack /tmp/bn/export/weights /tmp/parts
+                              python3 benchmarks/device_files.py pack /tmp/bn/export/store /tmp/parts
                               python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 0-2
     calls 3, 4 (at once):     python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 3-5
     here:                     copy every call's files into one folder, then

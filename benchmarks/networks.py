@@ -55,9 +55,11 @@ Each main run is also written as a compact int8 checkpoint and evaluated on the 
 beside its float weights (`evaluate_compact`, "compact" in results.json): the form the repository
 keeps (`networks.weights store`).
 Trained networks leave the machine (checkpoints with Adam's state, about 1 GB, cannot):
-`--export-weights` writes each trained run as a slim bf16 checkpoint (localizer 24 MB, recognizer
-64 MB, crosspoints about 57 MB) under <export>/weights, the main runs' compact ones (about half
-that) under <export>/store, and they come back in checked parts over
+`--export-weights` writes every trained run as a compact int8 checkpoint under <export>/store (the
+main runs as <task>.pt, which `networks.weights store` takes, the comparison runs as <run>.pt, which
+`--init` takes; localizer 12 MB, recognizer 33 MB, crosspoints 29 MB: int8 measured as the float
+weights on the held-out renders, at half of bf16, so a comparison run that wins can come back too;
+the eighteenth run's `localizer_upright` could not), and they come back in checked parts over
 back-to-back calls (`benchmarks/device_files.py`, whose docstring lists a session's calls: a call
 returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes back 30 s after a
 call, and a path a call does not carry is removed from its working tree).  A later run starts from
@@ -769,8 +771,9 @@ def main() -> None:
     parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
                         "--export-weights) or <task>.pt (networks.weights fetch) that new runs start from "
                         "(networks.train --init)")
-    parser.add_argument("--export-weights", action="store_true", help="also write each trained run's last.pt "
-                        "as a slim bf16 checkpoint to <export>/weights/<run>.pt (for --init elsewhere)")
+    parser.add_argument("--export-weights", action="store_true", help="also write each trained run as a compact "
+                        "int8 checkpoint to <export>/store: <task>.pt for the main runs (networks.weights store), "
+                        "<run>.pt for the others (--init elsewhere)")
     parser.add_argument("--export", type=Path, help="copy results.json and logs.tar.gz of the runs here ($OUT)")
     parser.add_argument("--extra-heldout", type=Path, help="a second factory dataset folder whose every image is "
                         "held out (other resolutions, unseen motions): the Detector's networks evaluated on it too")
@@ -880,16 +883,18 @@ class Stages:
 
 def export(out: Path, to: Path, weights: bool = False) -> None:
     """Copy results.json to `to`, with logs.tar.gz of each run's config, log.jsonl, train.log and
-    held-out metrics (two files: the device machine returns few); `weights`: each run's last.pt as a
-    slim bf16 checkpoint in `to`/weights/<run>.pt (`networks.checkpoint.slim_checkpoint`), and the main
-    runs' compact ones (`evaluate_compact`) in `to`/store/<task>.pt, for `networks.weights store`."""
+    held-out metrics (two files: the device machine returns few); `weights`: every trained run as a
+    compact int8 checkpoint in `to`/store: the main runs' (`evaluate_compact`) as <task>.pt, for
+    `networks.weights store`, the others' last.pt as <run>.pt (`networks.checkpoint.slim_checkpoint`),
+    for `--init`."""
     to.mkdir(parents=True, exist_ok=True)
-    for name in RUNS if weights else ():
-        if (out / name / "run" / "last.pt").exists():
-            slim_checkpoint(out / name / "run" / "last.pt", to / "weights" / f"{name}.pt")
-    for compact in sorted((out / "compact").glob("*.pt")) if weights else ():
+    if weights:
         (to / "store").mkdir(parents=True, exist_ok=True)
-        shutil.copy2(compact, to / "store" / compact.name)
+        for compact in sorted((out / "compact").glob("*.pt")):
+            shutil.copy2(compact, to / "store" / compact.name)
+        for name in RUNS:
+            if name not in MAIN.values() and (out / name / "run" / "last.pt").exists():
+                slim_checkpoint(out / name / "run" / "last.pt", to / "store" / f"{name}.pt", dtype=torch.int8)
     shutil.copy2(out / "results.json", to / "results.json")
     with tarfile.open(to / "logs.tar.gz", "w:gz") as tar:
         for name in RUNS:

@@ -186,10 +186,18 @@ def test_main_runs_are_evaluated_and_exported_as_compact_checkpoints(bench, tmp_
         assert compact[task]["checkpoint"] == str(out / "compact" / f"{task}.pt") and compact[task]["split"] == "heldout"
     assert "all" in compact["localizer"] and "top1" in compact["recognizer"] and "crop_error_px" in compact["crosspoints"]
     (out / "results.json").write_text("{}")
+    (out / "localizer_upright" / "run").mkdir(parents=True)  # a comparison run comes back as <run>.pt
+    shutil.copy(init_folder / "localizer_mix.pt", out / "localizer_upright" / "run" / "last.pt")
     bench.export(out, tmp_path / "export", weights=True)
-    assert sorted(p.name for p in (tmp_path / "export" / "store").iterdir()) == \
-        ["crosspoints.pt", "localizer.pt", "recognizer.pt"]
-    assert torch.load(tmp_path / "export" / "store" / "localizer.pt", weights_only=True)["int8_scales"]
+    store = tmp_path / "export" / "store"
+    assert sorted(p.name for p in store.iterdir()) == \
+        ["crosspoints.pt", "localizer.pt", "localizer_upright.pt", "recognizer.pt"]
+    assert not (tmp_path / "export" / "weights").exists()
+    for name in ("localizer.pt", "localizer_upright.pt"):
+        assert torch.load(store / name, weights_only=True)["int8_scales"]
+    init = bench.init_weights(store, ["localizer_mix", "localizer_upright"])  # and --init reads them back
+    assert {name: Path(path).name for name, path in init.items()} == \
+        {"localizer_mix": "localizer.pt", "localizer_upright": "localizer_upright.pt"}
 
 
 def test_a_checkpoint_several_runs_start_from_is_evaluated_once(bench, tmp_path, garment_dataset, init_folder):
