@@ -212,6 +212,21 @@ def test_a_checkpoint_several_runs_start_from_is_evaluated_once(bench, tmp_path,
     assert metrics["recognizer_partial"]["task"] == "recognizer"
 
 
+def test_the_recognizers_top1_is_reported_by_group_and_marker_size(bench, tmp_path, garment_dataset, init_folder,
+                                                                   capsys):
+    test = bench.heldout(garment_dataset, tmp_path, markers=2)
+    ids = bench.evaluate_partial_ids(tmp_path, test, "cpu", bench.init_weights(init_folder))
+    assert list(ids) == ["recognizer_partial, its --init"]  # nothing trained here: the start alone
+    record = ids["recognizer_partial, its --init"]
+    assert set(record) == {"groups", "by_size"}
+    counted = sum(r["markers"] for r in record["groups"].values())
+    assert counted > 0 and counted == sum(r["markers"] for bins in record["by_size"].values() for r in bins.values())
+    bench._print_top1("2 held-out renders", ids)
+    printed = capsys.readouterr().out
+    assert "| recognizer_partial, its --init | all five points visible | all |" in printed
+    assert "| recognizer_partial, its --init | all five points visible | size " in printed
+
+
 def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, garment_dataset, init_folder, capsys):
     # two markers kept of each image: every crop through an untrained ResNet-50 takes seconds on a CPU
     view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
@@ -355,3 +370,11 @@ def test_throughput_times_each_size_with_the_defaults_and_each_variant_on_the_sa
                          "throughput": rows})
     printed = capsys.readouterr().out
     assert "| cpu | 256 x 256 | no crosspoint smoothing | 1 |" in printed
+
+
+def test_the_small_marker_recognizer_run_differs_from_the_main_one_only_in_its_markers(bench):
+    small, main = bench.shard_config("recognizer_small"), bench.shard_config(bench.MAIN["recognizer"])
+    assert small.marker_px == (10.0, 32.0) and main.marker_px[0] == 16.0
+    assert small == main.__class__(**{**main.__dict__, "marker_px": (10.0, 32.0)})
+    assert bench.RUNS["recognizer_small"][:4] == bench.RUNS[bench.MAIN["recognizer"]][:4]
+    assert bench.run_config("recognizer_small", 1, 2, {}).recognizer_partial
