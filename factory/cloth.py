@@ -225,6 +225,7 @@ class MeshCollider:
         import trimesh
 
         mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), faces, process=False)
+        self.mesh = mesh
         self.vertices = mesh.vertices.view(np.ndarray)
         self.normals = mesh.vertex_normals.view(np.ndarray)
         self.tree = cKDTree(self.vertices)
@@ -234,6 +235,21 @@ class MeshCollider:
         _, nearest = self.tree.query(points)
         normals = self.normals[nearest]
         return np.einsum("nk,nk->n", points - self.vertices[nearest], normals), normals
+
+    def in_fold(self, points: np.ndarray, radius: float = 0.02, offset: float = 0.002) -> np.ndarray:
+        """(N,) bool: the points (N, 3) near where the mesh intersects itself, where no position is
+        outside it (a thigh running into the belly as the hips flex: linear blend skinning lets body
+        parts pass into each other).  A point is in a fold when a mesh vertex within `radius` (m), moved
+        `offset` (m) outward along its normal, lies inside the mesh (its winding number; a mesh that is
+        not watertight has no inside, and nothing is in a fold)."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        folded = np.zeros(len(points), bool)
+        if not len(points) or not self.mesh.is_watertight:
+            return folded
+        for k, near in enumerate(self.tree.query_ball_point(points, radius)):
+            if near:
+                folded[k] = bool(self.mesh.contains(self.vertices[near] + offset * self.normals[near]).any())
+        return folded
 
 
 class ProjectiveDynamics:

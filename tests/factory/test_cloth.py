@@ -77,3 +77,26 @@ def test_closed_form_polar_factor_matches_the_svd():
     np.testing.assert_allclose(rotations[2:], (u @ vt)[2:], atol=1e-10)
     np.testing.assert_allclose(np.einsum("fki,fkj->fij", rotations, rotations), np.broadcast_to(np.eye(2), (500, 2, 2)),
                                atol=1e-10)
+
+
+def _two_overlapping_spheres():
+    """One mesh of two spheres 14 cm apart, 10 cm in radius: it intersects itself between x = -3 and 3 cm."""
+    a = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    b = a.copy()
+    a.apply_translation([-0.07, 0.0, 0.0])
+    b.apply_translation([0.07, 0.0, 0.0])
+    return trimesh.util.concatenate([a, b])
+
+
+def test_a_point_where_the_mesh_intersects_itself_is_in_a_fold():
+    body = _two_overlapping_spheres()
+    collider = MeshCollider(body.vertices, body.faces)
+    points = np.array([[0.025, 0.0, 0.0],    # inside both, 5 mm from the first sphere's surface in the second
+                       [-0.155, 0.0, 0.0],   # inside the first only, near its far side
+                       [-0.185, 0.0, 0.0],   # outside, near the same side
+                       [0.0, 0.0, 0.12]])    # outside, above the fold, beyond the radius
+    np.testing.assert_array_equal(collider.in_fold(points), [True, False, False, False])
+    assert collider.in_fold(points, radius=0.001).sum() == 0  # no body vertex that near
+    open_mesh = trimesh.Trimesh(body.vertices, body.faces[1:], process=False)  # a hole: no inside
+    assert not MeshCollider(open_mesh.vertices, open_mesh.faces).in_fold(points).any()
+    assert collider.in_fold(np.zeros((0, 3))).shape == (0,)

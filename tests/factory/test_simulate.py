@@ -71,6 +71,25 @@ def test_a_failing_frame_stops_the_run_and_keeps_the_frames_before_it(shirt_run,
     assert not (tmp_path / "sequence.npz").exists()
 
 
+def test_a_vertex_caught_where_the_body_intersects_itself_is_folded_not_penetrating():
+    """The `jump`'s hip crease: no position of cloth there is outside the body, so the health check
+    counts it as folded; a vertex as deep inside one body part alone still fails the run."""
+    from factory.simulate import _health, _problem
+    from tests.factory.test_cloth import _two_overlapping_spheres
+
+    body = _two_overlapping_spheres()
+    collider = MeshCollider(body.vertices, body.faces)
+    cloth = np.array([[0.025, 0.0, 0.0], [0.025, 0.004, 0.0], [0.025, 0.0, 0.004]])  # in the fold, 5 mm deep
+    model = ClothModel.build(np.array([[0, 1, 2]]), cloth)
+    check = _health(model, collider, cloth)
+    assert check.folded == 3 and check.penetration == 0.0 and check.strain < 1e-9
+    assert _problem(check, HealthLimits(max_penetration=0.001)) == ""
+    alone = cloth - [0.18, 0.0, 0.0]  # 15 mm inside the first sphere near its far side, in no fold
+    check = _health(model, collider, alone)
+    assert check.folded == 0 and check.penetration == pytest.approx(0.015, abs=1e-3)
+    assert "inside the body" in _problem(check, HealthLimits(max_penetration=0.01))
+
+
 def test_a_panel_without_a_placement_hint_cannot_be_dressed():
     pattern = default_pattern("shirt")
     panels = list(pattern.panels)
