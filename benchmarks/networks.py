@@ -654,9 +654,11 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
     if (init or {}).get(MAIN["recognizer"]):
         recognizers[f"{MAIN['recognizer']}, its --init"] = Path(init[MAIN["recognizer"]])
     pairs = rendered_pairs(test)
-    return {label: dict(zip(("groups", "by_size"), top1(load_detector(localizer, path, crosspoints, test,
-                                                                   device=device), pairs)))
-            for label, path in recognizers.items()}
+    results = {}
+    for label, path in recognizers.items():
+        groups, by_size = top1(load_detector(localizer, path, crosspoints, test, device=device), pairs)
+        results[label] = {"groups": groups, "by_size": by_size}
+    return results
 
 
 def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | None = None, smoke: bool = False
@@ -709,16 +711,14 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smo
     for size in sizes:
         scale = min(1.0, 512 / size)
         marker = tuple(v * size / 512 for v in SynthConfig().marker_px)
-        samples = None
-        for variant, overrides in {"defaults": {}, **THROUGHPUT_VARIANTS}.items():
-            config = DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), localizer_scale=scale, **overrides)
-            detector = Detector.from_checkpoints(*paths, device=device, config=config)
-            if samples is None:  # the same images for every variant
-                synth = PatternSynthesizer(detector.spec, SynthConfig(image_size=(size, size), marker_px=marker,
-                                                                      seed=7))
-                samples = [synth.sample(i) for i in range(repeats)]
-                images = [image for image, *_ in samples]
-                shown = [int((gt.status > 0).sum()) for _, gt, *_ in samples]
+        detectors = {variant: Detector.from_checkpoints(*paths, device=device, config=DetectorConfig(
+                         **(SMOKE_DETECTOR if smoke else {}), localizer_scale=scale, **overrides))
+                     for variant, overrides in {"defaults": {}, **THROUGHPUT_VARIANTS}.items()}
+        synth = PatternSynthesizer(detectors["defaults"].spec, SynthConfig(image_size=(size, size), marker_px=marker, seed=7))
+        samples = [synth.sample(i) for i in range(repeats)]  # the same images for every variant
+        images = [image for image, *_ in samples]
+        shown = [int((gt.status > 0).sum()) for _, gt, *_ in samples]
+        for variant, detector in detectors.items():
             rows.append({"variant": variant, **_time_detector(detector, images, device),
                          "size": size, "localizer_scale": scale, "shown_per_image": float(np.mean(shown)),
                          "shown_first_image": shown[0]})

@@ -243,13 +243,16 @@ class MeshCollider:
         `offset` (m) outward along its normal, lies inside the mesh (its winding number; a mesh that is
         not watertight has no inside, and nothing is in a fold)."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        folded = np.zeros(len(points), bool)
         if not len(points) or not self.mesh.is_watertight:
-            return folded
-        for k, near in enumerate(self.tree.query_ball_point(points, radius)):
-            if near:
-                folded[k] = bool(self.mesh.contains(self.vertices[near] + offset * self.normals[near]).any())
-        return folded
+            return np.zeros(len(points), bool)
+        near = self.tree.query_ball_point(points, radius)
+        owner = np.repeat(np.arange(len(points)), [len(n) for n in near])  # (pairs,) the point of each pair
+        vertex = np.concatenate([np.asarray(n, np.int64) for n in near])
+        if not len(vertex):
+            return np.zeros(len(points), bool)
+        probed, pair_vertex = np.unique(vertex, return_inverse=True)  # each vertex tested once, in one call
+        inside = self.mesh.contains(self.vertices[probed] + offset * self.normals[probed])
+        return np.bincount(owner, weights=inside[pair_vertex], minlength=len(points)) > 0
 
 
 class ProjectiveDynamics:
