@@ -318,6 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--speed", type=float, default=1.0, help="built-in motions: speed multiplier")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--iterations", type=int, default=ClothParams.iterations, help="local-global iterations per step")
+    parser.add_argument("--contact-cg-iterations", type=int, default=ClothParams.contact_cg_iterations,
+                        help="conjugate-gradient iterations per global step for the sliding contact")
     for name in ("membrane_weight", "bending_weight", "density", "contact_weight", "contact_radius"):
         parser.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(ClothParams, name))
     parser.add_argument("--max-penetration-mm", type=float, default=HealthLimits.max_penetration * 1e3)
@@ -329,7 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args: argparse.Namespace) -> SimulationConfig:
     cloth = ClothParams(iterations=args.iterations, membrane_weight=args.membrane_weight,
                         bending_weight=args.bending_weight, density=args.density,
-                        contact_weight=args.contact_weight, contact_radius=args.contact_radius)
+                        contact_weight=args.contact_weight, contact_radius=args.contact_radius,
+                        contact_cg_iterations=args.contact_cg_iterations)
     betas = None
     if args.betas:
         try:
