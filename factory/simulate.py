@@ -124,12 +124,7 @@ class FrameHealth:
     bad_vertices: int  # NaN or infinite
     penetration: float  # deepest vertex inside the body, the folded ones left out (m)
     strain: float
-    folded: int = 0  # vertices deeper than FOLD_DEPTH where the body intersects itself
-
-
-#: vertices deeper inside the body than this (m) are checked for a body fold (`MeshCollider.in_fold`);
-#: the contact projection leaves every other vertex at the contact radius (1 mm) outside
-FOLD_DEPTH = 0.002
+    folded: int = 0  # vertices deeper than the cloth's fold_depth where the body intersects itself
 
 
 def load_simulation_motion(config: SimulationConfig, body: BodyModel) -> Motion:
@@ -273,7 +268,7 @@ def _health(model: ClothModel, collider: MeshCollider, x: np.ndarray) -> FrameHe
     if bad:
         return FrameHealth(bad, float("nan"), float("nan"))
     d, _ = collider.signed_distance(x)
-    deep = np.flatnonzero(d < -FOLD_DEPTH)
+    deep = np.flatnonzero(d < -model.params.fold_depth)  # the contact projection leaves only these inside
     folded = deep[collider.in_fold(x[deep])]
     d[folded] = 0.0
     return FrameHealth(0, float(max(0.0, -d.min())), float(np.abs(model.edge_length_strain(x)).max()), len(folded))
