@@ -231,13 +231,14 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
                disable=not progress)
     for frame in range(start, config.frames):
         collider = MeshCollider(posed.vertices[frame], body.faces)
-        state = solver.step(state, collider)
-        check = _health(model, collider, state.positions)
+        stepped = solver.step(state, collider)
+        check = _health(model, collider, stepped.positions)
         problem = _problem(check, config.health)
-        if problem:
+        if problem:  # kept: the frames before it, with the last of them's velocities (`state`), to resume from
             save_checkpoint(frame)
             bar.close()
             raise SimulationError(f"frame {frame} of {out}: {problem}; frames 0..{frame - 1} are kept in {checkpoint_path}")
+        state = stepped
         positions[frame] = state.positions
         health.append([check.penetration, check.strain, check.folded])
         bar.update()
