@@ -88,6 +88,8 @@ class ClothParams:
     def __post_init__(self):
         if self.contact_cg_iterations < 1:
             raise ValueError(f"ClothParams.contact_cg_iterations must be >= 1, got {self.contact_cg_iterations}")
+        if not self.fold_depth >= 0:
+            raise ValueError(f"ClothParams.fold_depth must be >= 0 (m), got {self.fold_depth}")
 
 
 @dataclass(frozen=True)
