@@ -146,3 +146,9 @@ def test_the_contact_projection_leaves_a_vertex_deep_in_a_fold_where_it_is():
     np.testing.assert_array_equal(projected.positions[folded], solved.positions[folded])
     depth_after, _ = collider.signed_distance(projected.positions)
     assert depth_after[~folded].min() > params.contact_radius - 1e-9
+
+
+@pytest.mark.parametrize("field, value", [("contact_cg_iterations", 0), ("fold_depth", -1e-3)])
+def test_cloth_params_refuse_a_bad_contact_setting_by_name(field, value):
+    with pytest.raises(ValueError, match=f"ClothParams.{field}"):
+        ClothParams(**{field: value})
