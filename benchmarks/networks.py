@@ -362,6 +362,21 @@ def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
     return {name: placed[name] for name in active}
 
 
+def sharing_note(placed: dict[str, list[int]]) -> str:
+    """A line for the log when runs of `placement` share a GPU ("" when none do): the runs are fed by
+    the CPU's data workers, and the nineteenth run's five runs on four GPUs each trained 30-40% slower
+    than four runs did, the ones with a GPU of their own included (benchmarks/RESULTS.md)."""
+    shared: dict[int, list[str]] = {}
+    for name, gpus in placed.items():
+        for gpu in gpus[:1]:
+            shared.setdefault(gpu, []).append(name)
+    pairs = [f"GPU {gpu}: {', '.join(names)}" for gpu, names in sorted(shared.items()) if len(names) > 1]
+    if not pairs:
+        return ""
+    return (f"note: {len(placed)} runs on {len(shared)} GPUs share them ({'; '.join(pairs)}); every run gets "
+            "fewer data workers and trains slower (the nineteenth run: 30-40% slower than four runs on four)")
+
+
 def worker_counts(active: list[str], ranks: dict[str, int], cores: int, smoke: bool) -> dict[str, int]:
     """Data workers per rank of each active run: the cores left to the runs' own processes (one per
     rank), by the runs' shares, split among a run's ranks."""
@@ -454,6 +469,8 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
     gpus = placement(active, torch.cuda.device_count() if device.startswith("cuda") and not smoke else 0)
     if not ddp:  # one GPU per run, spare GPUs idle (DDP ranks slow a run down; see the docstring)
         gpus = {name: g[:1] for name, g in gpus.items()}
+    if note := sharing_note(gpus):
+        print(note, flush=True)
     ranks = {name: max(1, len(gpus[name])) for name in active}
     workers = worker_counts(active, ranks, cores, smoke)
     deadline = time.monotonic() + seconds + START_S

@@ -48,6 +48,13 @@ def test_comparison_runs_take_the_least_loaded_gpu_and_spare_gpus_join_the_heavi
     assert spare["localizer_mix"] == [2]
 
 
+def test_runs_sharing_a_gpu_are_named_in_the_log(bench):
+    note = bench.sharing_note(bench.placement(MAIN3 + ["localizer_upright", "recognizer_small"], 4))
+    assert note.startswith("note: 5 runs on 4 GPUs") and "(GPU 2: localizer_mix, recognizer_small)" in note
+    assert bench.sharing_note(bench.placement(MAIN3 + ["localizer_upright"], 4)) == ""
+    assert bench.sharing_note(bench.placement(MAIN3, 0)) == ""  # the CPU: one run after another
+
+
 def test_a_run_s_synth_weight_can_be_changed_for_one_call(bench):
     runs = bench.with_synth_weight(bench.RUNS, "localizer_mix", 0.0)
     assert runs["localizer_mix"][1] == 0.0 and bench.RUNS["localizer_mix"][1] == 0.5  # a new table
