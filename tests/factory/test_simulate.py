@@ -72,7 +72,9 @@ def test_a_failing_frame_stops_the_run_and_keeps_the_frames_before_it(shirt_run,
     # resumed with the usual limits, it goes on as the run that never stopped: the checkpoint holds the
     # velocities of its own last frame, not those of the frame that failed
     resumed = np.load(simulate(config, tmp_path, progress=False))["positions"]
-    np.testing.assert_allclose(resumed, np.load(out / "sequence.npz")["positions"], atol=1e-6)
+    uninterrupted = np.load(out / "sequence.npz")["positions"]  # a test before may have made it longer
+    assert len(resumed) == config.frames <= len(uninterrupted)
+    np.testing.assert_allclose(resumed, uninterrupted[:config.frames], atol=1e-6)
 
 
 def test_a_vertex_caught_where_the_body_intersects_itself_is_folded_not_penetrating():
