@@ -368,8 +368,8 @@ def sharing_note(placed: dict[str, list[int]]) -> str:
     than four runs did, the ones with a GPU of their own included (benchmarks/RESULTS.md)."""
     shared: dict[int, list[str]] = {}
     for name, gpus in placed.items():
-        for gpu in gpus[:1]:
-            shared.setdefault(gpu, []).append(name)
+        if gpus:  # a run's first GPU (its other ranks' GPUs are its own)
+            shared.setdefault(gpus[0], []).append(name)
     pairs = [f"GPU {gpu}: {', '.join(names)}" for gpu, names in sorted(shared.items()) if len(names) > 1]
     if not pairs:
         return ""

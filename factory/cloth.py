@@ -255,6 +255,9 @@ class MeshCollider:
         self.vertices = mesh.vertices.view(np.ndarray)
         self.normals = mesh.vertex_normals.view(np.ndarray)
         self.tree = cKDTree(self.vertices)
+        #: per probe offset of `in_fold`, (V,) int8 per body vertex: 1 inside the mesh when moved out by
+        #: the offset, 0 not, -1 not tested yet (the step's projection and the health check ask alike)
+        self._probed: dict[float, np.ndarray] = {}
 
     def signed_distance(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Signed distances (N,) (negative inside) and outward normals (N, 3) at points (N, 3)."""
@@ -267,7 +270,8 @@ class MeshCollider:
         outside it (a thigh running into the belly as the hips flex: linear blend skinning lets body
         parts pass into each other).  A point is in a fold when a mesh vertex within `radius` (m), moved
         `offset` (m) outward along its normal, lies inside the mesh (its winding number; a mesh that is
-        not watertight has no inside, and nothing is in a fold)."""
+        not watertight has no inside, and nothing is in a fold).  Each body vertex is tested once per
+        collider, in one winding-number call for the vertices not tested before."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if not len(points) or not self.mesh.is_watertight:
             return np.zeros(len(points), bool)
@@ -276,9 +280,11 @@ class MeshCollider:
         vertex = np.concatenate([np.asarray(n, np.int64) for n in near])
         if not len(vertex):
             return np.zeros(len(points), bool)
-        probed, pair_vertex = np.unique(vertex, return_inverse=True)  # each vertex tested once, in one call
-        inside = self.mesh.contains(self.vertices[probed] + offset * self.normals[probed])
-        return np.bincount(owner, weights=inside[pair_vertex], minlength=len(points)) > 0
+        known = self._probed.setdefault(offset, np.full(len(self.vertices), -1, np.int8))
+        new = np.unique(vertex[known[vertex] < 0])
+        if len(new):
+            known[new] = self.mesh.contains(self.vertices[new] + offset * self.normals[new])
+        return np.bincount(owner, weights=known[vertex], minlength=len(points)) > 0
 
 
 class ProjectiveDynamics:

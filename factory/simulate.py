@@ -251,7 +251,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
     meta["seconds_per_frame"] = elapsed / simulated if simulated else None
     meta["max_penetration_mm"] = 1e3 * max((h[0] for h in health), default=0.0)
     meta["max_strain"] = max((h[1] for h in health), default=0.0)
-    meta["folded_frames"] = sum(1 for h in health if len(h) > 2 and h[2])
+    meta["folded_frames"] = sum(1 for h in health if h[2])
     save_npz(sequence_path, {
         "positions": positions, "velocities": state.velocities.astype(np.float32),
         "faces": dressed.faces.astype(np.int32), "body_poses": motion.poses,
