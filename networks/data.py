@@ -53,6 +53,7 @@ from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
 from networks.config import TASKS, marker_px_problem
+from networks.decoded import DecodedArrays
 from networks.homography import auto_localizer_scale
 from networks.models import CELL
 from networks.synth import PatternSynthesizer, SynthConfig
@@ -201,12 +202,16 @@ class RenderedDataset(_Items, Dataset):
     own scale.
     crosspoint_margin_cells (crosspoints): the crops' margin (`assets.pattern.crosspoint_crop`); other
     than the reference's 2, the crops are cut anew from the images (the stored ones are 112 x 112),
-    of the markers that pass the crop-sanity test in that crop."""
+    of the markers that pass the crop-sanity test in that crop.
+    decode_ahead (localizer): every image of the split and its cells are decoded once, when the dataset
+    is made, into a memory-mapped file the workers share (`networks.decoded`; a split too large for
+    its limit is read per item as without)."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
-                 partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2):
+                 partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2,
+                 decode_ahead: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -233,6 +238,9 @@ class RenderedDataset(_Items, Dataset):
             raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
         if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
             raise ValueError(problem)
+        if decode_ahead and task != "localizer":
+            raise ValueError(f"decode_ahead is for the localizer's images, not the {task} task's crops")
+        self._decoded: DecodedArrays | None = None
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         self.entries = [e for e in _manifest(self.root) if e["split"] == split]
@@ -272,6 +280,9 @@ class RenderedDataset(_Items, Dataset):
             self._index = np.stack([image, crop], axis=1).astype(np.int64)
         if task == "crosspoints":
             self.codebook = generate_codebook(self.spec)  # before DataLoader workers fork, so they share it
+        if decode_ahead:
+            self._decoded = DecodedArrays.write((self._read_localizer(i) for i in range(len(self.entries))),
+                                                len(self.entries), desc=f"decode {split} images ahead")
 
     def __len__(self) -> int:
         return len(self._index)
@@ -333,11 +344,8 @@ class RenderedDataset(_Items, Dataset):
         entry = self.entries[image_index]
         path = self.root / entry["samples"]
         if self.task == "localizer":
-            arrays = {"image": _read_png(self.root / entry["image"]), **load_npz(path, only=("cells",))}
+            arrays = self._read_localizer(image_index) if self._decoded is None else self._decoded[image_index]
             h, w = arrays["image"].shape[:2]
-            if arrays["cells"].shape != (h // 8, w // 8, 11):
-                raise ValueError(f"{path}: cells has shape {arrays['cells'].shape}, expected "
-                                 f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
             scale = self._scales[image_index]
             if scale < 1.0:  # shrunk to whole cells: the targets from the points moved by the same factors
                 size = tuple(max(CELL, int(round(side * scale)) // CELL * CELL) for side in (w, h))
@@ -418,6 +426,18 @@ class RenderedDataset(_Items, Dataset):
             inside = ((points[:, 0] >= 0) & (points[:, 0] < np.asarray(size, np.float32))).all(axis=1)
         present = (markers["status"] > 0) & markers["point_visible"][:, 0] & inside
         return marker_cells(size[0], size[1], points, present, markers["points_depth"][:, 0])
+
+    def _read_localizer(self, image_index: int) -> dict[str, np.ndarray]:
+        """One image's localizer arrays as its files hold them: image (H, W, 3) uint8 RGB, cells
+        (H/8, W/8, 11) float32."""
+        entry = self.entries[image_index]
+        path = self.root / entry["samples"]
+        arrays = {"image": _read_png(self.root / entry["image"]), **load_npz(path, only=("cells",))}
+        h, w = arrays["image"].shape[:2]
+        if arrays["cells"].shape != (h // 8, w // 8, 11):
+            raise ValueError(f"{path}: cells has shape {arrays['cells'].shape}, expected "
+                             f"{(h // 8, w // 8, 11)} for the {w} x {h} image")
+        return arrays
 
     def _keep(self, image_index: int, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self._cache[image_index] = arrays

@@ -2,6 +2,7 @@
 images), the synthesizer, and their mixture."""
 
 import json
+import pickle
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -502,3 +503,41 @@ def test_marker_px_reads_each_image_at_the_detectors_automatic_scale(folder):
         RenderedDataset(folder, "train", "recognizer", marker_px=22.0)
     with pytest.raises(ValueError, match=r"marker_px must be in \[4, 256\] pixels"):
         RenderedDataset(folder, "train", "localizer", marker_px=1000.0)
+
+
+def test_localizer_images_decoded_ahead_give_the_items_read_per_image(folder, tmp_path):
+    """decode_ahead changes where the images come from, not the items: plain, cropped with a view
+    warp and augmentation, shrunk to a marker size; also in a copy pickled as a worker gets it, and
+    with the PNGs gone once the dataset is made."""
+    moved = shutil.copytree(folder, tmp_path / "dataset")
+    gone = RenderedDataset(moved, "train", "localizer", seed=3, decode_ahead=True)
+    shutil.rmtree(moved / "images")
+    for i in range(len(gone)):
+        assert torch.equal(gone[i]["image"], RenderedDataset(folder, "train", "localizer", seed=3)[i]["image"])
+    entries = _entries(folder, "train")
+    full = [g.points_px[g.status == 2] for g in (ImageGroundTruth.load(folder / e["gt"]) for e in entries)]
+    target = np.nanmin([np.median(marker_side_px(f)) if len(f) else np.nan for f in full]) / 2
+    warp = ViewWarp(probability=0.5)
+    for settings in ({}, {"crop_px": 96, "view_warp": warp, "augment": Augment()}, {"marker_px": target}):
+        read = RenderedDataset(folder, "train", "localizer", seed=3, **settings)
+        ahead = RenderedDataset(folder, "train", "localizer", seed=3, decode_ahead=True, **settings)
+        worker = pickle.loads(pickle.dumps(ahead))
+        assert ahead._decoded is not None and ahead._decoded.path.is_file() and len(ahead._decoded) == len(read)
+        for epoch in (0, 1):
+            for data in (read, ahead, worker):
+                data.set_epoch(epoch)
+            for i in range(len(read)):
+                expected = read[i]
+                for data in (ahead, worker):
+                    item = data[i]
+                    assert torch.equal(item["image"], expected["image"])
+                    assert np.array_equal(item["cells"].numpy(), expected["cells"].numpy(), equal_nan=True)
+    with pytest.raises(ValueError, match="decode_ahead"):
+        RenderedDataset(folder, "train", "recognizer", decode_ahead=True)
+
+
+def test_the_decode_ahead_benchmark_reads_the_same_items_both_ways_through_workers(folder, load_benchmark):
+    rows = load_benchmark("decode_ahead").measure(folder, items=64, workers=1, crop_px=64)
+    assert [r["loader"] for r in rows] == ["read per image", "decoded ahead"]
+    assert all(r["images"] == 4 and r["item_ms"] > 0 and r["loader_items_per_s"] > 0 for r in rows)
+    assert rows[0]["decoded_mib"] == 0 and rows[1]["decoded_mib"] > 0
