@@ -87,7 +87,7 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
     only, when given), one image at a time, and pool `networks.metrics.match_detections` over them.
 
     Returns the dict of `networks.metrics.detector_metrics` with "data", "split", "radius_px",
-    "tables" (whether the Detector knows the garment), "seconds" (in the Detector), "seconds_per_image"
+    "tables" (whether the Detector knows the garment), "presence_threshold" (the localizer's), "seconds" (in the Detector), "seconds_per_image"
     and "stage_seconds" (per stage of the Detector, `Detector.stage_seconds`) added."""
     if limit is not None and limit < 1:
         raise ValueError(f"limit must be >= 1 or None, got {limit}")
@@ -110,7 +110,7 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
         records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
     metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
     return {"data": str(root), "split": split, "radius_px": float(radius_px), "tables": detector.layout is not None,
-            **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records),
+            "presence_threshold": detector.config.presence_threshold, **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records),
             "localizer_scale": {"config": detector.config.localizer_scale, "median": float(np.median(scales)),
                                 "min": min(scales), "max": max(scales)},
             "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()}}
@@ -145,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="rounds of growth, each later one also from the markers placed before "
                              "(default %(default)s)")
     add_crosspoint_options(parser, defaults.smooth_crosspoints_px)
+    parser.add_argument("--presence-threshold", type=float, default=defaults.presence_threshold, metavar="P",
+                        help="localizer presence probability above which a cell holds a marker centre "
+                             "(default %(default)s, the reference's)")
     parser.add_argument("--nms-radius", type=float, metavar="PX",
                         help="localizer pixels within which detected centres are merged (default: the decoder's)")
     parser.add_argument("--batch-size", type=int, default=64, metavar="N", help="marker crops per recognizer / crosspoint batch")
@@ -159,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         split_entries(args.data, args.split)  # a bad folder or split fails before the checkpoints load
         detector = load_detector(args.localizer, args.recognizer, args.crosspoints, args.data, args.device,
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
+                                                presence_threshold=args.presence_threshold,
                                                 max_layout_residual_cells=args.max_layout_residual,
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
                                                 grow_rounds=args.grow_rounds, **crosspoint_options(args)),

@@ -227,6 +227,12 @@ def test_cli(dataset, checkpoints, tmp_path, capsys):
     assert main(args + ["--data", str(dataset), "--limit", "1", "--localizer-scale", "auto", "--json", str(automatic)]) == 0
     chosen = json.loads(automatic.read_text())["localizer_scale"]
     assert chosen["config"] is None and 0 < chosen["min"] <= chosen["median"] <= chosen["max"] <= 1
+    assert written["presence_threshold"] == 0.5
+    lower = tmp_path / "lower.json"
+    assert main(args + ["--data", str(dataset), "--limit", "1", "--presence-threshold", "0.3", "--json", str(lower)]) == 0
+    assert json.loads(lower.read_text())["presence_threshold"] == 0.3
+    assert main(args + ["--data", str(dataset), "--presence-threshold", "1.5"]) == 2
+    assert "presence_threshold" in capsys.readouterr().err
 
 
 def test_a_detection_of_a_marker_whose_centre_is_hidden_is_neither_true_nor_false():
