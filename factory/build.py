@@ -111,9 +111,10 @@ def dataset_frames(config: DatasetConfig) -> list[int]:
 
 
 def simulate_motion(config: DatasetConfig, out: str | Path, motion: str, progress: bool = False) -> Path:
-    """Simulate (or take up) `motion` far enough for the dataset's frames; the ``sequence.npz`` path."""
+    """Simulate (or take up) `motion` far enough for the dataset's frames; the ``sequence.npz`` path.
+    The motions share one dressing (``sim/dressings``)."""
     return simulate(_simulation_of(config, motion, max(dataset_frames(config)) + 1), Path(out) / "sim" / motion,
-                    progress)
+                    progress, dressings=Path(out) / "sim" / "dressings")
 
 
 def plan_shards(config: DatasetConfig, out: Path, sequences: dict[str, Path], shard: tuple[int, int] = (0, 1),

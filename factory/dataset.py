@@ -18,6 +18,7 @@ Layout of a dataset folder:
   config.json                  the build's settings (a rerun with other settings is refused)
   template.npz, texture.png    the garment template and its pattern texture at `texture_dpi`
   sim/<motion>/                the simulations (`factory.simulate`; reused when already there)
+  sim/dressings/<key>.npz      the dressed garment the motions' simulations share
   scenes/<motion>.npz          the frames to render: garment and body vertices
   jobs/<motion>-<shard>.json   render jobs (`factory.render`)
   images/<name>.png            RGB; <name>_depth.exr (Z, float32), <name>_camera.json (K, R, t)

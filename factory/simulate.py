@@ -15,7 +15,8 @@ Output folder:
                    transition frames, timing and health per run)
   checkpoint.npz   while running: the frames so far and the last velocities, written atomically every
                    `checkpoint_every` frames; a rerun with the same settings resumes from it
-  dressed.npz      the dressed garment (reused by reruns with the same garment, body and dressing)
+  dressed.npz      the dressed garment (reused by reruns with the same garment, body and dressing,
+                   and through a shared `dressings` folder by the other motions of a dataset)
   preview.png      a few frames of body and garment
 
 Health: after every frame, no NaN, the deepest vertex inside the body under `max_penetration` and the
@@ -152,22 +153,34 @@ def with_dressing_transition(config: SimulationConfig, motion: Motion, dressed: 
 
 
 def _dressed(config: SimulationConfig, template: Template, body: BodyModel, betas, out: Path,
-             progress: bool) -> DressedGarment:
+             progress: bool, dressings: Path | None = None) -> DressedGarment:
+    """The garment dressed on the body: ``out/dressed.npz`` when it holds this dressing, else
+    ``dressings/<key>.npz`` (copied to `out`), else dressed anew and saved to both."""
     path = out / "dressed.npz"
     key = _digest([config.garment, config.body, list(np.asarray(betas, float)), asdict(config.dressing)])
-    if path.exists():
-        cached = DressedGarment.load(path)
-        if cached.report.get("key") == key:
-            log.info("reusing %s", path)
-            return cached
+    shared = None if dressings is None else Path(dressings) / f"{key}.npz"
+    for source in (path, shared):
+        if source is not None and source.exists():
+            cached = DressedGarment.load(source)
+            if cached.report.get("key") == key:
+                log.info("reusing the dressing %s", source)
+                for target in (path, shared):
+                    if target is not None and not target.exists():
+                        cached.save(target)
+                return cached
     garment = dress(template, body, betas, config.dressing, progress=progress)
     garment = dataclasses.replace(garment, report={**garment.report, "key": key})
     garment.save(path)
+    if shared is not None:
+        garment.save(shared)
     return garment
 
 
-def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -> Path:
-    """Run (or resume) the simulation into folder `out`; returns the path of ``sequence.npz``."""
+def simulate(config: SimulationConfig, out: str | Path, progress: bool = True,
+             dressings: str | Path | None = None) -> Path:
+    """Run (or resume) the simulation into folder `out`; returns the path of ``sequence.npz``.
+    `dressings`: a folder of dressed garments by key that the simulations of other motions share (a
+    dataset's motions are dressed alike: one dressing instead of one per motion)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if config.frames < 1:
@@ -188,7 +201,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True) -
             log.info("%s already holds %d frames of this simulation", sequence_path, len(done["positions"]))
             return sequence_path
     try:
-        dressed = _dressed(config, template, body, betas, out, progress)
+        dressed = _dressed(config, template, body, betas, out, progress, dressings)
     except DressingError as exc:
         raise SimulationError(str(exc)) from exc
     motion = with_dressing_transition(config, motion, dressed)

@@ -60,6 +60,26 @@ def test_a_longer_rerun_continues_the_finished_frames(shirt_run):
     np.testing.assert_array_equal(after[:FRAMES], before)
 
 
+def test_the_motions_of_a_dataset_share_one_dressing(shirt_run, tmp_path, caplog):
+    """A simulation puts its dressing into the shared `dressings` folder; a simulation of another
+    motion then takes it from there instead of dressing again."""
+    config, out, _ = shirt_run
+    first = tmp_path / "walk"
+    first.mkdir()
+    (first / "dressed.npz").write_bytes((out / "dressed.npz").read_bytes())  # the session's dressing
+    dressings = tmp_path / "dressings"
+    simulate(dataclasses.replace(config, frames=2), first, progress=False, dressings=dressings)
+    shared = list(dressings.glob("*.npz"))
+    assert len(shared) == 1
+    with caplog.at_level("INFO", logger="factory.simulate"):
+        simulate(dataclasses.replace(config, motion="wave", frames=2), tmp_path / "wave", progress=False,
+                 dressings=dressings)
+    assert f"reusing the dressing {shared[0]}" in caplog.text
+    mine, theirs = DressedGarment.load(tmp_path / "wave" / "dressed.npz"), DressedGarment.load(out / "dressed.npz")
+    np.testing.assert_array_equal(mine.positions, theirs.positions)
+    assert mine.report["key"] == theirs.report["key"]
+
+
 def test_a_failing_frame_stops_the_run_and_keeps_the_frames_before_it(shirt_run, tmp_path):
     config, out, _ = shirt_run
     (tmp_path / "dressed.npz").write_bytes((out / "dressed.npz").read_bytes())  # reuse the dressing
