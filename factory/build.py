@@ -96,6 +96,8 @@ def prepare(config: DatasetConfig, out: Path, shard: tuple[int, int],
         raise ValueError(f"shard must be i/n with 0 <= i < n, got {index}/{count}")
     if config.variations < 1:
         raise ValueError(f"variations must be >= 1, got {config.variations}")
+    if not 0 < config.fill <= 1 or not 5 <= config.fov_deg <= 120:
+        raise ValueError(f"fill must be in (0, 1] and fov_deg in [5, 120], got {config.fill} and {config.fov_deg}")
     out.mkdir(parents=True, exist_ok=True)
     _check_config(out, config)
     for motion, folder in (simulations or {}).items():

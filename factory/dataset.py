@@ -519,6 +519,11 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--frame-list", help="explicit comma-separated simulation frames instead")
     b.add_argument("--variations", type=int, default=DatasetConfig.variations)
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--fill", type=float, default=DatasetConfig.fill,
+                   help="how much of the narrower image side the garment fills (default %(default)s); smaller: "
+                   "smaller markers")
+    b.add_argument("--fov", type=float, default=DatasetConfig.fov_deg,
+                   help="the camera's horizontal field of view, degrees (default %(default)s)")
     _add_simulation_args(b)
     b.add_argument("--shard", type=_shard, default=(0, 1), help="i/n: this process's share of the images")
     b.add_argument("--backend", choices=factory.build.BACKENDS, default="local",
@@ -566,7 +571,8 @@ def main(argv: list[str] | None = None) -> int:
             config = DatasetConfig(garment=args.garment, motions=tuple(m for m in args.motions.split(",") if m),
                                    body=args.body, frames=args.frames, frame_step=args.frame_step,
                                    frame_list=frame_list, variations=args.variations, seed=args.seed,
-                                   level_mm=args.level, motion_speed=args.speed, render=_render_settings(args))
+                                   level_mm=args.level, motion_speed=args.speed, render=_render_settings(args),
+                                   fov_deg=args.fov, fill=args.fill)
             started = time.perf_counter()
             reuse = dict(item.split("=", 1) for item in args.reuse_simulation if "=" in item)
             if len(reuse) != len(args.reuse_simulation):

@@ -216,3 +216,23 @@ def test_a_dataset_folder_made_before_the_simulation_options_is_still_taken_up(t
     _check_config(tmp_path, config)  # their defaults
     with pytest.raises(ValueError, match="level_mm"):
         _check_config(tmp_path, _config(level_mm=4))
+
+
+def test_a_smaller_fill_shows_smaller_markers_and_a_bad_one_is_refused(tmp_path, shirt_run, capsys):
+    """`--fill`: the fixed camera backs off so the garment fills less of the image, and every marker
+    shrinks by about the ratio (renders of small markers, where the localizer misses most)."""
+    from assets.pattern.observation import ImageGroundTruth
+    from factory.dataset import main
+
+    reach = {}
+    for fill in (0.85, 0.5):
+        out = _seeded(tmp_path / f"fill{fill}", shirt_run)
+        entries = [json.loads(line) for line in build(_config(fill=fill), out, progress=False).read_text().splitlines()]
+        gts = [ImageGroundTruth.load(out / e["gt"]) for e in entries]
+        corners = np.concatenate([g.points_px[g.status == 2] for g in gts])
+        reach[fill] = np.median(np.linalg.norm(corners[:, 1:] - corners[:, :1], axis=-1))
+        assert json.loads((out / "config.json").read_text())["fill"] == fill
+    assert 0.5 < reach[0.5] / reach[0.85] < 0.7
+    assert main(["build", "--garment", "shirt", "--motions", "walk", "--fill", "1.5", "--out", str(tmp_path / "bad")]) == 1
+    assert "fill must be in (0, 1]" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
