@@ -47,7 +47,7 @@ def measure(data: Path, items: int, workers: int, crop_px: int = 256, seed: int 
             dataset[int(i)]
         item_ms = 1000 * (time.perf_counter() - started) / items
         row = {"loader": name, "images": len(dataset.entries), "made_s": made_s, "item_ms": item_ms,
-               "decoded_mib": dataset._decoded.nbytes / 2**20 if dataset._decoded is not None else 0.0}
+               "decoded_mib": dataset.decoded_bytes / 2**20}
         if workers:
             loader = DataLoader(Subset(dataset, order.tolist()), batch_size=16, num_workers=workers,
                                 multiprocessing_context=worker_context("networks.train"), worker_init_fn=one_thread)

@@ -287,6 +287,11 @@ class RenderedDataset(_Items, Dataset):
     def __len__(self) -> int:
         return len(self._index)
 
+    @property
+    def decoded_bytes(self) -> int:
+        """Size of the file of images decoded ahead (`decode_ahead`); 0 when they are read per image."""
+        return 0 if self._decoded is None else self._decoded.nbytes
+
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} items")

@@ -522,7 +522,8 @@ def test_localizer_images_decoded_ahead_give_the_items_read_per_image(folder, tm
         read = RenderedDataset(folder, "train", "localizer", seed=3, **settings)
         ahead = RenderedDataset(folder, "train", "localizer", seed=3, decode_ahead=True, **settings)
         worker = pickle.loads(pickle.dumps(ahead))
-        assert ahead._decoded is not None and ahead._decoded.path.is_file() and len(ahead._decoded) == len(read)
+        assert ahead._decoded.path.is_file() and len(ahead._decoded) == len(read)
+        assert ahead.decoded_bytes == ahead._decoded.path.stat().st_size > 0 and read.decoded_bytes == 0
         for epoch in (0, 1):
             for data in (read, ahead, worker):
                 data.set_epoch(epoch)
