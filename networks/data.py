@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 from collections import OrderedDict
+from dataclasses import fields
 from pathlib import Path
 from typing import Sequence
 
@@ -60,6 +61,8 @@ from networks.synth import PatternSynthesizer, SynthConfig
 
 SPLITS = ("train", "val", "test")
 #: the arrays of samples/<name>.npz each crop task reads
+#: the prefix of the ground-truth arrays a crosspoint image decoded ahead keeps (`RenderedDataset._read`)
+_GT = "gt."
 _CROP_KEYS = {
     "recognizer": ("recognizer_crops", "recognizer_ids"),
     "crosspoints": ("crosspoint_crops", "crosspoint_ids", "crosspoint_xy", "crosspoint_visible"),
@@ -203,9 +206,11 @@ class RenderedDataset(_Items, Dataset):
     crosspoint_margin_cells (crosspoints): the crops' margin (`assets.pattern.crosspoint_crop`); other
     than the reference's 2, the crops are cut anew from the images (the stored ones are 112 x 112),
     of the markers that pass the crop-sanity test in that crop.
-    decode_ahead (localizer): every image of the split and its cells are decoded once, when the dataset
-    is made, into a memory-mapped file the workers share (`networks.decoded`; a split too large for
-    its limit is read per item as without)."""
+    decode_ahead: what an item reads of its image from disk is decoded once for every image of the
+    split, when the dataset is made, into a memory-mapped file the workers share (`networks.decoded`;
+    a split too large for its limit is read per item as without): the localizer's image and cells;
+    for crops cut anew, the image and (crosspoints) its markers' ground truth; else the stored crops
+    of samples/<name>.npz."""
 
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
@@ -238,8 +243,6 @@ class RenderedDataset(_Items, Dataset):
             raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
         if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
             raise ValueError(problem)
-        if decode_ahead and task != "localizer":
-            raise ValueError(f"decode_ahead is for the localizer's images, not the {task} task's crops")
         self._decoded: DecodedArrays | None = None
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
@@ -281,8 +284,8 @@ class RenderedDataset(_Items, Dataset):
         if task == "crosspoints":
             self.codebook = generate_codebook(self.spec)  # before DataLoader workers fork, so they share it
         if decode_ahead:
-            self._decoded = DecodedArrays.write((self._read_localizer(i) for i in range(len(self.entries))),
-                                                len(self.entries), desc=f"decode {split} images ahead")
+            self._decoded = DecodedArrays.write((self._read(i) for i in range(len(self.entries))),
+                                                len(self.entries), desc=f"decode {split} {task} images ahead")
 
     def __len__(self) -> int:
         return len(self._index)
@@ -341,15 +344,15 @@ class RenderedDataset(_Items, Dataset):
         return tuple(min(self.crop_px, side) // CELL * CELL for side in image_size)
 
     def _arrays(self, image_index: int) -> dict[str, np.ndarray]:
-        """One image's decoded arrays, kept in a small per-worker cache: the localizer's image and cells,
-        or a crop task's arrays of samples/<name>.npz."""
+        """One image's arrays as its items use them (`_read`'s, from the file decoded ahead when there
+        is one), kept in a small per-worker cache: the localizer's image and cells (shrunk for
+        marker_px), a crop task's stored crops, or what crops cut anew are cut from (`_marker_source`
+        with the image, and for crosspoints its markers' `ImageGroundTruth` as "gt")."""
         if image_index in self._cache:
             self._cache.move_to_end(image_index)
             return self._cache[image_index]
-        entry = self.entries[image_index]
-        path = self.root / entry["samples"]
+        arrays = self._read(image_index) if self._decoded is None else self._decoded[image_index]
         if self.task == "localizer":
-            arrays = self._read_localizer(image_index) if self._decoded is None else self._decoded[image_index]
             h, w = arrays["image"].shape[:2]
             scale = self._scales[image_index]
             if scale < 1.0:  # shrunk to whole cells: the targets from the points moved by the same factors
@@ -357,9 +360,31 @@ class RenderedDataset(_Items, Dataset):
                 shrink = np.diag([size[0] / w, size[1] / h, 1.0])
                 arrays = {"image": cv2.resize(arrays["image"], size, interpolation=cv2.INTER_AREA),
                           "cells": self._warped_cells(image_index, shrink, size), "shrink": shrink}
-            return self._keep(image_index, arrays)
+        elif self._cut_anew:
+            source = self._sources[image_index]
+            if self.task == "crosspoints":
+                gt = {name[len(_GT):]: array for name, array in arrays.items() if name.startswith(_GT)}
+                size = {"width": int(gt.pop("width")), "height": int(gt.pop("height"))}
+                return self._keep(image_index, {"image": arrays["image"], "gt": ImageGroundTruth(**size, **gt),
+                                                **source})
+            arrays = {"image": arrays["image"], **source}
+        return self._keep(image_index, arrays)
+
+    def _read(self, image_index: int) -> dict[str, np.ndarray]:
+        """What this task's items need of one image from its files, decoded (arrays only: what
+        decode_ahead keeps): the localizer's image and cells; for crops cut anew the image and, for
+        crosspoints, the ground truth of its markers (`_marker_source`'s pick) as "gt.<field>"
+        arrays; else the stored crops (and targets) of samples/<name>.npz, checked."""
+        entry = self.entries[image_index]
+        if self.task == "localizer":
+            return self._read_localizer(image_index)
         if self._cut_anew:
-            return self._keep(image_index, self._jitter_source(image_index))
+            image = _read_png(self.root / entry["image"])
+            if self.task == "recognizer":
+                return {"image": image}
+            gt = ImageGroundTruth.load(self.root / entry["gt"]).select(self._sources[image_index]["pick"])
+            return {"image": image, **{_GT + f.name: np.asarray(getattr(gt, f.name)) for f in fields(gt)}}
+        path = self.root / entry["samples"]
         arrays = load_npz(path, only=_CROP_KEYS[self.task])
         count = len(arrays[_CROP_KEYS[self.task][1]])
         size = (RECOGNIZER_CROP if self.task == "recognizer" else CROSSPOINT_CROP).size_px
@@ -372,7 +397,7 @@ class RenderedDataset(_Items, Dataset):
                     if arrays[name].shape != shape or arrays[name].dtype != dtype]
         if problems:
             raise ValueError(f"{path}: " + "; ".join(problems))
-        return self._keep(image_index, arrays)
+        return arrays
 
     @property
     def _cut_anew(self) -> bool:
@@ -404,16 +429,6 @@ class RenderedDataset(_Items, Dataset):
         if self.task == "recognizer":
             return {"points_px": gt.points_px[pick].astype(np.float64), key: stored}
         return {"pick": pick, key: stored}
-
-    def _jitter_source(self, image_index: int) -> dict[str, np.ndarray]:
-        """An image's pixels with its `_marker_source` (the crosspoint network's: its markers'
-        ground truth)."""
-        entry, source = self.entries[image_index], self._sources[image_index]
-        image = _read_png(self.root / entry["image"])
-        if self.task == "recognizer":
-            return {"image": image, **source}
-        gt = ImageGroundTruth.load(self.root / entry["gt"]).select(source["pick"])
-        return {"image": image, "gt": gt, **source}
 
     def _warp_markers(self, image_index: int) -> dict[str, np.ndarray]:
         """An image's markers as the view warp's cells need them: points off the fabric completed as

@@ -1,13 +1,15 @@
-"""Arrays decoded once and kept in one file, memory-mapped: the localizer's rendered training images.
+"""Arrays decoded once and kept in one file, memory-mapped: what rendered training items read of their images.
 
-A rendered localizer item reads a random image of the split each time.  Decoding its PNG (8 ms at
-512 x 512) and reading its cells from samples/<name>.npz (3 ms) were two thirds of the item's 18 ms
-on our CPU, and the per-worker cache rarely hits, so the localizer on renders alone trained at 16.5
-steps/s against 27.5 with half its items from shards (RESULTS.md, twentieth GPU run).  With
-`RenderedDataset(decode_ahead=True)` the dataset decodes every image of its split once, in the
-process that makes it, into one file in the temporary folder (`DecodedArrays.write`); each DataLoader
-worker maps that file read-only, and the page cache shares it between workers.  The file is deleted
-when the object that wrote it is collected or its process exits.
+A rendered item reads a random image of the split each time.  For the localizer, decoding its PNG
+(8 ms at 512 x 512) and reading its cells from samples/<name>.npz (3 ms) were two thirds of the item's
+18 ms on our CPU, and the per-worker cache rarely hits, so the localizer on renders alone trained at
+16.5 steps/s against 27.5 with half its items from shards (RESULTS.md, twentieth GPU run; 33.1 with
+this file, twenty-first).  A jittered crosspoint crop spent 17 of its 21 ms reading the PNG and the
+markers' ground truth.  With `RenderedDataset(decode_ahead=True)` the dataset decodes every image
+of its split once, in the process that makes it, into one file in the temporary folder
+(`DecodedArrays.write`); each DataLoader worker maps that file read-only, and the page cache shares
+it between workers.  The file is deleted when the object that wrote it is collected or its process
+exits.
 """
 
 from __future__ import annotations

@@ -257,7 +257,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
                                crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
-                               crosspoint_margin_cells=margin, decode_ahead=task == "localizer")
+                               crosspoint_margin_cells=margin, decode_ahead=True)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px,
                           crosspoint_margin_cells=margin)
     for split, dataset in (("train", rendered), ("val", val)):

@@ -533,12 +533,39 @@ def test_localizer_images_decoded_ahead_give_the_items_read_per_image(folder, tm
                     item = data[i]
                     assert torch.equal(item["image"], expected["image"])
                     assert np.array_equal(item["cells"].numpy(), expected["cells"].numpy(), equal_nan=True)
-    with pytest.raises(ValueError, match="decode_ahead"):
-        RenderedDataset(folder, "train", "recognizer", decode_ahead=True)
 
 
-def test_the_decode_ahead_benchmark_reads_the_same_items_both_ways_through_workers(folder, load_benchmark):
-    rows = load_benchmark("decode_ahead").measure(folder, items=64, workers=1, crop_px=64)
+@pytest.mark.parametrize("task, settings", [
+    ("recognizer", {}), ("recognizer", {"crop_jitter_px": 1.0, "partial_markers": True}),
+    ("crosspoints", {}), ("crosspoints", {"crop_jitter_px": 1.0}), ("crosspoints", {"crosspoint_margin_cells": 3})])
+def test_crop_items_decoded_ahead_give_the_items_read_per_image(folder, tmp_path, task, settings):
+    """The crop tasks decode ahead what they read per image (stored crops; or the image and the
+    markers' ground truth that crops cut anew are cut from): the same items, augmented and over two
+    epochs, also in a pickled worker's copy and with the images, ground truth and samples deleted
+    once the dataset is made."""
+    moved = shutil.copytree(folder, tmp_path / "dataset")
+    read = RenderedDataset(folder, "train", task, seed=3, augment=Augment(), **settings)
+    ahead = RenderedDataset(moved, "train", task, seed=3, augment=Augment(), decode_ahead=True, **settings)
+    for name in ("images", "gt", "samples"):
+        shutil.rmtree(moved / name)
+    worker = pickle.loads(pickle.dumps(ahead))
+    assert len(ahead) == len(read) > 0 and ahead.decoded_bytes > 0 and read.decoded_bytes == 0
+    for epoch in (0, 1):
+        for data in (read, ahead, worker):
+            data.set_epoch(epoch)
+        for i in range(len(read)):
+            expected = read[i]
+            for data in (ahead, worker):
+                item = data[i]
+                assert item.keys() == expected.keys()
+                for key, value in expected.items():
+                    assert np.array_equal(item[key].numpy(), value.numpy(), equal_nan=True), (task, settings, i, key)
+
+
+@pytest.mark.parametrize("task", ["localizer", "crosspoints"])
+def test_the_decode_ahead_benchmark_reads_the_same_items_both_ways_through_workers(folder, load_benchmark, task):
+    rows = load_benchmark("decode_ahead").measure(folder, items=64, workers=1, crop_px=64, task=task)
     assert [r["loader"] for r in rows] == ["read per image", "decoded ahead"]
-    assert all(r["images"] == 4 and r["item_ms"] > 0 and r["loader_items_per_s"] > 0 for r in rows)
+    assert all(r["task"] == task and r["images"] == 4 and r["item_ms"] > 0 and r["loader_items_per_s"] > 0
+               for r in rows)
     assert rows[0]["decoded_mib"] == 0 and rows[1]["decoded_mib"] > 0
