@@ -276,6 +276,21 @@ def with_synth_weight(runs: dict[str, tuple], name: str, weight: float) -> dict[
     return {**runs, name: (task, weight, stop, share, folder)}
 
 
+def synth_weights(items: list[str], runs: dict[str, tuple]) -> dict[str, tuple]:
+    """`runs` with each `RUN=W` of `items` (`--synth-weight`) drawing W of its samples from the
+    synthesizer (`with_synth_weight`), for this call; a malformed item or an unknown run is refused by name."""
+    for item in items:
+        name, sep, weight = item.partition("=")
+        if not sep or name not in runs:
+            raise ValueError(f"{item!r}: expected RUN=W with RUN one of {', '.join(runs)}")
+        try:
+            value = float(weight)
+        except ValueError:
+            raise ValueError(f"{item!r}: the weight {weight!r} is not a number") from None
+        runs = with_synth_weight(runs, name, value)
+    return runs
+
+
 def make_shards(out: Path, rendered: Path, workers: int, seconds: float, smoke: bool, names: list[str]
                 ) -> dict[str, dict]:
     """Write (or continue) the shard folders that the runs `names` train on within `seconds` in all,
@@ -789,6 +804,9 @@ def main() -> None:
     parser.add_argument("--localizer-synth-weight", type=float,
                         help=f"the main localizer run's share of synthesized images (default "
                         f"{RUNS[MAIN['localizer']][1]}); 0 with --init: a last phase on the renders alone")
+    parser.add_argument("--synth-weight", action="append", default=[], metavar="RUN=W",
+                        help="run RUN's share of synthesized samples for this call (repeatable; 0: renders alone), "
+                        "e.g. crosspoints_jitter=0")
     parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
                         help="the localizer runs read rendered images shrunk so their markers measure this many "
                         "pixels, as the Detector's automatic scale shows them (TrainConfig.localizer_marker_px; "
@@ -819,6 +837,10 @@ def main() -> None:
             RUNS.update(with_synth_weight(RUNS, MAIN["localizer"], args.localizer_synth_weight))
         except ValueError as exc:
             sys.exit(f"--localizer-synth-weight: {exc}")
+    try:
+        RUNS.update(synth_weights(args.synth_weight, RUNS))
+    except ValueError as exc:
+        sys.exit(f"--synth-weight {exc}")
     deadline = started + args.budget_minutes * 60
     args.out.mkdir(parents=True, exist_ok=True)
     spec = dataset_spec(args.rendered)

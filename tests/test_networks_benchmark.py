@@ -65,6 +65,17 @@ def test_a_run_s_synth_weight_can_be_changed_for_one_call(bench):
         bench.with_synth_weight(bench.RUNS, "localizer_mix", 1.5)
 
 
+def test_synth_weight_sets_any_run_s_share_for_one_call_and_refuses_bad_items(bench):
+    runs = bench.synth_weights(["crosspoints_jitter=0", "recognizer_partial=0.25"], bench.RUNS)
+    assert runs["crosspoints_jitter"][1] == 0.0 and runs["recognizer_partial"][1] == 0.25
+    assert bench.RUNS["crosspoints_jitter"][1] == 0.75  # a new table
+    assert bench.synth_weights([], bench.RUNS) == bench.RUNS
+    for item, problem in (("crosspoints_jitter", "RUN=W"), ("nope=0.5", "RUN=W"),
+                          ("crosspoints_jitter=x", "not a number"), ("crosspoints_jitter=2", "synth weight")):
+        with pytest.raises(ValueError, match=problem):
+            bench.synth_weights([item], bench.RUNS)
+
+
 def test_a_failing_stage_is_recorded_and_the_next_still_runs(bench, tmp_path):
     result = {"errors": {}}
     path = tmp_path / "results.json"
