@@ -61,12 +61,12 @@ from networks.synth import PatternSynthesizer, SynthConfig
 
 SPLITS = ("train", "val", "test")
 #: the arrays of samples/<name>.npz each crop task reads
-#: the prefix of the ground-truth arrays a crosspoint image decoded ahead keeps (`RenderedDataset._read`)
-_GT = "gt."
 _CROP_KEYS = {
     "recognizer": ("recognizer_crops", "recognizer_ids"),
     "crosspoints": ("crosspoint_crops", "crosspoint_ids", "crosspoint_xy", "crosspoint_visible"),
 }
+#: the prefix of the ground-truth arrays a crosspoint image decoded ahead keeps (`RenderedDataset._read`)
+_GT = "gt."
 #: synthetic samples tried for one crop item before giving up (a sample may show no usable marker)
 _ATTEMPTS = 32
 #: the stream of a synthetic sample's crop jitter (`synth_crops`), apart from the synthesizer's own
