@@ -10,7 +10,8 @@ Reports (see `networks.metrics` for the definitions):
                visible ones, and the median and 95th-percentile error of each localization point;
   recognizer   top-1 and top-5 accuracy;
   crosspoints  visibility precision / recall and the median and 95th-percentile error of the
-               crosspoints visible in the ground truth, in crop pixels and in image pixels;
+               crosspoints visible in the ground truth, in crop pixels and in image pixels, also by
+               the size of the crop's marker in the image (a crop magnifies a small marker more);
 and the mean loss of each.  Prints a table and writes the metrics as JSON.  The three chained, as
 `networks.Detector` runs them on whole images: `python -m networks.evaluate_detector`.
 
@@ -45,7 +46,7 @@ from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
 from networks.data import dataset_spec
 from networks.decode import decode_localizer
-from networks.homography import crop_to_image
+from networks.homography import crop_to_image, marker_side_px
 from networks.metrics import (
     MATCH_RADIUS_PX,
     cells_to_markers,
@@ -235,7 +236,7 @@ class _Results:
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
                 self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy),
-                          gt_image=np.asarray(batch["gt_xy_image"]))
+                          gt_image=np.asarray(batch["gt_xy_image"]), side=marker_side_px(points))
 
     def result(self) -> dict:
         if self.samples == 0:
@@ -254,7 +255,7 @@ class _Results:
             image = {}
             if len(s.get("pred_image", [])) == len(s["pred_xy"]):  # every batch had image points
                 image = {"pred_xy_image": np.concatenate(s["pred_image"]),
-                         "gt_xy_image": np.concatenate(s["gt_image"])}
+                         "gt_xy_image": np.concatenate(s["gt_image"]), "marker_side_px": np.concatenate(s["side"])}
             metrics = crosspoint_metrics(np.concatenate(s["pred_visible"]), np.concatenate(s["pred_xy"]),
                                          np.concatenate(s["gt_visible"]), np.concatenate(s["gt_xy"]), **image)
         return {"loss": loss, "samples": self.samples, **metrics}

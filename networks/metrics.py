@@ -11,7 +11,9 @@ returns a dict of plain floats and ints (JSON-ready); a statistic over no values
 * Marker Recognizer (`recognizer_metrics`): top-1 and top-5 accuracy.
 * Crosspoint Localizer (`crosspoint_metrics`): visibility precision and recall, and the median and
   95th percentile pixel error of the crosspoints visible in the ground truth, in crop pixels and,
-  given their image positions, in image pixels.
+  given their image positions, in image pixels; given each crop's marker size in the image, the
+  same errors by size (`MARKER_SIZE_BINS_PX`: a crop magnifies a small marker more, so the same
+  image error reads larger in its crop).
 * The whole Detector (`match_detections` per image, `detector_metrics` pooled): its `Detections`
   against an image's `ImageGroundTruth`: markers found, IDs, partial flags, five-point and crosspoint
   errors, and the layout residual that decides which markers are cut.
@@ -33,6 +35,8 @@ if TYPE_CHECKING:  # annotations only: the metrics import neither torch nor the 
 
 #: a predicted marker centre within this distance of a ground-truth centre is a match (pixels)
 MATCH_RADIUS_PX = 4.0
+#: edges of the marker-size bins of `crosspoint_metrics` (side in image pixels, `marker_side_px`)
+MARKER_SIZE_BINS_PX = (0.0, 12.0, 16.0, 20.0, 24.0, np.inf)
 
 
 def error_stats(errors: np.ndarray) -> dict[str, float | int | None]:
@@ -194,15 +198,19 @@ def recognizer_metrics(ranked_ids: np.ndarray, marker_id: np.ndarray) -> dict:
 
 
 def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible: np.ndarray, gt_xy: np.ndarray,
-                       pred_xy_image: np.ndarray | None = None, gt_xy_image: np.ndarray | None = None) -> dict:
+                       pred_xy_image: np.ndarray | None = None, gt_xy_image: np.ndarray | None = None,
+                       marker_side_px: np.ndarray | None = None) -> dict:
     """Crosspoint visibility and position accuracy over N crops of K x K crosspoints.
 
     pred_visible, gt_visible (N, K, K) bool; pred_xy, gt_xy (N, K, K, 2) crop pixels (NaN off the
     fabric); pred_xy_image, gt_xy_image optionally the same points in image pixels (the crop points
     mapped through the inverse crop homography).  Position errors are over the crosspoints visible
-    in the ground truth, whatever the predicted visibility.
+    in the ground truth, whatever the predicted visibility.  marker_side_px (N,) optionally each
+    crop's marker side in the image (`networks.homography.marker_side_px` of its five points).
     Returns {"visibility": {precision, recall, f1, counts}, "crop_error_px": {median, p95, count},
-    "image_error_px": the same or None, "crops": N}."""
+    "image_error_px": the same or None, "crops": N}, and with marker_side_px "by_marker_size":
+    {"<lo>-<hi> px": {"crops", "crop_error_px", "image_error_px"}} per bin of `MARKER_SIZE_BINS_PX`
+    that holds a crop."""
     pred_visible = np.asarray(pred_visible, dtype=bool)
     gt_visible = np.asarray(gt_visible, dtype=bool)
     pred_xy = np.asarray(pred_xy, dtype=np.float64)
@@ -213,7 +221,7 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
     tp = int((pred_visible & gt_visible).sum())
     fp = int((pred_visible & ~gt_visible).sum())
     fn = int((~pred_visible & gt_visible).sum())
-    crop_error = np.linalg.norm(pred_xy - gt_xy, axis=-1)[gt_visible]
+    crop_error = np.where(gt_visible, np.linalg.norm(pred_xy - gt_xy, axis=-1), np.nan)  # (N, K, K)
     image_error = None
     if pred_xy_image is not None and gt_xy_image is not None:
         pred_image = np.asarray(pred_xy_image, dtype=np.float64)
@@ -221,9 +229,23 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
         if pred_image.shape != gt_xy.shape or gt_image.shape != gt_xy.shape:
             raise ValueError(f"crosspoint_metrics: image points must have shape {gt_xy.shape}, got "
                              f"{pred_image.shape} and {gt_image.shape}")
-        image_error = error_stats(np.linalg.norm(pred_image - gt_image, axis=-1)[gt_visible])
-    return {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error),
-            "image_error_px": image_error, "crops": int(len(gt_xy))}
+        image_error = np.where(gt_visible, np.linalg.norm(pred_image - gt_image, axis=-1), np.nan)
+    result = {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error[gt_visible]),
+              "image_error_px": None if image_error is None else error_stats(image_error[gt_visible]),
+              "crops": int(len(gt_xy))}
+    if marker_side_px is not None:
+        side = np.asarray(marker_side_px, dtype=np.float64)
+        if side.shape != (len(gt_xy),):
+            raise ValueError(f"crosspoint_metrics: marker_side_px must have shape ({len(gt_xy)},), got {side.shape}")
+        result["by_marker_size"] = {}
+        edges = MARKER_SIZE_BINS_PX
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            rows = (side >= lo) & (side < hi)
+            if rows.any():
+                result["by_marker_size"][f"{lo:g}-{hi:g} px"] = {
+                    "crops": int(rows.sum()), "crop_error_px": error_stats(crop_error[rows][gt_visible[rows]]),
+                    "image_error_px": None if image_error is None else error_stats(image_error[rows][gt_visible[rows]])}
+    return result
 
 
 # ---- the whole Detector ---------------------------------------------------------------------------

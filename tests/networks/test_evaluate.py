@@ -214,6 +214,27 @@ def test_recognizer_and_crosspoint_metrics():
         crosspoint_metrics(gt_visible, gt_xy[:2], gt_visible, gt_xy)
 
 
+def test_crosspoint_errors_by_marker_size():
+    """Each crop's errors go to its marker's size bin; the pooled numbers stay what they were."""
+    gt_xy = np.zeros((3, 5, 5, 2))
+    gt_visible = np.ones((3, 5, 5), bool)
+    gt_visible[2, 0] = False  # a hidden row: not counted
+    shift = np.array([2.0, 0.5, 0.3])[:, None, None, None] * [0.6, 0.8]  # crop errors 2, 0.5, 0.3 px
+    pred_xy = gt_xy + shift
+    result = crosspoint_metrics(gt_visible, pred_xy, gt_visible, gt_xy, pred_xy / 10, gt_xy / 10,
+                                marker_side_px=np.array([10.0, 21.0, 23.0]))
+    assert result["crop_error_px"] == crosspoint_metrics(gt_visible, pred_xy, gt_visible, gt_xy)["crop_error_px"]
+    by_size = result["by_marker_size"]
+    assert list(by_size) == ["0-12 px", "20-24 px"]  # bins without a crop are left out
+    assert by_size["0-12 px"]["crops"] == 1 and by_size["0-12 px"]["crop_error_px"]["median"] == pytest.approx(2.0)
+    assert by_size["0-12 px"]["image_error_px"]["median"] == pytest.approx(0.2)
+    assert by_size["20-24 px"]["crops"] == 2 and by_size["20-24 px"]["crop_error_px"]["count"] == 25 + 20
+    assert by_size["20-24 px"]["crop_error_px"]["median"] == pytest.approx(0.5)  # 25 at 0.5 against 20 at 0.3
+    assert "by_marker_size" not in crosspoint_metrics(gt_visible, pred_xy, gt_visible, gt_xy)
+    with pytest.raises(ValueError, match="marker_side_px"):
+        crosspoint_metrics(gt_visible, pred_xy, gt_visible, gt_xy, marker_side_px=np.ones(2))
+
+
 # ---- the dataset folder and the model runs ---------------------------------------------------------
 
 def test_folder_batches_carry_consistent_ground_truth(dataset):

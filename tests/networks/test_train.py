@@ -376,6 +376,9 @@ def test_the_crosspoint_network_trains_and_evaluates_in_a_wider_crop_from_a_refe
     assert saved_config.crosspoint_margin_cells == 4 and model.crop.size_px == 128
     metrics = evaluate(tmp_path / "wide" / "last.pt", dataset, split="test", device="cpu", progress=False)
     assert metrics["crops"] >= 1 and metrics["crop_error_px"]["count"] > 0 and metrics["image_error_px"] is not None
+    by_size = metrics["by_marker_size"]  # the crops' markers by size, from their five image points
+    assert sum(b["crops"] for b in by_size.values()) == metrics["crops"]
+    assert sum(b["crop_error_px"]["count"] for b in by_size.values()) == metrics["crop_error_px"]["count"]
     with pytest.raises(ValueError, match=r"margin of 4 cells.*--crosspoint-margin 2"):
         train(config.replace(crosspoint_margin_cells=2, init=None), dataset, tmp_path / "mismatch", device="cpu",
               spec=SPEC, shards=shards, progress=False)
