@@ -524,15 +524,21 @@ def test_localizer_images_decoded_ahead_give_the_items_read_per_image(folder, tm
         worker = pickle.loads(pickle.dumps(ahead))
         assert ahead._decoded.path.is_file() and len(ahead._decoded) == len(read)
         assert ahead.decoded_bytes == ahead._decoded.path.stat().st_size > 0 and read.decoded_bytes == 0
-        for epoch in (0, 1):
-            for data in (read, ahead, worker):
-                data.set_epoch(epoch)
-            for i in range(len(read)):
-                expected = read[i]
-                for data in (ahead, worker):
-                    item = data[i]
-                    assert torch.equal(item["image"], expected["image"])
-                    assert np.array_equal(item["cells"].numpy(), expected["cells"].numpy(), equal_nan=True)
+        _assert_same_items(read, ahead, worker)
+
+
+def _assert_same_items(read: RenderedDataset, *others: RenderedDataset) -> None:
+    """Every item of `others` equals `read`'s (NaN where it has NaN), in epochs 0 and 1."""
+    for epoch in (0, 1):
+        for data in (read, *others):
+            data.set_epoch(epoch)
+        for i in range(len(read)):
+            expected = read[i]
+            for data in others:
+                item = data[i]
+                assert item.keys() == expected.keys()
+                for key, value in expected.items():
+                    assert np.array_equal(item[key].numpy(), value.numpy(), equal_nan=True), (data.task, i, epoch, key)
 
 
 @pytest.mark.parametrize("task, settings", [
@@ -550,16 +556,7 @@ def test_crop_items_decoded_ahead_give_the_items_read_per_image(folder, tmp_path
         shutil.rmtree(moved / name)
     worker = pickle.loads(pickle.dumps(ahead))
     assert len(ahead) == len(read) > 0 and ahead.decoded_bytes > 0 and read.decoded_bytes == 0
-    for epoch in (0, 1):
-        for data in (read, ahead, worker):
-            data.set_epoch(epoch)
-        for i in range(len(read)):
-            expected = read[i]
-            for data in (ahead, worker):
-                item = data[i]
-                assert item.keys() == expected.keys()
-                for key, value in expected.items():
-                    assert np.array_equal(item[key].numpy(), value.numpy(), equal_nan=True), (task, settings, i, key)
+    _assert_same_items(read, ahead, worker)
 
 
 @pytest.mark.parametrize("task", ["localizer", "crosspoints"])
