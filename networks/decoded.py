@@ -76,7 +76,7 @@ class DecodedArrays:
                 for item in tqdm(itertools.chain([first], items), total=count, desc=desc, disable=count < 50):
                     entry = {}
                     for key, array in item.items():
-                        array = np.ascontiguousarray(array)
+                        array = np.asarray(array, order="C")  # ascontiguousarray would make a 0-d array 1-d
                         entry[key] = (file.tell(), tuple(array.shape), array.dtype.str)
                         file.write(array.tobytes())
                         file.write(bytes(_padded(array.nbytes) - array.nbytes))

@@ -27,12 +27,15 @@ def _items(count: int, side: int = 24) -> list[dict[str, np.ndarray]]:
 def test_items_come_back_exactly_as_read_only_aligned_views(temp):
     items = _items(5)
     items[2]["cells"][0, 0] = np.nan
+    for i, item in enumerate(items):  # a scalar, an empty array and a transposed (not contiguous) one too
+        item.update(width=np.asarray(100 + i), none=np.zeros((0, 5, 2), np.float32), turned=item["cells"][..., 0].T)
     decoded = DecodedArrays.write(iter(items), len(items))
     assert decoded is not None and list(temp.iterdir()) == [decoded.path] and len(decoded) == 5
     for item, back in zip(items, (decoded[i] for i in range(5))):
         assert back.keys() == item.keys()
         for key in item:
-            assert back[key].dtype == item[key].dtype and np.array_equal(back[key], item[key], equal_nan=True)
+            assert back[key].dtype == item[key].dtype and back[key].shape == item[key].shape
+            assert np.array_equal(back[key], item[key], equal_nan=True)
             assert not back[key].flags.writeable  # a worker cannot change what the others read
     assert all(offset % 64 == 0 for entry in decoded.layout for offset, _, _ in entry.values())
 
