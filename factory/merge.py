@@ -2,13 +2,16 @@
 
 Datasets built apart (other frames, motions, seeds, machines) become one set the networks read as
 one: `networks.train --data OUT`, `benchmarks/networks.py --rendered OUT`.  Each image keeps its
-name, files and record; `--train SRC` puts every image of that source in the train split (more
-training images beside a set whose held-out split stays as it was, so results stay comparable).
+files and record, and its name unless an earlier source holds an image of that name with other
+pixels (two builds of the same motion and frames with other seeds name their images alike): then
+it is renamed `<name>_m<k>` (k: its source's position, from 1) with its files, and its record keeps
+the old name as "source_name".  `--train SRC` puts every image of that source in the train split
+(more training images beside a set whose held-out split stays as it was, so results stay comparable).
 
 Refused, naming the files:
 - sources whose `template.npz` differ (another garment, level or pattern: their marker IDs and
   ground truth do not mean the same);
-- an image name in two sources;
+- an image in two sources with the same name and the same pixels (a dataset merged twice);
 - a simulation frame (motion/frame) in two splits, which would put the same garment geometry in
   training and in evaluation.
 
@@ -26,7 +29,7 @@ import filecmp
 import os
 import shutil
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from tqdm import tqdm
 
@@ -71,6 +74,19 @@ def _place(source: Path, target: Path) -> None:
             shutil.copy2(source, tmp)
 
 
+def _renamed(record: dict, name: str) -> dict:
+    """`record` as image `name`: its file fields' names start with the new name instead of the old."""
+    old = record["name"]
+    renamed = {**record, "name": name, "source_name": record.get("source_name", old)}
+    for field in FILE_FIELDS:
+        if field in record:
+            path = PurePosixPath(record[field])
+            if not path.name.startswith(old):
+                raise ValueError(f"image {old}: its {field} file {record[field]} is not named after it")
+            renamed[field] = str(path.with_name(name + path.name[len(old):]))
+    return renamed
+
+
 def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path:
     """Merge `sources` into the folder `out` (layout above); returns its manifest.jsonl."""
     out = Path(out)
@@ -78,25 +94,31 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
         raise ValueError("merge needs at least one source dataset folder")
     first = sources[0].folder / "template.npz"
     plan, names, frames, counts = [], {}, {}, []
-    for source in sources:
+    for k, source in enumerate(sources, start=1):
         records = _records(source.folder)
         template = source.folder / "template.npz"
         if not filecmp.cmp(first, template, shallow=False):
             raise ValueError(f"{template} differs from {first}: another garment, level or pattern, whose marker IDs "
                              "and ground truth do not mean the same")
-        for record in records:
-            record = {**record, "split": "train"} if source.train else record
+        for original in records:
+            record = {**original, "split": "train"} if source.train else original
             name = record["name"]
             if name in names:
-                raise ValueError(f"image {name} is in both {names[name]} and {source.folder}: merge datasets built "
-                                 "with other frames or motions")
-            names[name] = source.folder
+                folder, earlier = names[name]
+                if filecmp.cmp(folder / earlier["image"], source.folder / record["image"], shallow=False):
+                    raise ValueError(f"image {name} is in both {folder} and {source.folder} with the same pixels: "
+                                     "the same dataset merged twice")
+                record = _renamed(record, f"{name}_m{k}")
+                if record["name"] in names:
+                    raise ValueError(f"image {name} of {source.folder} cannot be renamed {record['name']}: "
+                                     f"{names[record['name']][0]} holds an image of that name")
+            names[record["name"]] = (source.folder, original)
             frame = f"{record['motion']}/{record['frame']}"
             split, where = frames.setdefault(frame, (record["split"], source.folder))
             if split != record["split"]:
                 raise ValueError(f"simulation frame {frame} is {split} in {where} and {record['split']} in "
                                  f"{source.folder}: the same garment geometry would be trained on and evaluated")
-            plan.append((source.folder, record))
+            plan.append((source.folder, original, record))
         counts.append(len(records))
     config = {"merged": [{"folder": str(s.folder.resolve()), "train": s.train, "images": count,
                           "config": load_json(s.folder / "config.json") if (s.folder / "config.json").is_file() else None}
@@ -108,10 +130,10 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
     for name in SHARED_FILES:
         if (sources[0].folder / name).is_file():
             _place(sources[0].folder / name, out / name)
-    for folder, record in tqdm(plan, desc="merge", unit="image", disable=not progress):
+    for folder, original, record in tqdm(plan, desc="merge", unit="image", disable=not progress):
         for field in FILE_FIELDS:
-            if field in record and (folder / record[field]).is_file():
-                _place(folder / record[field], out / record[field])
+            if field in record and (folder / original[field]).is_file():
+                _place(folder / original[field], out / record[field])
         meta = out / "meta" / f"{record['name']}.json"
         if not meta.exists() or load_json(meta) != record:
             save_json(meta, record)

@@ -3,6 +3,7 @@
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -64,9 +65,34 @@ def test_merged_images_keep_their_files_and_the_train_source_trains(sources, tmp
     assert (out / "manifest.jsonl").read_bytes() == manifest
 
 
+def test_images_of_the_same_name_with_other_pixels_are_renamed_with_their_files(sources, tmp_path):
+    """Two builds of the same motion and frames (other seeds) name their images alike: the later
+    source's images are renamed with their files, and the merged set reads both."""
+    held, more = sources
+    twin = shutil.copytree(more, tmp_path / "twin")
+    for entry in _manifest(twin).values():  # other pixels under the same names
+        image = cv2.imread(str(twin / entry["image"]))
+        cv2.imwrite(str(twin / entry["image"]), 255 - image)
+    out = tmp_path / "both"
+    merge(out, [Source(held), Source(more, train=True), Source(twin, train=True)], progress=False)
+    merged, extra = _manifest(out), _manifest(more)
+    assert set(merged) == set(_manifest(held)) | set(extra) | {f"{name}_m3" for name in extra}
+    for name, entry in extra.items():
+        renamed = merged[f"{name}_m3"]
+        assert renamed["source_name"] == name and "source_name" not in merged[name]
+        for field in ("image", "gt", "samples"):
+            assert renamed[field] == entry[field].replace(name, f"{name}_m3")
+            assert (out / renamed[field]).read_bytes() == (twin / entry[field]).read_bytes()
+            assert (out / merged[name][field]).read_bytes() == (more / entry[field]).read_bytes()
+    trained = RenderedDataset(out, "train", "localizer", spec=SPEC)
+    assert len(trained) == 1 + 2 * len(extra)
+    merge(out, [Source(held), Source(more, train=True), Source(twin, train=True)], progress=False)  # a rerun
+    assert _manifest(out) == merged
+
+
 def test_merging_what_does_not_belong_together_is_refused(sources, tmp_path):
     held, more = sources
-    with pytest.raises(ValueError, match="is in both"):
+    with pytest.raises(ValueError, match="is in both .* with the same pixels"):
         merge(tmp_path / "twice", [Source(held), Source(held, train=True)], progress=False)
     other = shutil.copytree(more, tmp_path / "other")
     save_npz(other / "template.npz", {"layout_json": np.frombuffer(b"{}", np.uint8)})
