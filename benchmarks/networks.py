@@ -832,15 +832,14 @@ def main() -> None:
     unknown = sorted(set(names) - set(RUNS))
     if unknown:
         sys.exit(f"--runs: unknown run(s) {', '.join(unknown)}; the runs are {', '.join(RUNS)}")
-    if args.localizer_synth_weight is not None:  # this call's run table: shards, configs and results follow it
-        try:
-            RUNS.update(with_synth_weight(RUNS, MAIN["localizer"], args.localizer_synth_weight))
-        except ValueError as exc:
-            sys.exit(f"--localizer-synth-weight: {exc}")
+    # this call's run table: shards, configs and results follow it (--localizer-synth-weight W is
+    # --synth-weight localizer_mix=W)
+    weights = args.synth_weight + ([] if args.localizer_synth_weight is None else
+                                   [f"{MAIN['localizer']}={args.localizer_synth_weight}"])
     try:
-        RUNS.update(synth_weights(args.synth_weight, RUNS))
+        RUNS.update(synth_weights(weights, RUNS))
     except ValueError as exc:
-        sys.exit(f"--synth-weight {exc}")
+        sys.exit(f"--synth-weight / --localizer-synth-weight {exc}")
     deadline = started + args.budget_minutes * 60
     args.out.mkdir(parents=True, exist_ok=True)
     spec = dataset_spec(args.rendered)

@@ -230,9 +230,9 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
             raise ValueError(f"crosspoint_metrics: image points must have shape {gt_xy.shape}, got "
                              f"{pred_image.shape} and {gt_image.shape}")
         image_error = np.where(gt_visible, np.linalg.norm(pred_image - gt_image, axis=-1), np.nan)
-    result = {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error[gt_visible]),
-              "image_error_px": None if image_error is None else error_stats(image_error[gt_visible]),
-              "crops": int(len(gt_xy))}
+    # the errors are NaN where the truth hides the crosspoint, and `error_stats` counts finite values only
+    result = {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error),
+              "image_error_px": None if image_error is None else error_stats(image_error), "crops": int(len(gt_xy))}
     if marker_side_px is not None:
         side = np.asarray(marker_side_px, dtype=np.float64)
         if side.shape != (len(gt_xy),):
@@ -243,8 +243,8 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
             rows = (side >= lo) & (side < hi)
             if rows.any():
                 result["by_marker_size"][f"{lo:g}-{hi:g} px"] = {
-                    "crops": int(rows.sum()), "crop_error_px": error_stats(crop_error[rows][gt_visible[rows]]),
-                    "image_error_px": None if image_error is None else error_stats(image_error[rows][gt_visible[rows]])}
+                    "crops": int(rows.sum()), "crop_error_px": error_stats(crop_error[rows]),
+                    "image_error_px": None if image_error is None else error_stats(image_error[rows])}
     return result
 
 
