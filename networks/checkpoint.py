@@ -9,8 +9,9 @@ read with ``torch.load(path, weights_only=True)`` (no code runs on load)::
      "scheduler": state dict | None, "step": int, "metrics": dict, "rng": {"torch", "cuda"}, ...extra}
 
 A compact checkpoint (`slim_checkpoint(..., dtype=torch.int8)`) also holds "int8_scales": {key: (out,)
-float32}, one scale per output channel of each weight stored as int8; `read_checkpoint` returns its
-weights dequantized to float32, so everything else reads it as any other.
+float32}, one scale per output channel of each weight stored as int8 (all but `FLOAT_WEIGHTS`' of its
+task, which stay float32); `read_checkpoint` returns its weights dequantized to float32, so everything
+else reads it as any other.
 
 The pattern record ties a checkpoint to the codebook its recognizer learned: loading with another
 pattern (another codebook, or other marker appearance) is refused.  The fabric's extent (rows, cols,
@@ -129,14 +130,23 @@ def _describe(data: object) -> str:
     return f"a {type(data).__name__}"
 
 
-def quantize_weights(state: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+#: per task, the weights (key prefixes) a compact checkpoint keeps in float32: the localizer's head
+#: regresses pixel offsets straight from its weights, and rounding it is what int8 cost the localizer
+#: (held-out corners 0.45-0.48 -> 0.46-0.51 px, recall 0.989 -> 0.988), while rounding its backbone
+#: even to 6 bits moved nothing (benchmarks/RESULTS.md, "int8 and the localizer's head"); 1.8 MB more.
+FLOAT_WEIGHTS = {"localizer": ("head.",), "recognizer": (), "crosspoints": ()}
+
+
+def quantize_weights(state: dict[str, torch.Tensor], keep_float: tuple[str, ...] = ()
+                     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     """(state with each floating-point weight of 2 or more dimensions as int8, {key: (out,) float32
     scale}).  Symmetric, per output channel (dim 0): the channel's largest magnitude maps to 127, so
     each weight moves by at most half its channel's step.  Other tensors (biases, normalisation
-    parameters and statistics) stay float32: they are a few percent of a ResNet's bytes."""
+    parameters and statistics) and the weights whose key starts with one of `keep_float` stay
+    float32: they are a few percent of a ResNet's bytes."""
     stored, scales = {}, {}
     for key, value in state.items():
-        if value.is_floating_point() and value.dim() >= 2:
+        if value.is_floating_point() and value.dim() >= 2 and not key.startswith(keep_float):
             weight = value.detach().float()
             scale = weight.abs().amax(dim=tuple(range(1, weight.dim()))).clamp_min(1e-12) / 127.0
             view = scale.view(-1, *[1] * (weight.dim() - 1))
@@ -225,7 +235,8 @@ def load_checkpoint(
 
 def slim_checkpoint(source: str | Path, target: str | Path, dtype: torch.dtype | None = torch.bfloat16) -> Path:
     """Write `source` without its optimizer, scheduler and random states, its floating-point weights
-    cast to `dtype` (None: kept; torch.int8: `quantize_weights`, a compact checkpoint), to `target`
+    cast to `dtype` (None: kept; torch.int8: `quantize_weights`, a compact checkpoint, the task's
+    `FLOAT_WEIGHTS` kept float32), to `target`
     (atomically); returns the target.
 
     A slim checkpoint is for inference (`load_checkpoint`, `networks.Detector`) and for starting a new
@@ -234,7 +245,7 @@ def slim_checkpoint(source: str | Path, target: str | Path, dtype: torch.dtype |
     data = read_checkpoint(source)
     scales: dict[str, torch.Tensor] = {}
     if dtype == torch.int8:
-        model, scales = quantize_weights(data["model"])
+        model, scales = quantize_weights(data["model"], FLOAT_WEIGHTS.get(data["task"], ()))
     else:
         model = {k: v.to(dtype) if dtype is not None and v.is_floating_point() else v
                  for k, v in data["model"].items()}
@@ -257,7 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     kind = slim.add_mutually_exclusive_group()
     kind.add_argument("--keep-dtype", action="store_true", help="keep the weights' dtype (float32)")
     kind.add_argument("--int8", action="store_true",
-                      help="weights as int8 per output channel, half of bf16 (networks.weights stores these)")
+                      help="weights as int8 per output channel (the localizer's head float32, FLOAT_WEIGHTS): "
+                           "about half of bf16 (networks.weights stores these)")
     args = parser.parse_args(argv)
 
     def action() -> None:

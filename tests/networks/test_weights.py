@@ -47,14 +47,19 @@ def _git(root, *args):
     return subprocess.run(["git", "-C", str(root), *args], check=True, capture_output=True, text=True).stdout
 
 
-def test_int8_checkpoint_is_half_of_bf16_and_computes_the_same(localizer, tmp_path):
+def test_int8_checkpoint_is_about_half_of_bf16_and_computes_the_same(localizer, tmp_path):
     path, model = localizer
     compact = slim_checkpoint(path, tmp_path / "loc8.pt", dtype=torch.int8)
     bf16 = slim_checkpoint(path, tmp_path / "loc16.pt")
-    assert compact.stat().st_size < 0.55 * bf16.stat().st_size
+    # half, and the float32 head's 2.4 MB (0.58 here: 13.7 of 23.6 MB)
+    assert compact.stat().st_size < 0.6 * bf16.stat().st_size
     raw = torch.load(compact, weights_only=True)
     assert raw["model"]["backbone.conv1.weight"].dtype == torch.int8
     assert raw["model"]["backbone.bn1.running_var"].dtype == torch.float32
+    # the head that regresses the points stays float32 (FLOAT_WEIGHTS), the only weights that do
+    assert {key for key, value in raw["model"].items() if value.dim() >= 2 and value.dtype == torch.float32} \
+        == {"head.conv.weight", "head.out.weight"}
+    assert not any(key.startswith("head.") for key in raw["int8_scales"])
     assert raw["optimizer"] is None and raw["step"] == 7
     loaded, _, record = load_checkpoint(compact, expected_task="localizer", spec=SPEC)
     # each weight within half a step of its channel's scale
