@@ -56,8 +56,8 @@ def test_runs_sharing_a_gpu_are_named_in_the_log(bench):
 
 
 def test_a_run_s_synth_weight_can_be_changed_for_one_call(bench):
-    runs = bench.with_synth_weight(bench.RUNS, "localizer_mix", 0.0)
-    assert runs["localizer_mix"][1] == 0.0 and bench.RUNS["localizer_mix"][1] == 0.5  # a new table
+    runs = bench.with_synth_weight(bench.RUNS, "localizer_mix", 0.5)
+    assert runs["localizer_mix"][1] == 0.5 and bench.RUNS["localizer_mix"][1] == 0.0  # a new table
     assert {k: v for k, v in runs.items() if k != "localizer_mix"} == {
         k: v for k, v in bench.RUNS.items() if k != "localizer_mix"}
     assert runs["localizer_mix"][::2] == bench.RUNS["localizer_mix"][::2]  # task, stop and shards kept
@@ -130,11 +130,11 @@ def test_the_run_table_shows_the_call_s_synth_weight_not_the_default(bench, caps
     row = {"step": 10, "target": 10, "steps_this_call": 10, "seconds": 1.0, "steps_per_s": 10.0, "workers": 2,
            "first_loss": 2.0, "last_loss": 1.0, "gpus": [0]}
     result = {"date": "2026-11-26", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {},
-              "runs": {"localizer_mix": {"synth_weight": 0.0}}, "training": {"localizer_mix": row},
+              "runs": {"localizer_mix": {"synth_weight": 0.5}}, "training": {"localizer_mix": row},
               "heldout_images": 0, "metrics": {}, "detector": {}, "throughput": []}
-    assert bench.RUNS["localizer_mix"][1] != 0.0
+    assert bench.RUNS["localizer_mix"][1] != 0.5
     bench._print_tables(result)
-    assert "| localizer_mix | 0.0 | 0 | 2 | 10 / 10 |" in capsys.readouterr().out
+    assert "| localizer_mix | 0.5 | 0 | 2 | 10 / 10 |" in capsys.readouterr().out
 
 
 @pytest.fixture(scope="module")
@@ -274,14 +274,15 @@ def test_localizer_marker_px_reaches_the_localizer_runs_only(bench):
     assert bench.run_config("localizer_mix", 1, 2, {}).localizer_marker_px is None  # the renders' own scale
 
 
-def test_the_22px_localizer_keeps_its_marker_size_and_runs_from_init_take_their_task_s_rate(bench):
+def test_the_22px_localizer_keeps_its_marker_size_and_runs_from_init_take_lr_or_init_lr(bench):
     assert bench.run_config("localizer_22px", 1, 2, {}).localizer_marker_px == 22.0
     assert bench.run_config("localizer_22px", 1, 2, {}, None, 30.0).localizer_marker_px == 22.0
     assert bench.run_config("localizer_mix", 1, 2, {}, None, 30.0).localizer_marker_px == 30.0
     init = {"localizer_22px": "/weights/localizer.pt", "recognizer_partial": "/weights/recognizer_partial.pt"}
-    assert bench.run_config("localizer_22px", 1, 2, {}, init).lr == bench.INIT_LR["localizer"] < bench.LR
-    assert bench.run_config("localizer_mix", 1, 2, {}, init).lr == bench.LR  # from scratch
-    assert bench.run_config("recognizer_partial", 1, 2, {}, init).lr == bench.LR  # no lower rate for its task
+    assert bench.run_config("localizer_22px", 1, 2, {}, init).lr == bench.LR
+    assert bench.run_config("localizer_22px", 1, 2, {}, init, init_lr=5e-5).lr == 5e-5
+    assert bench.run_config("localizer_mix", 1, 2, {}, init, init_lr=5e-5).lr == bench.LR  # from scratch
+    assert bench.run_config("recognizer_partial", 1, 2, {}, init).lr == bench.LR
     assert bench.run_config("recognizer_partial", 1, 2, {}, init, init_lr=1e-5).lr == 1e-5
     assert bench.run_config("crosspoints_jitter", 1, 2, {}, init, init_lr=1e-5).lr == bench.LR  # from scratch
 
@@ -327,7 +328,7 @@ def test_the_upright_localizer_run_draws_its_own_shards_with_markers_near_uprigh
     assert bench.shard_config("localizer").upright_probability == bench.SynthConfig().upright_probability < 1.0
     assert bench.shard_config("localizer_upright", 5).seed == 5
     assert bench.shard_config("crosspoints_jitter").crop_jitter_px == bench.CROP_JITTER_PX
-    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_mix", "localizer_upright"])
+    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_22px", "localizer_upright"])
     assert set(folders) == {"localizer", "localizer_upright"}
     meta = json.loads((folders["localizer_upright"] / "shards.json").read_text())
     assert meta["synth"]["upright_probability"] == 1.0 and meta["synth"]["seed"] == bench.SYNTH_HELDOUT[1]
