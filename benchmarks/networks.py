@@ -11,7 +11,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    which is off by default because it slows training down: on H200s the crosspoint network trains
    on synthetic shards at 31 steps/s on one GPU and 15 on two ranks, SyncBatchNorm included).  The main runs
    (`MAIN`, the default of --runs): localizer_mix (the rendered train split alone, synth weight 0),
-   recognizer_partial and crosspoints_jitter (shards + rendered crops, synth weight 0.75, the crops
+   recognizer_partial (shards + rendered crops, synth weight 0.75) and crosspoints_rendered (rendered
+   crops + shards, synth weight 0.25), their crops
    cut from five points jittered by `CROP_JITTER_PX`, as the Detector cuts them from the
    localizer's: shards written so, rendered crops cut anew per item, `TrainConfig.crop_jitter_px`;
    in the fifth run the jittered recognizer reached a validation loss of 0.164 on exact rendered
@@ -19,8 +20,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    partial markers with a visible centre, `TrainConfig.recognizer_partial`, since the eighth run's
    whole-marker recognizer read them 0.37 right) train until the budget's end.
    Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops,
-   recognizer_jitter (jittered crops of whole markers only), crosspoints_rendered (the main
-   crosspoint run's crops at synth weight 0.25: which mix trains it best), localizer_22px (the main
+   recognizer_jitter (jittered crops of whole markers only), crosspoints_jitter (the main
+   crosspoint run's crops at synth weight 0.75: which mix trains it best), localizer_22px (the main
    localizer's config with the renders read shrunk so markers measure 22 px, `RUN_MARKER_PX`, as the
    Detector's automatic scale shows them; chained in its place at that scale), localizer_upright
    (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
@@ -146,7 +147,9 @@ RUNS = {
     "recognizer_small": ("recognizer", 0.75, None, 6, "recognizer_small"),
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
-    # mostly rendered crops (20 ms each to a worker against a shard crop's 1.7 ms): twice the share
+    # the main crosspoint run: mostly rendered crops, which beat 0.75 synthesized from the same start on
+    # the held-out renders in the thirteenth and twenty-first runs (0.480 against 0.502 px); a rendered
+    # crop costs a worker more than a shard's (decoded ahead, about 5 ms against 1.7): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
     # the main crosspoint run's config with a 4-cell crop margin (128 x 128, `SHARD_SYNTH`), for its whole
     # schedule: the outer crosspoints, nearest the reference crop's edge, err most; the sixteenth run
@@ -156,7 +159,7 @@ RUNS = {
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
 RUN_MARKER_PX = {"localizer_22px": 22.0}
-MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_jitter"}
+MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_rendered"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
 #: the median, 1.18 sigma for a 2D Gaussian

@@ -18,7 +18,7 @@ def bench(load_benchmark):
     return load_benchmark("networks")
 
 
-MAIN3 = ["localizer_mix", "recognizer_partial", "crosspoints_jitter"]
+MAIN3 = ["localizer_mix", "recognizer_partial", "crosspoints_rendered"]
 
 
 def test_no_gpu_is_one_process_each(bench):
@@ -31,7 +31,7 @@ def test_one_gpu_is_shared(bench):
 
 def test_two_gpus_give_the_crosspoint_run_one_to_itself(bench):
     placed = bench.placement(MAIN3, 2)
-    assert placed["crosspoints_jitter"] == [0]
+    assert placed["crosspoints_rendered"] == [0]
     assert placed["recognizer_partial"] == placed["localizer_mix"] == [1]
     assert list(placed) == MAIN3  # the caller's order
 
@@ -41,10 +41,10 @@ def test_comparison_runs_take_the_least_loaded_gpu_and_spare_gpus_join_the_heavi
     assert sorted(g for name in MAIN3 for g in placed[name]) == [0, 1, 2]
     assert placed["localizer_synth"] == placed["localizer_mix"] == [2]  # the lightest main run's GPU
     fourth = bench.placement(MAIN3 + ["crosspoints"], 4)
-    assert fourth["crosspoints"] == [3] and fourth["crosspoints_jitter"] == [0]  # no spare GPU is left
+    assert fourth["crosspoints"] == [3] and fourth["crosspoints_rendered"] == [0]  # no spare GPU is left
     assert bench.placement(MAIN3 + ["crosspoints", "recognizer"], 4)["recognizer"] == [2]
     spare = bench.placement(MAIN3, 5)
-    assert spare["crosspoints_jitter"] == [0, 3] and spare["recognizer_partial"] == [1, 4]
+    assert spare["crosspoints_rendered"] == [0, 3] and spare["recognizer_partial"] == [1, 4]
     assert spare["localizer_mix"] == [2]
 
 
@@ -159,9 +159,9 @@ def test_a_main_run_not_trained_this_call_is_chained_from_its_init(bench, tmp_pa
     init = bench.init_weights(init_folder)
     assert bench.main_checkpoints(tmp_path, {}) is None  # nothing trained, nothing to start from
     assert bench.main_checkpoints(tmp_path, init) == [Path(init[name]) for name in MAIN3]
-    trained = tmp_path / "crosspoints_jitter" / "run" / "last.pt"
+    trained = tmp_path / "crosspoints_rendered" / "run" / "last.pt"
     trained.parent.mkdir(parents=True)
-    shutil.copy(init_folder / "crosspoints_jitter.pt", trained)
+    shutil.copy(init_folder / "crosspoints_rendered.pt", trained)
     assert bench.main_checkpoints(tmp_path, init)[2] == trained  # this call's run before its start
     assert bench.main_checkpoints(tmp_path, {"localizer_mix": init["localizer_mix"]}) is None
 
@@ -170,17 +170,17 @@ def test_init_takes_a_run_s_own_checkpoint_else_its_task_s_stored_one(bench, tmp
     stored = tmp_path / "stored"
     stored.mkdir()
     shutil.copy(init_folder / "localizer_mix.pt", stored / "localizer.pt")  # as networks.weights fetch names it
-    shutil.copy(init_folder / "crosspoints_jitter.pt", stored / "crosspoints_jitter.pt")
+    shutil.copy(init_folder / "crosspoints_rendered.pt", stored / "crosspoints_rendered.pt")
     init = bench.init_weights(stored)
     localizers = [name for name, run in bench.RUNS.items() if run[0] == "localizer"]
     assert {name: Path(path).name for name, path in init.items() if name in localizers} == \
         {name: "localizer.pt" for name in localizers}
-    assert Path(init["crosspoints_jitter"]).name == "crosspoints_jitter.pt"
+    assert Path(init["crosspoints_rendered"]).name == "crosspoints_rendered.pt"
     assert "crosspoints_margin4" not in init  # another run's checkpoint is not its own nor its task's
     assert not any(bench.RUNS[name][0] == "recognizer" for name in init)
     assert bench.init_weights(tmp_path / "missing") == {}
-    assert set(bench.init_weights(stored, ["localizer_upright", "crosspoints_jitter", "recognizer"])) == \
-        {"localizer_upright", "crosspoints_jitter"}  # this call's runs only
+    assert set(bench.init_weights(stored, ["localizer_upright", "crosspoints_rendered", "recognizer"])) == \
+        {"localizer_upright", "crosspoints_rendered"}  # this call's runs only
 
 
 def test_main_runs_are_evaluated_and_exported_as_compact_checkpoints(bench, tmp_path, garment_dataset, init_folder):
@@ -314,7 +314,7 @@ def test_runs_and_their_init_are_measured_on_held_out_synthesized_samples(bench,
     trained = tmp_path / "localizer_22px" / "run" / "last.pt"
     trained.parent.mkdir(parents=True)
     shutil.copy(init_folder / "localizer_mix.pt", trained)
-    init = {k: v for k, v in bench.init_weights(init_folder).items() if k != "crosspoints_jitter"}
+    init = {k: v for k, v in bench.init_weights(init_folder).items() if k != "crosspoints_rendered"}
     measured = bench.evaluate_synthesized(tmp_path, folders, "cpu", init)
     assert set(measured) == {"localizer_22px", "localizer_mix, its --init", "recognizer_partial, its --init"}
     assert all(m["split"] == "shards" and m["samples"] > 0 for m in measured.values())
@@ -355,20 +355,20 @@ def test_the_wider_crop_crosspoint_run_trains_measures_and_chains_in_its_own_cro
     assert json.loads((folders["crosspoints_margin4"] / "shards.json").read_text()
                       )["synth"]["crosspoint_margin_cells"] == 4
     # the run's last.pt: the reference-crop network's weights in the wider network
-    saved = read_checkpoint(init_folder / "crosspoints_jitter.pt")
+    saved = read_checkpoint(init_folder / "crosspoints_rendered.pt")
     saved["config"] = {**saved["config"], "crosspoint_margin_cells": 4}
     trained = tmp_path / "crosspoints_margin4" / "run" / "last.pt"
     trained.parent.mkdir(parents=True)
     torch.save(saved, trained)
-    init = {**bench.init_weights(init_folder), "crosspoints_margin4": str(init_folder / "crosspoints_jitter.pt")}
+    init = {**bench.init_weights(init_folder), "crosspoints_margin4": str(init_folder / "crosspoints_rendered.pt")}
     measured = bench.evaluate_synthesized(tmp_path, {k: v for k, v in folders.items()}, "cpu",
                                           {k: v for k, v in init.items() if k.startswith("crosspoints")})
-    assert set(measured) == {"crosspoints_margin4", "crosspoints_jitter, its --init",
+    assert set(measured) == {"crosspoints_margin4", "crosspoints_rendered, its --init",
                              "crosspoints_margin4, its --init (on crosspoints_jitter's samples)"}
     assert measured["crosspoints_margin4, its --init (on crosspoints_jitter's samples)"]["crop_error_px"] == \
-        measured["crosspoints_jitter, its --init"]["crop_error_px"]
+        measured["crosspoints_rendered, its --init"]["crop_error_px"]
     paths = bench.main_checkpoints(tmp_path, init)
-    label = "crosspoints_margin4 in place of crosspoints_jitter"
+    label = "crosspoints_margin4 in place of crosspoints_rendered"
     assert bench.stand_ins(tmp_path, paths) == {label: [*paths[:2], trained]}
     view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
     chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
