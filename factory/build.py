@@ -223,7 +223,7 @@ def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: b
     surface = _marker_surface(config.garment, config.render.texture_dpi, shard.level_mm)
     scene = load_npz(out / "scenes" / f"{shard.motion}.npz", only=("garment_positions", "frames"))
     row = {int(f): k for k, f in enumerate(scene["frames"])}
-    records = []
+    records, simulation = [], _simulation_of(config, shard.motion).key()
     for k in todo:
         entry = shard.images[k]
         name = entry["name"]
@@ -241,6 +241,7 @@ def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: b
             "camera": f"images/{name}_camera.json", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
             "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum()),
             "environment": entry["environment"], "transform": entry["transform"], "seed": entry["seed"],
+            "simulation": simulation,
         })
     for record in records:
         save_json(out / "meta" / f"{record['name']}.json", record)

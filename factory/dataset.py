@@ -28,6 +28,7 @@ Layout of a dataset folder:
                                with the crosspoints' crop coordinates and visibility
   meta/<name>.json             one finished image (written last: an image is done when this exists)
   manifest.jsonl, splits.json  every finished image with its files, split, motion, frame, variation
+                               and simulation (`factory.simulate.SimulationConfig.key()`)
 
 The build itself (`factory.build`; `build --help`): one simulation task per motion, then render +
 ground-truth tasks of `--shard-frames` frames; `--shard i/n` takes every n-th image from the i-th, a

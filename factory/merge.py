@@ -12,8 +12,10 @@ Refused, naming the files:
 - sources whose `template.npz` differ (another garment, level or pattern: their marker IDs and
   ground truth do not mean the same);
 - an image in two sources with the same name and the same pixels (a dataset merged twice);
-- a simulation frame (motion/frame) in two splits, which would put the same garment geometry in
-  training and in evaluation.
+- a simulation frame (motion/frame) of one simulation in two splits, which would put the same garment
+  geometry in training and in evaluation.  An image's simulation is its record's "simulation"
+  (`factory.simulate.SimulationConfig.key()`, written by the build); records without one (built
+  before it was) count as every simulation's, so their frames are refused as before.
 
 OUT gets `template.npz` and `texture.png` (from the first source), `images/`, `gt/`, `samples/` (where
 a source has them: built from the images otherwise, as `networks` does), `meta/`, `manifest.jsonl`,
@@ -87,6 +89,13 @@ def _renamed(record: dict, name: str) -> dict:
     return renamed
 
 
+def _simulations(first: str | None, second: str | None) -> str:
+    """How two records' simulation keys make them the same simulation, for a refusal."""
+    if first is not None and second is not None:
+        return f"both of simulation {first}"
+    return "a record without a simulation key, from a build before records had one, counts as the same"
+
+
 def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path:
     """Merge `sources` into the folder `out` (layout above); returns its manifest.jsonl."""
     out = Path(out)
@@ -113,11 +122,14 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
                     raise ValueError(f"image {name} of {source.folder} cannot be renamed {record['name']}: "
                                      f"{names[record['name']][0]} holds an image of that name")
             names[record["name"]] = (source.folder, original)
-            frame = f"{record['motion']}/{record['frame']}"
-            split, where = frames.setdefault(frame, (record["split"], source.folder))
-            if split != record["split"]:
-                raise ValueError(f"simulation frame {frame} is {split} in {where} and {record['split']} in "
-                                 f"{source.folder}: the same garment geometry would be trained on and evaluated")
+            frame, simulation = f"{record['motion']}/{record['frame']}", record.get("simulation")
+            seen = frames.setdefault(frame, {})  # (split, simulation) -> the first folder with it
+            for (split, other), where in seen.items():
+                if split != record["split"] and (simulation is None or other is None or other == simulation):
+                    raise ValueError(f"simulation frame {frame} is {split} in {where} and {record['split']} in "
+                                     f"{source.folder} ({_simulations(other, simulation)}): the same garment "
+                                     "geometry would be trained on and evaluated")
+            seen.setdefault((record["split"], simulation), source.folder)
             plan.append((source.folder, original, record))
         counts.append(len(records))
     config = {"merged": [{"folder": str(s.folder.resolve()), "train": s.train, "images": count,
@@ -137,6 +149,6 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
         meta = out / "meta" / f"{record['name']}.json"
         if not meta.exists() or load_json(meta) != record:
             save_json(meta, record)
-    splits = {s: sorted({f for f, (split, _) in frames.items() if split == s}) for s in SPLITS}
+    splits = {s: sorted(f for f, seen in frames.items() if any(split == s for split, _ in seen)) for s in SPLITS}
     save_json(out / "splits.json", splits)
     return write_manifest(out)

@@ -15,7 +15,8 @@ import pytest
 
 from assets.cameras import Camera
 from factory.build import build
-from factory.dataset import DatasetConfig, RenderSettings, corner_uv, render_job_spec, split_of_frames, write_scene
+from factory.dataset import (DatasetConfig, RenderSettings, corner_uv, render_job_spec, simulation_config,
+                             split_of_frames, write_scene)
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 
@@ -56,6 +57,9 @@ def test_build_writes_every_image_with_ground_truth_and_keeps_frames_within_a_sp
         for key in ("image", "depth", "camera", "gt", "samples"):
             assert (out / e[key]).is_file(), e[key]
     assert all(len(s) == 1 for s in by_frame.values())  # the variations of a frame share its split
+    # each record names its simulation, as merge tells simulations apart by
+    assert {e["simulation"] for e in entries} == {simulation_config("shirt", "walk").key()}
+    assert simulation_config("shirt", "walk", seed=1).key() != simulation_config("shirt", "walk").key()
     assert {s for v in by_frame.values() for s in v} == {"train", "val", "test"}
     samples = np.load(out / entries[0]["samples"])
     assert samples["cells"].shape == (8, 8, 11)

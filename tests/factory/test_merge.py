@@ -107,3 +107,35 @@ def test_merging_what_does_not_belong_together_is_refused(sources, tmp_path):
     assert not (tmp_path / "leaky").exists()  # refused before anything is written
     with pytest.raises(ValueError, match="not a factory dataset"):
         merge(tmp_path / "none", [Source(tmp_path)], progress=False)
+
+
+def test_the_same_frame_of_another_simulation_may_be_in_another_split(sources, tmp_path):
+    """The frame check compares simulations by their records' key: the same motion and frame of
+    another simulation (another seed) may be trained on beside a held-out one; of the same
+    simulation, or of a record without a key (a build before records had one), it may not."""
+    held, more = sources
+    test_frame = next(e for e in _manifest(held).values() if e["split"] == "test")
+
+    def keyed(folder, key, frame=None):
+        for meta in (folder / "meta").glob("*.json"):
+            record = {**load_json(meta), "simulation": key}
+            save_json(meta, {**record, "motion": test_frame["motion"], "frame": test_frame["frame"]}
+                      if frame and record["name"] == frame else record)
+        return folder
+
+    first = keyed(shutil.copytree(held, tmp_path / "first"), "a")
+    name = sorted(p.stem for p in (more / "meta").glob("*.json"))[0]
+    other = keyed(shutil.copytree(more, tmp_path / "other"), "b", frame=name)
+    merged = _manifest(merge(tmp_path / "two", [Source(first), Source(other, train=True)], progress=False).parent)
+    frame = f"{test_frame['motion']}/{test_frame['frame']}"
+    assert merged[name]["split"] == "train" and merged[test_frame["name"]]["split"] == "test"
+    splits = load_json(tmp_path / "two" / "splits.json")
+    assert frame in splits["train"] and frame in splits["test"]
+    same = keyed(shutil.copytree(more, tmp_path / "same"), "a", frame=name)
+    with pytest.raises(ValueError, match=f"{frame} is test .*both of simulation a"):
+        merge(tmp_path / "one", [Source(first), Source(same, train=True)], progress=False)
+    unkeyed = shutil.copytree(more, tmp_path / "unkeyed")
+    meta = unkeyed / "meta" / f"{name}.json"
+    save_json(meta, {**load_json(meta), "motion": test_frame["motion"], "frame": test_frame["frame"]})
+    with pytest.raises(ValueError, match="without a simulation key"):
+        merge(tmp_path / "old", [Source(first), Source(unkeyed, train=True)], progress=False)
