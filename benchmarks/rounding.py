@@ -24,24 +24,17 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from networks.checkpoint import read_checkpoint  # noqa: E402
+from networks.checkpoint import dequantize_weights, quantize_weights, read_checkpoint  # noqa: E402
 from networks.evaluate import evaluate  # noqa: E402
 
 POINTS = ("centre", "TL", "TR", "BL", "BR")
 
 
-def rounded(weight: torch.Tensor, bits: int) -> torch.Tensor:
-    """`weight` rounded to `bits` bits per output channel (dim 0), symmetric, back in float32."""
-    levels = 2 ** (bits - 1) - 1
-    scale = weight.abs().amax(dim=tuple(range(1, weight.dim())), keepdim=True).clamp_min(1e-12) / levels
-    return torch.round(weight / scale) * scale
-
-
 def rounded_state(state: dict[str, torch.Tensor], part: str, bits: int) -> dict[str, torch.Tensor]:
-    """`state` with the weights (2 or more dimensions) under the key prefix `part` rounded ("none": none)."""
-    prefix = f"{part}."
-    return {key: rounded(value.float(), bits) if value.is_floating_point() and value.dim() >= 2
-            and part != "none" and key.startswith(prefix) else value for key, value in state.items()}
+    """`state` with the weights (2 or more dimensions) under the key prefix `part` rounded to `bits`
+    bits as a compact checkpoint rounds them (`quantize_weights`), back in float32 ("none": none)."""
+    under = {key: value for key, value in state.items() if part != "none" and key.startswith(f"{part}.")}
+    return {**state, **dequantize_weights(*quantize_weights(under, bits=bits))}
 
 
 def summary(task: str, metrics: dict) -> list[str]:

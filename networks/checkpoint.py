@@ -137,20 +137,22 @@ def _describe(data: object) -> str:
 FLOAT_WEIGHTS = {"localizer": ("head.",), "recognizer": (), "crosspoints": ()}
 
 
-def quantize_weights(state: dict[str, torch.Tensor], keep_float: tuple[str, ...] = ()
+def quantize_weights(state: dict[str, torch.Tensor], keep_float: tuple[str, ...] = (), bits: int = 8
                      ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     """(state with each floating-point weight of 2 or more dimensions as int8, {key: (out,) float32
     scale}).  Symmetric, per output channel (dim 0): the channel's largest magnitude maps to 127, so
     each weight moves by at most half its channel's step.  Other tensors (biases, normalisation
     parameters and statistics) and the weights whose key starts with one of `keep_float` stay
-    float32: they are a few percent of a ResNet's bytes."""
+    float32: they are a few percent of a ResNet's bytes.  `bits` below 8 rounds coarser (still stored as
+    int8): `benchmarks/rounding.py` measures what rounding costs that way."""
+    levels = 2 ** (bits - 1) - 1
     stored, scales = {}, {}
     for key, value in state.items():
         if value.is_floating_point() and value.dim() >= 2 and not key.startswith(keep_float):
             weight = value.detach().float()
-            scale = weight.abs().amax(dim=tuple(range(1, weight.dim()))).clamp_min(1e-12) / 127.0
+            scale = weight.abs().amax(dim=tuple(range(1, weight.dim()))).clamp_min(1e-12) / levels
             view = scale.view(-1, *[1] * (weight.dim() - 1))
-            stored[key] = torch.round(weight / view).clamp(-127, 127).to(torch.int8)
+            stored[key] = torch.round(weight / view).clamp(-levels, levels).to(torch.int8)
             scales[key] = scale
         else:
             stored[key] = value.detach().float() if value.is_floating_point() else value.detach()
