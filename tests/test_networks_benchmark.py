@@ -66,9 +66,9 @@ def test_a_run_s_synth_weight_can_be_changed_for_one_call(bench):
 
 
 def test_synth_weight_sets_any_run_s_share_for_one_call_and_refuses_bad_items(bench):
-    runs = bench.synth_weights(["crosspoints_jitter=0", "recognizer_partial=0.25"], bench.RUNS)
-    assert runs["crosspoints_jitter"][1] == 0.0 and runs["recognizer_partial"][1] == 0.25
-    assert bench.RUNS["crosspoints_jitter"][1] == 0.75  # a new table
+    runs = bench.synth_weights(["crosspoints_jitter=0", "recognizer_partial=0.75"], bench.RUNS)
+    assert runs["crosspoints_jitter"][1] == 0.0 and runs["recognizer_partial"][1] == 0.75
+    assert bench.RUNS["crosspoints_jitter"][1] == 0.75 and bench.RUNS["recognizer_partial"][1] == 0.25  # a new table
     assert bench.synth_weights([], bench.RUNS) == bench.RUNS
     for item, problem in (("crosspoints_jitter", "RUN=W"), ("nope=0.5", "RUN=W"),
                           ("crosspoints_jitter=x", "not a number"), ("crosspoints_jitter=2", "synth weight")):
