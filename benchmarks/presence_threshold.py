@@ -1,0 +1,102 @@
+"""Choose the Marker Localizer's presence threshold on one split and check it on another.
+
+The reference thresholds presence at 0.5 (`DetectorConfig.presence_threshold`).  A localizer whose
+presence probability is conservative (precision 0.999, recall 0.987 on fully visible held-out markers)
+finds more markers at a lower threshold, and reading the best threshold off the test renders
+themselves is no way to choose it.  This sweeps the thresholds on the choosing split (`--choose-split`,
+default val), takes the one with the best F1 on fully visible markers (a tie goes to the higher
+threshold, the nearer the reference), and evaluates it beside the reference's 0.5 on the test split
+(`networks.evaluate`).
+
+    python benchmarks/presence_threshold.py --checkpoint store/localizer.pt --data .bench/rendered_m \\
+        [--thresholds 0.2,0.3,0.4,0.5] [--choose-split val] [--test-split test] [--device cpu]
+
+Prints a table per split and a `RESULT {json}` line.  CPU or GPU; the localizer runs once per threshold
+and split.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from networks.evaluate import evaluate  # noqa: E402
+
+REFERENCE = 0.5
+POINTS = ("centre", "TL", "TR", "BL", "BR")
+
+
+def thresholds_arg(text: str) -> list[float]:
+    """'0.2,0.3,0.5' -> sorted distinct thresholds in (0, 1); the reference's 0.5 is always among them."""
+    try:
+        values = {float(item) for item in text.split(",") if item.strip()}
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--thresholds: {text!r} is not a comma-separated list of numbers")
+    outside = sorted(v for v in values if not 0 < v < 1)
+    if outside:
+        raise argparse.ArgumentTypeError(f"--thresholds: {outside} are not in (0, 1)")
+    return sorted(values | {REFERENCE})
+
+
+def choose(metrics: dict[float, dict]) -> float:
+    """The threshold whose fully visible markers' F1 is highest in `metrics` (threshold -> the
+    localizer's `networks.evaluate` metrics); of equal F1, the highest threshold."""
+    if not metrics:
+        raise ValueError("no thresholds were evaluated")
+    return max(metrics, key=lambda t: (round(metrics[t]["full"]["f1"], 9), t))
+
+
+def row(threshold: float, metrics: dict, mark: str = "") -> str:
+    full, every = metrics["full"], metrics["all"]
+    corners = ", ".join(f"{full['error_px'][p]['median']:.2f}" for p in POINTS)
+    return (f"| {threshold:g}{mark} | {full['precision']:.4f} / {full['recall']:.4f} / {full['f1']:.4f} | "
+            f"{every['precision']:.4f} / {every['recall']:.4f} | {full.get('on_other_markers', 0)} | {corners} |")
+
+
+HEADER = ("| threshold | fully visible P / R / F1 | all markers P / R | predictions on partial markers | "
+          "median px centre, TL, TR, BL, BR |\n|---|---|---|---|---|")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--checkpoint", type=Path, required=True, help="a localizer checkpoint")
+    parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder with both splits")
+    parser.add_argument("--thresholds", type=thresholds_arg, default=thresholds_arg("0.2,0.3,0.35,0.4,0.45,0.5"))
+    parser.add_argument("--choose-split", default="val", help="the split the threshold is chosen on")
+    parser.add_argument("--test-split", default="test", help="the split it is checked on")
+    parser.add_argument("--device", default="cpu")
+    args = parser.parse_args(argv)
+    if args.choose_split == args.test_split:
+        parser.error("--choose-split and --test-split must differ: a threshold read off its test split proves nothing")
+
+    def measure(split: str, threshold: float) -> dict:
+        metrics = evaluate(args.checkpoint, args.data, split=split, task="localizer", device=args.device,
+                           threshold=threshold, progress=False)
+        if metrics["full"]["true_positive"] + metrics["full"]["false_negative"] == 0:
+            sys.exit(f"{args.data}: the split {split!r} has no fully visible markers")
+        return metrics
+
+    chosen_metrics = {t: measure(args.choose_split, t) for t in args.thresholds}
+    chosen = choose(chosen_metrics)
+    tested = {t: measure(args.test_split, t) for t in sorted({chosen, REFERENCE})}
+    print(f"# presence threshold of {args.checkpoint.name} on {args.data}\n\n## chosen on {args.choose_split!r} "
+          f"(best F1 on fully visible markers: {chosen:g})\n{HEADER}")
+    for t, m in chosen_metrics.items():
+        print(row(t, m, " (chosen)" if t == chosen else " (reference)" if t == REFERENCE else ""))
+    print(f"\n## checked on {args.test_split!r}, beside the reference\n{HEADER}")
+    for t, m in tested.items():
+        print(row(t, m, " (chosen)" if t == chosen else " (reference)"))
+    print("RESULT " + json.dumps({"checkpoint": str(args.checkpoint), "data": str(args.data), "chosen": chosen,
+                                  "choose_split": args.choose_split, "test_split": args.test_split,
+                                  "choose": {str(t): m for t, m in chosen_metrics.items()},
+                                  "test": {str(t): m for t, m in tested.items()}}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
