@@ -44,7 +44,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    main runs chained as `networks.Detector`; and each recognizer's top-1 given the true points,
    whole against partial markers, beside the checkpoint the main recognizer started from (--init);
    and each run and its --init on held-out synthesized samples (`synth_heldout`: the shard folders'
-   configs from another seed), where the gap between synthetic and rendered data shows.
+   configs from another seed), where the gap between synthetic and rendered data shows; and the main
+   localizer's presence threshold chosen on the val renders and checked beside the reference's 0.5
+   on the test renders (`evaluate_threshold`, `presence_threshold.py`).
 4. Inference throughput of `networks.Detector` (the three main runs chained, float32) on synthesized
    images framed as the renders (markers scaled with the image side; the localizer sees them at the
    scale it was trained on, `DetectorConfig.localizer_scale` = 512 / side), on the GPU and on the CPU,
@@ -673,6 +675,24 @@ def stand_ins(out: Path, paths: list[Path]) -> dict[str, list[Path]]:
     return chains
 
 
+def evaluate_threshold(out: Path, rendered: Path, device: str, init: dict[str, str] | None = None) -> dict:
+    """The main localizer's presence threshold chosen by F1 on the rendered dataset's val split and
+    checked beside the reference's 0.5 on its test split (`presence_threshold.sweep`): the compact
+    checkpoint that would be stored, else the main run's last.pt, else its --init; {} without one, or
+    when the dataset lacks either split.
+    The twenty-third run's localizer met 0.99 P/R on fully visible test markers at 0.35 (chosen on val)."""
+    from presence_threshold import DEFAULT_THRESHOLDS, sweep, thresholds_arg  # benchmarks/
+
+    compact = out / "compact" / "localizer.pt"
+    checkpoints = main_checkpoints(out, init)
+    localizer = compact if compact.exists() else checkpoints[0] if checkpoints else None
+    splits = {json.loads(line)["split"] for line in (rendered / "manifest.jsonl").read_text().splitlines() if line}
+    if localizer is None or not {"val", "test"} <= splits:  # nothing to sweep, or no split to choose on
+        return {}
+    return {"checkpoint": str(localizer),
+            **sweep(localizer, rendered, thresholds_arg(DEFAULT_THRESHOLDS), "val", "test", device)}
+
+
 def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """The recognizers' top-1 given the true five points on the held-out renders, whole against partial
@@ -885,10 +905,11 @@ def main() -> None:
               "pretrained": pretrained, "init": init,
               "heldout_images": len((test / "manifest.jsonl").read_text().splitlines()), "shards": shards,
               "train_wall_s": train_s, "training": training, "mixes": {}, "metrics": {}, "detector": {},
-              "init_metrics": {}, "compact": {}, "synthesized": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
+              "init_metrics": {}, "compact": {}, "presence_threshold": {}, "synthesized": {}, "partial_ids": {}, "extra": {}, "throughput": [], "errors": {}}
     stage = Stages(result, args.out / "results.json", started)
     stage("metrics", evaluate_runs, args.out, test, args.device)
     stage("compact", evaluate_compact, args.out, test, args.device)
+    stage("presence_threshold", evaluate_threshold, args.out, rendered, args.device, init)
     stage("mixes", compare_mixes, args.out)
     if init:
         stage("init_metrics", evaluate_inits, init, test, args.device)
@@ -1004,6 +1025,11 @@ def _print_tables(result: dict) -> None:
         _print_chains(f"{result['heldout_images']} held-out renders", result["detector"])
     if result.get("partial_ids"):
         _print_top1(f"{result['heldout_images']} held-out renders", result["partial_ids"])
+    if result.get("presence_threshold"):
+        from presence_threshold import print_sweep  # benchmarks/
+
+        print()
+        print_sweep(result["presence_threshold"], f"# presence threshold of {result['presence_threshold']['checkpoint']}")
     if result.get("extra"):
         _print_extra(result["extra"])
     print("\n| device (float32) | image | Detector | localizer scale | images/s | markers found / shown per image "

@@ -28,6 +28,8 @@ sys.path.insert(0, str(ROOT))
 from networks.evaluate import evaluate  # noqa: E402
 
 REFERENCE = 0.5
+#: the thresholds swept by default (`thresholds_arg` adds the reference)
+DEFAULT_THRESHOLDS = "0.2,0.3,0.35,0.4,0.45,0.5"
 POINTS = ("centre", "TL", "TR", "BL", "BR")
 
 
@@ -62,39 +64,61 @@ HEADER = ("| threshold | fully visible P / R / F1 | all markers P / R | predicti
           "median px centre, TL, TR, BL, BR |\n|---|---|---|---|---|")
 
 
+def sweep(checkpoint: Path, data: Path, thresholds: list[float], choose_split: str = "val",
+          test_split: str = "test", device: str = "cpu") -> dict:
+    """The localizer `checkpoint` on `data`'s `choose_split` at each of `thresholds` (`networks.evaluate`),
+    the threshold chosen there (`choose`), and that one and the reference's on `test_split`:
+    {"chosen", "choose_split", "test_split", "choose": {t: metrics}, "test": {t: metrics}}."""
+    if choose_split == test_split:
+        raise ValueError("the threshold must be chosen on another split than the one it is tested on: a "
+                         "threshold read off its test split proves nothing")
+
+    def measure(split: str, threshold: float) -> dict:
+        metrics = evaluate(checkpoint, data, split=split, task="localizer", device=device, threshold=threshold,
+                           progress=False)
+        if metrics["full"]["true_positive"] + metrics["full"]["false_negative"] == 0:
+            raise ValueError(f"{data}: the split {split!r} has no fully visible markers")
+        return metrics
+
+    chosen_metrics = {t: measure(choose_split, t) for t in sorted(set(thresholds) | {REFERENCE})}
+    chosen = choose(chosen_metrics)
+    return {"chosen": chosen, "choose_split": choose_split, "test_split": test_split, "choose": chosen_metrics,
+            "test": {t: measure(test_split, t) for t in sorted({chosen, REFERENCE})}}
+
+
+def print_sweep(result: dict, title: str) -> None:
+    """`sweep`'s two tables under `title`."""
+    chosen = float(result["chosen"])  # the keys are strings once the result went through JSON
+
+    def mark(t: float) -> str:
+        return " (chosen)" if t == chosen else " (reference)" if t == REFERENCE else ""
+
+    print(f"{title}\n\n## chosen on {result['choose_split']!r} (best F1 on fully visible markers: {chosen:g})\n"
+          f"{HEADER}")
+    for t, m in result["choose"].items():
+        print(row(float(t), m, mark(float(t))))
+    print(f"\n## checked on {result['test_split']!r}, beside the reference\n{HEADER}")
+    for t, m in result["test"].items():
+        print(row(float(t), m, mark(float(t))))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", type=Path, required=True, help="a localizer checkpoint")
     parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder with both splits")
-    parser.add_argument("--thresholds", type=thresholds_arg, default=thresholds_arg("0.2,0.3,0.35,0.4,0.45,0.5"))
+    parser.add_argument("--thresholds", type=thresholds_arg, default=thresholds_arg(DEFAULT_THRESHOLDS))
     parser.add_argument("--choose-split", default="val", help="the split the threshold is chosen on")
     parser.add_argument("--test-split", default="test", help="the split it is checked on")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args(argv)
-    if args.choose_split == args.test_split:
-        parser.error("--choose-split and --test-split must differ: a threshold read off its test split proves nothing")
-
-    def measure(split: str, threshold: float) -> dict:
-        metrics = evaluate(args.checkpoint, args.data, split=split, task="localizer", device=args.device,
-                           threshold=threshold, progress=False)
-        if metrics["full"]["true_positive"] + metrics["full"]["false_negative"] == 0:
-            sys.exit(f"{args.data}: the split {split!r} has no fully visible markers")
-        return metrics
-
-    chosen_metrics = {t: measure(args.choose_split, t) for t in args.thresholds}
-    chosen = choose(chosen_metrics)
-    tested = {t: measure(args.test_split, t) for t in sorted({chosen, REFERENCE})}
-    print(f"# presence threshold of {args.checkpoint.name} on {args.data}\n\n## chosen on {args.choose_split!r} "
-          f"(best F1 on fully visible markers: {chosen:g})\n{HEADER}")
-    for t, m in chosen_metrics.items():
-        print(row(t, m, " (chosen)" if t == chosen else " (reference)" if t == REFERENCE else ""))
-    print(f"\n## checked on {args.test_split!r}, beside the reference\n{HEADER}")
-    for t, m in tested.items():
-        print(row(t, m, " (chosen)" if t == chosen else " (reference)"))
-    print("RESULT " + json.dumps({"checkpoint": str(args.checkpoint), "data": str(args.data), "chosen": chosen,
-                                  "choose_split": args.choose_split, "test_split": args.test_split,
-                                  "choose": {str(t): m for t, m in chosen_metrics.items()},
-                                  "test": {str(t): m for t, m in tested.items()}}))
+    try:
+        result = sweep(args.checkpoint, args.data, args.thresholds, args.choose_split, args.test_split, args.device)
+    except ValueError as exc:
+        sys.exit(str(exc))
+    print_sweep(result, f"# presence threshold of {args.checkpoint.name} on {args.data}")
+    print("RESULT " + json.dumps({"checkpoint": str(args.checkpoint), "data": str(args.data), **result,
+                                  "choose": {str(t): m for t, m in result["choose"].items()},
+                                  "test": {str(t): m for t, m in result["test"].items()}}))
     return 0
 
 
