@@ -389,13 +389,13 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         _check(detections, image)
     for detections in result:  # every cell fires; the 40 px NMS leaves a few markers further apart
         assert 1 <= len(detections) <= 9
+        centre = detections.points_px[:, 0].astype(np.float64)
+        gaps = np.linalg.norm(centre[:, None] - centre[None], axis=-1) + np.eye(len(centre)) * 1e9
+        assert gaps.min() > 40.0
     # NHWC on the CPU as on a GPU: less time per network (benchmarks/inference_layout.py)
     for network in (detector.localizer, detector.recognizer, detector.crosspoints):
         kernels = [p for p in network.parameters() if p.dim() == 4 and p.shape[-1] > 1]
         assert kernels and all(p.is_contiguous(memory_format=torch.channels_last) for p in kernels)
-        centre = detections.points_px[:, 0].astype(np.float64)
-        gaps = np.linalg.norm(centre[:, None] - centre[None], axis=-1) + np.eye(len(centre)) * 1e9
-        assert gaps.min() > 40.0
     assert set(detector._references) == set(table.marker_ids.tolist())  # the garment's, rendered at construction
     assert all(seconds > 0 for seconds in detector.stage_seconds.values()), detector.stage_seconds
     alone = detector([wide])[0]  # batching does not change the answer
