@@ -253,6 +253,7 @@ def estimate_from_neighbours(
     confidence: np.ndarray,
     image_size: tuple[int, int],
     consistency_cells: float,
+    keep_own_cells: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Five points of the cut markers of one image, predicted from their fully visible neighbours.
 
@@ -261,7 +262,9 @@ def estimate_from_neighbours(
     For every marker that is not `full` but on the garment, a pattern_xy -> image homography is fitted
     to the localization points of its detected full neighbours on the same panel, then refitted with
     those of its own points that lie in the image within `consistency_cells` cells of the first
-    prediction; its five points are that homography applied to its localization_xy.
+    prediction; its five points are that homography applied to its localization_xy.  With
+    `keep_own_cells`, each of its own points in the image within that many cells of the prediction is
+    kept instead: only the points further off (a corner guessed beyond the fabric's edge) are replaced.
 
     Returns (points (N, 5, 2) float64: estimated where `estimated`, else the input; estimated (N,) bool).
     """
@@ -291,6 +294,12 @@ def estimate_from_neighbours(
             points_px[targets], *image_size)
     mask[:, 40:] = consistent
     predicted = apply_homography(fit_homography_masked(src, dst, mask), own_xy)
+    if keep_own_cells is not None:
+        near = keep_own_cells * _side_px(predicted) / spec.cells_per_side
+        with np.errstate(invalid="ignore"):
+            own = (np.linalg.norm(points_px[targets] - predicted, axis=-1) <= near[:, None]) & inside_image(
+                points_px[targets], *image_size)
+        predicted = np.where(own[..., None], points_px[targets], predicted)
     ok = found.any(axis=1) & np.isfinite(predicted).all(axis=(1, 2))
     out[targets[ok]] = predicted[ok]
     estimated[targets[ok]] = True

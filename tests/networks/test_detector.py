@@ -202,6 +202,20 @@ def test_cut_marker_is_recovered_from_its_neighbours(table, scene):
     assert estimated.tolist() == [False, True, False, False, False, True]
     assert np.abs(estimate[[1, 5]] - points[[1, 5]]).max() < 1e-6
     assert np.array_equal(estimate[full], detected[full])
+    # keep_own_cells: marker 8 keeps its own centre, TL and BL (0.3 px off, within 2 cells of the estimate)
+    # and takes the estimate for TR and BR; marker 12's corners are too far off to keep, its centre is kept
+    side = np.linalg.norm(points[1, 2] - points[1, 1])
+    assert 0.3 < 2 * side / SPEC.cells_per_side < 0.8 * np.linalg.norm(detected[5, 1] - points[5, 1])
+    noisy = detected.copy()
+    noisy[1, [0, 1, 3]] += 0.3
+    kept, estimated = estimate_from_neighbours(layout, SPEC, ids, noisy, full, confidence, IMAGE_SIZE, 1.0, 2.0)
+    assert estimated.tolist() == [False, True, False, False, False, True]
+    assert np.array_equal(kept[1, [0, 1, 3]], noisy[1, [0, 1, 3]])
+    assert np.abs(kept[1, [2, 4]] - points[1, [2, 4]]).max() < 0.3  # the kept points joined the fit with their 0.3 px
+    assert np.array_equal(kept[5, 0], noisy[5, 0]) and np.abs(kept[5, 1:] - points[5, 1:]).max() < 1e-6
+    assert np.array_equal(kept[full], detected[full])
+    with pytest.raises(ValueError, match="keep_own_cells must be > 0 or None, got 0.0"):
+        DetectorConfig(keep_own_cells=0.0)
     # a wrong duplicate of a neighbour's ID with less confidence is ignored
     dup_ids = np.append(ids, ids[0])
     dup_points = np.concatenate([detected, detected[:1] + 40.0])
