@@ -44,6 +44,21 @@ def crosspoint_options(args: argparse.Namespace) -> dict[str, float | None]:
             "crosspoint_shift_px": args.crosspoint_shift}
 
 
+def add_completion_options(parser: argparse.ArgumentParser, keep_default: float, prefix: str = "") -> None:
+    """How the Detector completes a marker its cut test flags, as every CLI that runs it names it:
+    --keep-own CELLS, --replace-own (`completion_options` reads them back)."""
+    parser.add_argument("--keep-own", type=float, default=keep_default, metavar="CELLS",
+                        help=f"{prefix}a marker counted as cut keeps each of its own points within this many cells "
+                        "of its neighbours' estimate (DetectorConfig.keep_own_cells; default %(default)s)")
+    parser.add_argument("--replace-own", action="store_true",
+                        help=f"{prefix}replace all five points of a marker counted as cut by its neighbours' estimate")
+
+
+def completion_options(args: argparse.Namespace) -> dict[str, float | None]:
+    """{keep_own_cells} of `add_completion_options`' parsed arguments."""
+    return {"keep_own_cells": None if args.replace_own else args.keep_own}
+
+
 def localizer_scale_arg(text: str) -> float | None:
     """argparse type of `--localizer-scale`: a number, or "auto" (None: chosen per image,
     `networks.DetectorConfig.localizer_scale`, which checks the number's range)."""

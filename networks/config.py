@@ -40,6 +40,19 @@ MARKER_PX_RANGE = (4.0, 256.0)
 SMOOTH_CROSSPOINTS_PX, MAX_CROP_SETTING_PX = 0.5, 8.0
 
 
+#: the cells (24 per marker side) within which a marker the Detector's cut test flags keeps its own
+#: points rather than its neighbours' estimate (`networks.DetectorConfig.keep_own_cells`)
+KEEP_OWN_CELLS = 12.0
+
+
+def keep_own_problem(value: float | None) -> str | None:
+    """The problem with `value` as `keep_own_cells` (None: replace all five points, or a number > 0),
+    or None when there is none."""
+    if value is None or value > 0:
+        return None
+    return f"keep_own_cells must be > 0 or None, got {value}"
+
+
 def crop_px_problem(name: str, value: float | None) -> str | None:
     """The problem with `value` as the crosspoint stage's crop-pixel setting `name` (None: off, or a
     number in (0, MAX_CROP_SETTING_PX]), or None when there is none."""

@@ -53,7 +53,7 @@ from assets.pattern import (
 )
 from assets.pattern.observation import is_convex_layout
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
-from networks.config import SMOOTH_CROSSPOINTS_PX, crop_px_problem, marker_px_problem
+from networks.config import KEEP_OWN_CELLS, SMOOTH_CROSSPOINTS_PX, crop_px_problem, keep_own_problem, marker_px_problem
 from networks.decode import decode_localizer
 from networks.detections import Detections
 from networks.homography import (
@@ -135,7 +135,7 @@ class DetectorConfig:
     nms_radius_px: float | None = None
     max_layout_residual_cells: float = 4.0
     consistency_cells: float = 1.0
-    keep_own_cells: float | None = 12.0
+    keep_own_cells: float | None = KEEP_OWN_CELLS
     visibility_threshold: float = 0.5
     image_batch_size: int = 4
     restrict_to_tables: bool = True
@@ -166,8 +166,8 @@ class DetectorConfig:
         for name in ("max_layout_residual_cells", "consistency_cells"):
             if not getattr(self, name) > 0:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
-        if self.keep_own_cells is not None and not self.keep_own_cells > 0:
-            problems.append(f"keep_own_cells must be > 0 or None, got {self.keep_own_cells}")
+        if problem := keep_own_problem(self.keep_own_cells):
+            problems.append(problem)
         if self.nms_radius_px is not None and not self.nms_radius_px > 0:
             problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
         if self.localizer_scale is not None and not 0 < self.localizer_scale <= 4:

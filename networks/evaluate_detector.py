@@ -38,7 +38,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from assets.cli import add_crosspoint_options, crosspoint_options, localizer_scale_arg
+from assets.cli import (add_completion_options, add_crosspoint_options, completion_options, crosspoint_options,
+                        localizer_scale_arg)
 from assets.fileio import save_json
 from assets.pattern import MarkerTable, PatternSpec
 from assets.pattern.observation import ImageGroundTruth
@@ -136,11 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-layout-residual", type=float, default=defaults.max_layout_residual_cells, metavar="CELLS",
                         help="cells (24 per marker side) by which five points may miss a homography of the "
                              "marker's layout before it counts as cut (default %(default)s)")
-    parser.add_argument("--keep-own", type=float, default=defaults.keep_own_cells, metavar="CELLS",
-                        help="a marker counted as cut keeps each of its own points within this many cells of "
-                             "its neighbours' estimate (default %(default)s; see --replace-own)")
-    parser.add_argument("--replace-own", action="store_true",
-                        help="replace all five points of a marker counted as cut by its neighbours' estimate")
+    add_completion_options(parser, defaults.keep_own_cells)
     parser.add_argument("--no-id-votes", action="store_true",
                         help="keep the recognizer's IDs (default: correct them by the neighbours' votes)")
     parser.add_argument("--no-grow", action="store_true",
@@ -169,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
                                                 presence_threshold=args.presence_threshold,
                                                 max_layout_residual_cells=args.max_layout_residual,
-                                                keep_own_cells=None if args.replace_own else args.keep_own,
+                                                **completion_options(args),
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
                                                 grow_rounds=args.grow_rounds, **crosspoint_options(args)),
                                  args.batch_size)

@@ -18,7 +18,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from assets.cli import add_crosspoint_options, crosspoint_options, localizer_scale_arg, run_cli
+from assets.cli import (add_completion_options, add_crosspoint_options, completion_options, crosspoint_options,
+                        localizer_scale_arg, run_cli)
 
 
 def _frames(text: str | None) -> list[int] | None:
@@ -36,7 +37,7 @@ def _levels(text: str | None) -> tuple[int, ...] | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from networks.config import SMOOTH_CROSSPOINTS_PX  # torch-free
+    from networks.config import KEEP_OWN_CELLS, SMOOTH_CROSSPOINTS_PX  # torch-free
 
     parser = argparse.ArgumentParser(prog="python -m reconstruction", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -67,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="networks mode: rounds of growth, each later one from the markers placed before "
                        "(default %(default)s)")
         add_crosspoint_options(p, SMOOTH_CROSSPOINTS_PX, prefix="networks mode: ")
+        add_completion_options(p, KEEP_OWN_CELLS, prefix="networks mode: ")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")
@@ -125,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
                                             checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
                                             initial_shape=str(Path(initial).resolve()) if initial else "",
                                             localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
-                                            grow_rounds=args.grow_rounds, **crosspoint_options(args))
+                                            grow_rounds=args.grow_rounds, **crosspoint_options(args),
+                                            **completion_options(args))
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")

@@ -35,7 +35,7 @@ from tqdm import tqdm
 from assets.cameras import Camera
 from assets.fileio import load_json, save_json
 from assets.garments import Template, load_template
-from networks.config import SMOOTH_CROSSPOINTS_PX, crop_px_problem
+from networks.config import KEEP_OWN_CELLS, SMOOTH_CROSSPOINTS_PX, crop_px_problem, keep_own_problem
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,9 @@ class RunSettings:
     ones are added); grow_rounds: networks mode,
     `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before);
     smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off);
-    crosspoint_shift_px: networks mode, `networks.DetectorConfig.crosspoint_shift_px` (None: one pass)."""
+    crosspoint_shift_px: networks mode, `networks.DetectorConfig.crosspoint_shift_px` (None: one pass);
+    keep_own_cells: networks mode, `networks.DetectorConfig.keep_own_cells` (None: a marker counted as
+    cut takes all five points from its neighbours' estimate)."""
 
     template: str
     level_mm: int = 12
@@ -75,6 +77,7 @@ class RunSettings:
     grow_rounds: int = 1
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     crosspoint_shift_px: float | None = None
+    keep_own_cells: float | None = KEEP_OWN_CELLS
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -92,6 +95,8 @@ class RunSettings:
         for name in ("smooth_crosspoints_px", "crosspoint_shift_px"):
             if problem := crop_px_problem(name, getattr(self, name)):
                 raise ValueError(problem)
+        if problem := keep_own_problem(self.keep_own_cells):
+            raise ValueError(problem)
 
     @property
     def source(self) -> str:
@@ -108,8 +113,9 @@ class RunSettings:
 
 #: what a folder written before a setting existed was made with, where that is not the setting's
 #: default (otherwise the default): detections before the Detector grew missed markers had none, and
-#: before it smoothed crosspoints they were the network's raw outputs
-BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None}
+#: before it smoothed crosspoints they were the network's raw outputs, and before cut markers kept
+#: their own points all five came from the neighbours' estimate
+BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None, "keep_own_cells": None}
 
 
 def start(out: str | Path, settings: RunSettings) -> Path:
@@ -192,7 +198,8 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
                 config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
                                         grow_rounds=settings.grow_rounds,
                                         smooth_crosspoints_px=settings.smooth_crosspoints_px,
-                                        crosspoint_shift_px=settings.crosspoint_shift_px)
+                                        crosspoint_shift_px=settings.crosspoint_shift_px,
+                                        keep_own_cells=settings.keep_own_cells)
                 detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables, config=config)
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))

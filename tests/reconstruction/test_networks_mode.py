@@ -134,6 +134,17 @@ def test_crosspoint_smoothing_is_a_recorded_setting_and_older_folders_had_none(t
                             bad={"smooth_crosspoints_px": 0.0}, match="smooth_crosspoints_px must be in")
 
 
+def test_keeping_cut_markers_own_points_is_a_recorded_setting_older_folders_replaced_them(tmp_path):
+    """The default 12 cells and --replace-own (None) go to run.json; a folder made before the setting
+    replaced all five points of a cut marker, so a default run there is refused."""
+    from reconstruction.__main__ import build_parser
+
+    args = build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o", "--replace-own"])
+    assert args.replace_own and args.keep_own == 12.0
+    _check_recorded_setting(tmp_path, "keep_own_cells", default=12.0, other=None, before=None,
+                            bad={"keep_own_cells": 0.0}, match="keep_own_cells must be > 0 or None")
+
+
 def test_crosspoint_shift_is_a_recorded_setting_off_by_default(tmp_path):
     """--crosspoint-shift PX reaches run.json; a folder made before the setting read one pass, the default."""
     from reconstruction.__main__ import build_parser
