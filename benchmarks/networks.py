@@ -111,7 +111,7 @@ from assets.pattern.observation import ImageGroundTruth, training_samples  # noq
 from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
 from networks.data import dataset_spec, garment_marker_ids, write_training_samples  # noqa: E402
-from networks.evaluate import evaluate  # noqa: E402
+from networks.evaluate import evaluate, read_manifest  # noqa: E402
 from networks.shards import write_shards  # noqa: E402
 from networks.workers import one_thread, worker_context  # noqa: E402
 from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
@@ -686,7 +686,7 @@ def evaluate_threshold(out: Path, rendered: Path, device: str, init: dict[str, s
     compact = out / "compact" / "localizer.pt"
     checkpoints = main_checkpoints(out, init)
     localizer = compact if compact.exists() else checkpoints[0] if checkpoints else None
-    splits = {json.loads(line)["split"] for line in (rendered / "manifest.jsonl").read_text().splitlines() if line}
+    splits = {entry["split"] for entry in read_manifest(rendered)}
     if localizer is None or not {"val", "test"} <= splits:  # nothing to sweep, or no split to choose on
         return {}
     return {"checkpoint": str(localizer),
