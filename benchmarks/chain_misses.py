@@ -91,8 +91,8 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
     misses = []
     for m in missed:
         marker_id = int(truth.marker_id[m])
-        why, score = reason(truth.points_px[m, 0], located, usable, low_points[:, 0] if len(low_points) else
-                            np.zeros((0, 2)), low_scores, detections.points_px[:, 0], radius)
+        why, score = reason(truth.points_px[m, 0], located, usable, low_points[:, 0], low_scores,
+                            detections.points_px[:, 0], radius)
         neighbours = [n for n in (detector.layout.neighbours(np.array([marker_id]))[0].tolist()
                                   if detector.layout is not None else []) if n >= 0]
         misses.append({"id": marker_id, "size_px": float(marker_shape(truth.points_px[m:m + 1])[1][0]),
