@@ -22,7 +22,7 @@ from assets.pattern import (RECOGNIZER_CROP, CropSpec, MarkerTable, PatternSpec,
                             localization_rc)
 
 #: neighbour offsets (d_row, d_col) on the marker grid: the 8 markers sharing an edge or a corner
-_NEIGHBOUR_OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+NEIGHBOUR_OFFSETS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
 
 def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop_xy: np.ndarray) -> np.ndarray:
@@ -143,33 +143,46 @@ def fit_homography_masked(src: np.ndarray, dst: np.ndarray, mask: np.ndarray) ->
     src, dst (N, P, 2); mask (N, P) bool.  Points outside the mask may be NaN.  Returns (N, 3, 3)
     float64 with H[2, 2] = 1, all NaN where fewer than 4 points are masked in.
     """
+    return fit_homography_weighted(src, dst, np.asarray(mask, dtype=bool).astype(np.float64))
+
+
+def fit_homography_weighted(src: np.ndarray, dst: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Weighted least-squares homographies ``dst ~ H src`` (normalised DLT, each point's two rows
+    scaled by its weight).
+
+    src, dst (N, P, 2); weight (N, P) >= 0, points of weight 0 take no part (and may be NaN).  Returns
+    (N, 3, 3) float64 with H[2, 2] = 1, all NaN where fewer than 4 points have a weight above 0.
+    """
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
-    mask = np.asarray(mask, dtype=bool)
-    if src.ndim != 3 or src.shape != dst.shape or src.shape[-1] != 2 or mask.shape != src.shape[:2]:
-        raise ValueError(f"fit_homography_masked: expected src, dst (N, P, 2) and mask (N, P), "
-                         f"got {src.shape}, {dst.shape}, {mask.shape}")
-    weight = mask.astype(np.float64)
+    weight = np.asarray(weight, dtype=np.float64)
+    if src.ndim != 3 or src.shape != dst.shape or src.shape[-1] != 2 or weight.shape != src.shape[:2]:
+        raise ValueError(f"fit_homography_weighted: expected src, dst (N, P, 2) and weight (N, P), "
+                         f"got {src.shape}, {dst.shape}, {weight.shape}")
+    if (weight < 0).any() or not np.isfinite(weight).all():
+        raise ValueError("fit_homography_weighted: weights must be finite and >= 0")
+    used = weight > 0
     count = weight.sum(axis=1)
-    ts, s = _masked_normalise(np.where(mask[..., None], src, 0.0), weight, count)
-    td, d = _masked_normalise(np.where(mask[..., None], dst, 0.0), weight, count)
+    ts, s = _masked_normalise(np.where(used[..., None], src, 0.0), weight, count)
+    td, d = _masked_normalise(np.where(used[..., None], dst, 0.0), weight, count)
     x, y, u, v = s[..., 0], s[..., 1], d[..., 0], d[..., 1]
     zero, one = np.zeros_like(x), np.ones_like(x)
     rows_u = np.stack([-x, -y, -one, zero, zero, zero, u * x, u * y, u], axis=-1) * weight[..., None]
     rows_v = np.stack([zero, zero, zero, -x, -y, -one, v * x, v * y, v], axis=-1) * weight[..., None]
-    a = np.concatenate([rows_u, rows_v], axis=1)  # (N, 2P, 9); masked-out rows are zero
+    a = np.concatenate([rows_u, rows_v], axis=1)  # (N, 2P, 9); rows of weight 0 are zero
     hn = np.linalg.svd(a)[2][:, -1].reshape(-1, 3, 3)
     h = invert_3x3(td) @ hn @ ts
     with np.errstate(invalid="ignore", divide="ignore"):
         h = h / h[:, 2:3, 2:3]
-    h[count < 4] = np.nan
+    h[used.sum(axis=1) < 4] = np.nan
     return h
 
 
 def _masked_normalise(points: np.ndarray, weight: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Similarity (N, 3, 3) moving the masked centroid to 0 and mean distance to sqrt(2), and the
-    points mapped by it (masked-out points become 0 after weighting by the caller)."""
-    total = np.maximum(count, 1.0)
+    """Similarity (N, 3, 3) moving the weighted centroid to 0 and weighted mean distance to sqrt(2), and
+    the points mapped by it (points of weight 0 become 0 after weighting by the caller); count (N,) is
+    the sum of the weights."""
+    total = np.where(count > 0, count, 1.0)
     centre = (points * weight[..., None]).sum(axis=1) / total[:, None]
     spread = (np.linalg.norm(points - centre[:, None], axis=2) * weight).sum(axis=1) / total
     scale = np.sqrt(2.0) / np.maximum(spread, 1e-12)
@@ -237,11 +250,72 @@ class MarkerLayout:
         known = self.contains(marker_id)
         safe = np.where(known, marker_id, 0)
         table = np.where(known, self.table_of_id[safe], 0)
-        rc = self.rc_of_id[safe][:, None, :] + _NEIGHBOUR_OFFSETS[None]  # (N, 8, 2)
+        rc = self.rc_of_id[safe][:, None, :] + NEIGHBOUR_OFFSETS[None]  # (N, 8, 2)
         rows, cols = self.table_shape[table, 0][:, None], self.table_shape[table, 1][:, None]
         valid = known[:, None] & (rc >= 0).all(axis=-1) & (rc[..., 0] < rows) & (rc[..., 1] < cols)
         ids = self.table_first_id[table][:, None] + rc[..., 0] * cols + rc[..., 1]
         return np.where(valid, ids, -1)
+
+
+#: two markers' points within this fraction of a marker side of each other on the pattern are one point
+#: (a corner that adjacent markers share)
+SHARED_POINT_SIDES = 1e-3
+
+
+def place_from_neighbours(src: np.ndarray, dst: np.ndarray, mask: np.ndarray, target_xy: np.ndarray,
+                          side_m: np.ndarray, sigma_sides: float | None, degree: int = 0) -> np.ndarray:
+    """Where points of T markers lie in the image, from other points of the same panels.
+
+    src (T, P, 2) pattern_xy and dst (T, P, 2) image pixels of the points seen (a marker's detected
+    neighbours), mask (T, P) bool; target_xy (T, Q, 2) pattern_xy of the points wanted; side_m (T,) the
+    markers' side on the pattern (metres).  With `sigma_sides` None and `degree` 0, one homography is
+    fitted to all the masked points and applied to the targets: a plane through the whole
+    neighbourhood, which on curved cloth puts a marker's centre 2-3 px off (RESULTS.md).  Otherwise a
+    target that coincides on the pattern with seen points (a corner shared with a neighbour) takes their
+    mean, and every other target the fit of a homography plus a polynomial of `degree` in the pattern
+    position (in marker sides from the target) to its residuals, each seen point weighted by
+    exp(-d^2 / (2 sigma^2)) of its pattern distance d (sides) to the target (1 everywhere with None):
+    so the estimate follows the cloth's curvature.  Returns (T, Q, 2) float64, NaN where fewer than 4
+    points were seen.
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    mask = np.asarray(mask, dtype=bool)
+    target_xy = np.asarray(target_xy, dtype=np.float64)
+    t, q = target_xy.shape[:2]
+    if sigma_sides is None and degree == 0:
+        return apply_homography(fit_homography_masked(src, dst, mask), target_xy)
+    if sigma_sides is not None and not sigma_sides > 0:
+        raise ValueError(f"place_from_neighbours: sigma_sides must be > 0 or None, got {sigma_sides}")
+    if degree < 0:
+        raise ValueError(f"place_from_neighbours: degree must be >= 0, got {degree}")
+    side = np.asarray(side_m, dtype=np.float64)[:, None, None, None]
+    offset = (np.nan_to_num(src)[:, None] - target_xy[:, :, None]) / side  # (T, Q, P, 2) in sides
+    distance = np.linalg.norm(offset, axis=-1)
+    seen = np.broadcast_to(mask[:, None], distance.shape)
+    weight = np.ones_like(distance) if sigma_sides is None else np.exp(-0.5 * (distance / sigma_sides) ** 2)
+    weight = np.where(seen, weight, 0.0).reshape(t * q, -1)
+    p = src.shape[1]
+    flat_src = np.broadcast_to(src[:, None], (t, q, p, 2)).reshape(t * q, p, 2)
+    flat_dst = np.broadcast_to(dst[:, None], (t, q, p, 2)).reshape(t * q, p, 2)
+    h = fit_homography_weighted(flat_src, flat_dst, weight)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        placed = apply_homography(h, target_xy.reshape(t * q, 1, 2))[:, 0]
+        if degree > 0:
+            residual = np.nan_to_num(flat_dst - apply_homography(h, flat_src))  # (TQ, P, 2)
+            u = offset.reshape(t * q, p, 2)
+            terms = np.stack([u[..., 0] ** i * u[..., 1] ** j for i in range(degree + 1)
+                              for j in range(degree + 1 - i)], axis=-1)  # (TQ, P, C); at the target only 1 is not 0
+            weighted = np.swapaxes(weight[..., None] * terms, 1, 2)
+            normal = weighted @ terms
+            normal += np.eye(terms.shape[-1]) * 1e-6 * np.trace(normal, axis1=1, axis2=2)[:, None, None].clip(min=1e-12)
+            coef = np.linalg.solve(normal, weighted @ residual)  # (TQ, C, 2)
+            placed = placed + coef[:, 0]
+    placed = placed.reshape(t, q, 2)
+    shared = seen & (distance <= SHARED_POINT_SIDES)
+    count = shared.sum(axis=-1)
+    mean = (np.where(shared[..., None], np.nan_to_num(dst)[:, None], 0.0)).sum(axis=2) / np.maximum(count, 1)[..., None]
+    return np.where((count > 0)[..., None], mean, placed)
 
 
 def estimate_from_neighbours(
@@ -254,6 +328,8 @@ def estimate_from_neighbours(
     image_size: tuple[int, int],
     consistency_cells: float,
     keep_own_cells: float | None = None,
+    sigma_sides: float | None = None,
+    degree: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Five points of the cut markers of one image, predicted from their fully visible neighbours.
 
@@ -265,6 +341,8 @@ def estimate_from_neighbours(
     prediction; its five points are that homography applied to its localization_xy.  With
     `keep_own_cells`, each of its own points in the image within that many cells of the prediction is
     kept instead: only the points further off (a corner guessed beyond the fabric's edge) are replaced.
+    With `sigma_sides`, both fits are `place_from_neighbours`' local ones instead of one homography (a
+    corner shared with a detected neighbour is that neighbour's corner).
 
     Returns (points (N, 5, 2) float64: estimated where `estimated`, else the input; estimated (N,) bool).
     """
@@ -285,15 +363,15 @@ def estimate_from_neighbours(
     dst = np.concatenate([dst, points_px[targets]], axis=1)
     mask = np.concatenate([mask, np.zeros((t, 5), dtype=bool)], axis=1)
 
-    first_fit = fit_homography_masked(src, dst, mask)
     own_xy = layout.localization_xy[marker_id[targets]]
-    predicted = apply_homography(first_fit, own_xy)  # (T, 5, 2)
+    side_m = _side_m(own_xy)
+    predicted = place_from_neighbours(src, dst, mask, own_xy, side_m, sigma_sides, degree)  # (T, 5, 2)
     tolerance = consistency_cells * _side_px(predicted) / spec.cells_per_side
     with np.errstate(invalid="ignore"):
         consistent = (np.linalg.norm(points_px[targets] - predicted, axis=-1) <= tolerance[:, None]) & inside_image(
             points_px[targets], *image_size)
     mask[:, 40:] = consistent
-    predicted = apply_homography(fit_homography_masked(src, dst, mask), own_xy)
+    predicted = place_from_neighbours(src, dst, mask, own_xy, side_m, sigma_sides, degree)
     if keep_own_cells is not None:
         near = keep_own_cells * _side_px(predicted) / spec.cells_per_side
         with np.errstate(invalid="ignore"):
@@ -314,13 +392,16 @@ def predict_missing(
     confidence: np.ndarray,
     image_size: tuple[int, int],
     min_neighbours: int = 2,
+    sigma_sides: float | None = None,
+    degree: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The markers of one image that the localizer missed next to fully visible ones, placed by them.
 
     Arguments as `estimate_from_neighbours`.  Every garment ID on the same panel next to a `full`
     detection (`MarkerLayout.neighbours`) that was not detected at all, with at least
-    `min_neighbours` full detected neighbours, gets the pattern_xy -> image homography fitted to
-    their localization points applied to its own localization_xy; it is kept when one of its five
+    `min_neighbours` full detected neighbours, is placed by their localization points
+    (`place_from_neighbours` with `sigma_sides`: a local fit, or with None one homography applied to its
+    own localization_xy); it is kept when one of its five
     points lies in the image.  A missed marker is one whose centre is hidden (the localizer has no
     target there), cut by a fold, or too oblique: its crosspoint network's visibility then says
     which of its crosspoints the image shows.
@@ -346,7 +427,8 @@ def predict_missing(
     found, src, dst, mask = _neighbour_points(layout, candidates, detection_of_id, points_px)
     enough = found.sum(axis=1) >= min_neighbours
     candidates, found, src, dst, mask = candidates[enough], found[enough], src[enough], dst[enough], mask[enough]
-    predicted = apply_homography(fit_homography_masked(src, dst, mask), layout.localization_xy[candidates])
+    own_xy = layout.localization_xy[candidates]
+    predicted = place_from_neighbours(src, dst, mask, own_xy, _side_m(own_xy), sigma_sides, degree)
     ok = np.isfinite(predicted).all(axis=(1, 2)) & inside_image(predicted, *image_size).any(axis=1)
     detection = np.where(found, detection_of_id[np.maximum(layout.neighbours(candidates), 0)], 0)
     mean_confidence = (confidence[detection] * found).sum(axis=1) / np.maximum(found.sum(axis=1), 1)
@@ -401,6 +483,12 @@ def _neighbour_points(layout: MarkerLayout, ids: np.ndarray, detection_of_id: np
     return found, src, dst, np.repeat(found, 5, axis=1)
 
 
+def _side_m(localization_xy: np.ndarray) -> np.ndarray:
+    """(T,) markers' side on the pattern (metres): the mean of their top and left edges (TL-TR, TL-BL)."""
+    return 0.5 * (np.linalg.norm(localization_xy[:, 2] - localization_xy[:, 1], axis=-1)
+                  + np.linalg.norm(localization_xy[:, 3] - localization_xy[:, 1], axis=-1))
+
+
 def _side_px(points_px: np.ndarray) -> np.ndarray:
     """(N,) mean side length in pixels of the quads TL, TR, BR, BL of five points (N, 5, 2)."""
     ring = points_px[:, [1, 2, 4, 3, 1]]
@@ -445,7 +533,7 @@ def vote_ids(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, poi
     crop = RECOGNIZER_CROP
     centre = crop_localization_px(spec, crop)[0]
     side = spec.cells_per_side * crop.px_per_cell(spec)
-    slots = centre + side * _NEIGHBOUR_OFFSETS[:, ::-1]  # (8, 2) crop (x, y) = (col, row)
+    slots = centre + side * NEIGHBOUR_OFFSETS[:, ::-1]  # (8, 2) crop (x, y) = (col, row)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         to_image = invert_3x3(crop_homography(spec, crop, points_px[voters]))
         predicted = apply_homography(to_image, slots[None])  # (V, 8, 2)

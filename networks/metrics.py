@@ -293,7 +293,11 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     "localizer_residual_cells" (localized points matched to full markers) and (F,) "gt_residual_cells"
     (the ground-truth points of the full markers); for the matches with the right ID,
     "crosspoint_counts" (3,) int64 visible true positives, false positives, false negatives (per
-    crosspoint) and "crosspoint_error_px" (P,) the image error of those visible in both.
+    crosspoint) and "crosspoint_error_px" (P,) the image error of those visible in both; for the markers
+    the Detector grew (flagged partial and not voted on, `Detections.id_support` -1: with ID votes on,
+    as by default, only grown markers have no vote count), ints "grown" and "grown_shown" (of them, IDs
+    shown in the image), "grown_point_error_px" (G, 5) float64 of the shown ones (NaN where the true
+    point is hidden) and "grown_crosspoint_error_px" (Q,) of their crosspoints visible in both.
     """
     k = detections.crosspoints_px.shape[1]
     if gt.crosspoints_px.shape[1] != k:
@@ -318,6 +322,18 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     crosspoint_error = np.linalg.norm(detections.crosspoints_px[d_right].astype(np.float64)
                                       - truth.crosspoints_px[g_right], axis=-1)[both]
 
+    grown = np.flatnonzero(detections.partial.astype(bool) & (detections.id_support < 0))
+    row_of_id = np.full(max(int(gt.marker_id.max(initial=-1)), int(detections.marker_id.max(initial=-1))) + 1, -1)
+    shown = np.flatnonzero(gt.status > 0)
+    row_of_id[gt.marker_id[shown]] = shown
+    rows = row_of_id[detections.marker_id[grown]]
+    grown, rows = grown[rows >= 0], rows[rows >= 0]
+    grown_error = np.linalg.norm(detections.points_px[grown].astype(np.float64) - gt.points_px[rows], axis=-1)
+    grown_error = np.where(gt.point_visible[rows], grown_error, np.nan)
+    grown_both = detections.crosspoint_visible[grown] & gt.crosspoint_visible[rows]
+    grown_crosspoint_error = np.linalg.norm(detections.crosspoints_px[grown].astype(np.float64)
+                                            - gt.crosspoints_px[rows], axis=-1)[grown_both]
+
     localizer_residual = np.zeros(0)
     if localized_px is not None:
         localized_px = np.asarray(localized_px, dtype=np.float64).reshape(-1, 5, 2)
@@ -338,6 +354,10 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
         "crosspoint_counts": np.array([both.sum(), (pred_visible & ~gt_visible).sum(),
                                        (~pred_visible & gt_visible).sum()], dtype=np.int64),
         "crosspoint_error_px": crosspoint_error,
+        "grown": int((detections.partial.astype(bool) & (detections.id_support < 0)).sum()),
+        "grown_shown": len(grown),
+        "grown_point_error_px": grown_error.reshape(-1, 5),
+        "grown_crosspoint_error_px": grown_crosspoint_error,
     }
 
 
@@ -380,6 +400,9 @@ def detector_metrics(records: Sequence[dict], max_residual_cells: float | None =
       crosspoints    {"visibility": precision, recall, f1, counts per crosspoint, "error_px": {median,
                       p95, count} of those visible in both, "markers": matches with the true ID}
       layout_residual_cells {"localizer", "ground_truth": `residual_stats`, "threshold"}
+      grown          {"count", "shown": grown markers and those whose ID the image shows, "centre_px",
+                      "corners_px": `error_stats` of their placed points where the truth is visible,
+                      "crosspoints_px": of their crosspoints visible in both}
     """
     if not records:
         raise ValueError("detector_metrics: no images to pool")
@@ -416,4 +439,8 @@ def detector_metrics(records: Sequence[dict], max_residual_cells: float | None =
             "ground_truth": residual_stats(pooled["gt_residual_cells"], max_residual_cells),
             "threshold": max_residual_cells,
         },
+        "grown": {"count": int(pooled["grown"]), "shown": int(pooled["grown_shown"]),
+                  "centre_px": error_stats(pooled["grown_point_error_px"][:, 0]),
+                  "corners_px": error_stats(pooled["grown_point_error_px"][:, 1:]),
+                  "crosspoints_px": error_stats(pooled["grown_crosspoint_error_px"])},
     }

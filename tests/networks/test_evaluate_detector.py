@@ -3,6 +3,7 @@ against a hand-made ground truth (exact answers), and `networks.evaluate_detecto
 networks on a tiny dataset folder (the one of test_evaluate, plus a garment template)."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
@@ -98,6 +99,22 @@ def test_match_detections_exact_counts():
     np.testing.assert_allclose(np.sort(record["crosspoint_error_px"])[-624:], 1.0, atol=1e-5)
     np.testing.assert_allclose(record["localizer_residual_cells"], [1.0, 0.0, 1.5], atol=1e-6)
     np.testing.assert_allclose(record["gt_residual_cells"], [0, 0, 0, 0.5], atol=1e-6)
+    # not voted on and partial: c and d count as grown; scored by ID where the truth is visible
+    assert (record["grown"], record["grown_shown"]) == (2, 2)
+    assert np.isnan(record["grown_point_error_px"][1, 3:]).all()
+    np.testing.assert_allclose(record["grown_point_error_px"][[0, 0, 0, 0, 0, 1, 1, 1], [0, 1, 2, 3, 4, 0, 1, 2]], 0,
+                               atol=1e-5)
+    assert len(record["grown_crosspoint_error_px"]) == 625 + 250
+    # a voted partial marker (a cut one) is not grown; a grown ID the image does not show is not scored
+    voted = _detections(gt)
+    support = np.array([1, 1, 2, -1, -1], np.int16)
+    marker_id = voted.marker_id.copy()
+    marker_id[3] = 40
+    partial = voted.partial.copy()
+    partial[4] = True
+    again = match_detections(replace(voted, id_support=support, marker_id=marker_id, partial=partial), gt, SPEC,
+                             radius_px=4.0)
+    assert (again["grown"], again["grown_shown"]) == (2, 0) and again["grown_point_error_px"].shape == (0, 5)
     with pytest.raises(ValueError, match="crosspoints per side"):
         match_detections(Detections.empty(K - 1), gt, SPEC)
 
@@ -131,6 +148,11 @@ def test_detector_metrics_pool_images():
     assert residual["localizer"]["above_threshold"] == pytest.approx(1 / 3)  # 1.0 itself is not above
     assert residual["ground_truth"]["p90"] == pytest.approx(0.35) and residual["ground_truth"]["above_threshold"] == 0
     assert one["layout_residual_cells"]["localizer"]["count"] == 3
+    grown = one["grown"]
+    assert (grown["count"], grown["shown"]) == (2, 2)
+    assert grown["centre_px"]["count"] == 2 and grown["corners_px"]["count"] == 6
+    assert grown["crosspoints_px"] == {"median": pytest.approx(0, abs=1e-5), "p95": pytest.approx(0, abs=1e-5),
+                                       "count": 875}
 
     two = detector_metrics([record, nothing])
     assert two["images"] == 2 and two["markers"]["all"]["false_negative"] == 1 + 5
