@@ -44,19 +44,51 @@ def crosspoint_options(args: argparse.Namespace) -> dict[str, float | None]:
             "crosspoint_shift_px": args.crosspoint_shift}
 
 
-def add_completion_options(parser: argparse.ArgumentParser, keep_default: float, prefix: str = "") -> None:
-    """How the Detector completes a marker its cut test flags, as every CLI that runs it names it:
-    --keep-own CELLS, --replace-own (`completion_options` reads them back)."""
+def parse_neighbour_fit(text: str) -> tuple[float | None, int]:
+    """'1.5/2' -> (1.5, 2), 'none/0' -> (None, 0): the width (marker sides, or none for equal weights)
+    and degree of the Detector's neighbour placement (`networks.homography.place_from_neighbours`).
+    Raises ValueError (argparse's type error) for anything else."""
+    try:
+        width, degree = text.strip().lower().split("/")
+        sigma = None if width == "none" else float(width)
+        order = int(degree)
+    except ValueError:
+        raise ValueError(f"{text!r} is not WIDTH/DEGREE (WIDTH a number or none, DEGREE an integer)") from None
+    if (sigma is not None and not sigma > 0) or not 0 <= order <= 3:
+        raise ValueError(f"{text!r}: the width must be > 0 (or none) and the degree in 0..3")
+    return sigma, order
+
+
+def _neighbour_fit_arg(text: str) -> tuple[float | None, int]:
+    try:
+        return parse_neighbour_fit(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_completion_options(parser: argparse.ArgumentParser, keep_default: float,
+                           fit_default: tuple[float | None, int], prefix: str = "") -> None:
+    """How the Detector completes a marker its cut test flags and places the markers it grows, as every
+    CLI that runs it names it: --keep-own CELLS, --replace-own, --neighbour-fit WIDTH/DEGREE
+    (`completion_options` reads them back)."""
     parser.add_argument("--keep-own", type=float, default=keep_default, metavar="CELLS",
                         help=f"{prefix}a marker counted as cut keeps each of its own points within this many cells "
                         "of its neighbours' estimate (DetectorConfig.keep_own_cells; default %(default)s)")
     parser.add_argument("--replace-own", action="store_true",
                         help=f"{prefix}replace all five points of a marker counted as cut by its neighbours' estimate")
+    default = f"{'none' if fit_default[0] is None else f'{fit_default[0]:g}'}/{fit_default[1]}"
+    parser.add_argument("--neighbour-fit", type=_neighbour_fit_arg, default=fit_default, metavar="WIDTH/DEGREE",
+                        help=f"{prefix}how markers are placed from their neighbours' points (growth, cut markers): "
+                        "Gaussian weights of WIDTH marker sides (none: equal) and a residual polynomial of DEGREE; "
+                        f"none/0 is one homography over the neighbourhood (default {default})")
 
 
-def completion_options(args: argparse.Namespace) -> dict[str, float | None]:
-    """{keep_own_cells} of `add_completion_options`' parsed arguments."""
-    return {"keep_own_cells": None if args.replace_own else args.keep_own}
+def completion_options(args: argparse.Namespace) -> dict[str, float | int | None]:
+    """{keep_own_cells, neighbour_sigma_sides, neighbour_degree} of `add_completion_options`' parsed
+    arguments."""
+    sigma, degree = args.neighbour_fit
+    return {"keep_own_cells": None if args.replace_own else args.keep_own,
+            "neighbour_sigma_sides": sigma, "neighbour_degree": degree}
 
 
 def localizer_scale_arg(text: str) -> float | None:

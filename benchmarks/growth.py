@@ -1,6 +1,8 @@
 """Where the Detector places the markers it grows from their detected neighbours
 (`networks.homography.predict_missing`): one homography over the whole neighbourhood (the baseline,
-`none`) against the local fits of `networks.homography.place_from_neighbours` at several widths, on a
+`none/0`, the placement before 2026-11-27) against the fits of `networks.homography.place_from_neighbours`
+that follow the cloth (WIDTH/DEGREE: weights of that width in marker sides, a residual polynomial of that
+degree; the Detector's default is `networks.config.NEIGHBOUR_SIGMA_SIDES`/`NEIGHBOUR_DEGREE`), on a
 factory dataset's exact ground truth.
 
 In every image the fully visible markers (status 2) are the detections: their true five points moved by
@@ -28,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+from assets.cli import parse_neighbour_fit  # noqa: E402
 from assets.pattern import generate_codebook  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
 from networks.data import dataset_spec  # noqa: E402
@@ -42,18 +45,10 @@ KINDS = ("full", "partial", "surrounded", "one-sided")
 
 def parse_models(text: str) -> list[tuple[float | None, int]]:
     """`none/0,1/0,none/2` -> [(None, 0), (1.0, 0), (None, 2)]: (width in sides or None, degree)."""
-    out: list[tuple[float | None, int]] = []
-    for item in text.split(","):
-        try:
-            width, degree = item.strip().lower().split("/")
-            sigma = None if width == "none" else float(width)
-            order = int(degree)
-        except ValueError:
-            raise SystemExit(f"--models: {item!r} is not WIDTH/DEGREE (WIDTH a number or none)") from None
-        if (sigma is not None and not sigma > 0) or order < 0:
-            raise SystemExit(f"--models: {item!r} needs a width > 0 (or none) and a degree >= 0")
-        out.append((sigma, order))
-    return out
+    try:
+        return [parse_neighbour_fit(item) for item in text.split(",")]
+    except ValueError as exc:
+        raise SystemExit(f"--models: {exc}") from None
 
 
 def load_truth(data: Path, split: str) -> list[ImageGroundTruth]:

@@ -45,6 +45,24 @@ SMOOTH_CROSSPOINTS_PX, MAX_CROP_SETTING_PX = 0.5, 8.0
 KEEP_OWN_CELLS = 12.0
 
 
+#: how the Detector places a marker from its detected neighbours' points (the growth of missed markers,
+#: and the points of a cut marker that lie far from its own): `networks.homography.place_from_neighbours`
+#: with Gaussian weights of this width (marker sides) around each placed point and a polynomial of this
+#: degree bending the homography's residuals; a corner shared with a neighbour is that neighbour's.
+#: (None, 0) is one homography over the whole neighbourhood, the placement before 2026-11-27.  Chosen
+#: by benchmarks/growth.py on 40 renders (RESULTS.md): grown fully visible markers' centres 0.90 ->
+#: 0.34 px (median), corners 0.85 -> 0.30 px; partly visible ones' centres 2.26 -> 1.48 px.
+NEIGHBOUR_SIGMA_SIDES, NEIGHBOUR_DEGREE = 1.5, 2
+
+
+def neighbour_fit_problem(sigma_sides: float | None, degree: int) -> str | None:
+    """The problem with (`sigma_sides`, `degree`) as the neighbour placement (a width > 0 or None, and a
+    degree in 0..3), or None when there is none."""
+    if (sigma_sides is None or sigma_sides > 0) and isinstance(degree, int) and 0 <= degree <= 3:
+        return None
+    return f"the neighbour fit needs a width > 0 (or None) and a degree in 0..3, got {sigma_sides}, {degree}"
+
+
 def keep_own_problem(value: float | None) -> str | None:
     """The problem with `value` as `keep_own_cells` (None: replace all five points, or a number > 0),
     or None when there is none."""

@@ -53,7 +53,8 @@ from assets.pattern import (
 )
 from assets.pattern.observation import is_convex_layout
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
-from networks.config import KEEP_OWN_CELLS, SMOOTH_CROSSPOINTS_PX, crop_px_problem, keep_own_problem, marker_px_problem
+from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX,
+                             crop_px_problem, keep_own_problem, marker_px_problem, neighbour_fit_problem)
 from networks.decode import decode_localizer
 from networks.detections import Detections
 from networks.homography import (
@@ -91,6 +92,10 @@ class DetectorConfig:
       all five are).  On the 20 held-out renders the estimate of the markers marked cut is worse
       than the localizer's own points wherever the truth can be seen (centre median 2.5 px against
       0.8, 28% of centres moved more than 4 px), while 12 cells keeps 98% of centres within 4 px.
+    neighbour_sigma_sides, neighbour_degree: how a marker is placed from its detected neighbours' points,
+      in the completion of cut markers and the growth of missed ones
+      (`networks.homography.place_from_neighbours`; `networks.config.NEIGHBOUR_SIGMA_SIDES` says why
+      these defaults); None and 0 fit one homography to the whole neighbourhood.
     visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
     image_batch_size: images per localizer forward pass (padded to the largest of the batch).
     restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
@@ -136,6 +141,8 @@ class DetectorConfig:
     max_layout_residual_cells: float = 4.0
     consistency_cells: float = 1.0
     keep_own_cells: float | None = KEEP_OWN_CELLS
+    neighbour_sigma_sides: float | None = NEIGHBOUR_SIGMA_SIDES
+    neighbour_degree: int = NEIGHBOUR_DEGREE
     visibility_threshold: float = 0.5
     image_batch_size: int = 4
     restrict_to_tables: bool = True
@@ -167,6 +174,8 @@ class DetectorConfig:
             if not getattr(self, name) > 0:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         if problem := keep_own_problem(self.keep_own_cells):
+            problems.append(problem)
+        if problem := neighbour_fit_problem(self.neighbour_sigma_sides, self.neighbour_degree):
             problems.append(problem)
         if self.nms_radius_px is not None and not self.nms_radius_px > 0:
             problems.append(f"nms_radius_px must be > 0 or None, got {self.nms_radius_px}")
@@ -505,7 +514,8 @@ class Detector:
             full = fully_observed(self.spec, points[pick], size, self.config.max_layout_residual_cells)
             points[pick], partial[pick] = estimate_from_neighbours(
                 self.layout, self.spec, marker_id[pick], points[pick], full, confidence[pick], size,
-                self.config.consistency_cells, self.config.keep_own_cells)
+                self.config.consistency_cells, self.config.keep_own_cells, self.config.neighbour_sigma_sides,
+                self.config.neighbour_degree)
         return points, partial
 
     def grow(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
@@ -522,7 +532,8 @@ class Detector:
             size = (images[i].shape[1], images[i].shape[0])
             full = fully_observed(self.spec, points_px[pick], size, self.config.max_layout_residual_cells) & ~partial[pick]
             ids, points, conf = predict_missing(self.layout, marker_id[pick], points_px[pick], full, confidence[pick],
-                                                size, self.config.grow_min_neighbours)
+                                                size, self.config.grow_min_neighbours, self.config.neighbour_sigma_sides,
+                                                self.config.neighbour_degree)
             found.append((np.full(len(ids), i, np.int64), ids, points, conf))
         return tuple(np.concatenate(arrays) for arrays in zip(*found))
 

@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-layout-residual", type=float, default=defaults.max_layout_residual_cells, metavar="CELLS",
                         help="cells (24 per marker side) by which five points may miss a homography of the "
                              "marker's layout before it counts as cut (default %(default)s)")
-    add_completion_options(parser, defaults.keep_own_cells)
+    add_completion_options(parser, defaults.keep_own_cells, (defaults.neighbour_sigma_sides, defaults.neighbour_degree))
     parser.add_argument("--no-id-votes", action="store_true",
                         help="keep the recognizer's IDs (default: correct them by the neighbours' votes)")
     parser.add_argument("--no-grow", action="store_true",

@@ -289,6 +289,8 @@ def place_from_neighbours(src: np.ndarray, dst: np.ndarray, mask: np.ndarray, ta
         raise ValueError(f"place_from_neighbours: sigma_sides must be > 0 or None, got {sigma_sides}")
     if degree < 0:
         raise ValueError(f"place_from_neighbours: degree must be >= 0, got {degree}")
+    if t == 0:
+        return np.zeros((0, q, 2))
     side = np.asarray(side_m, dtype=np.float64)[:, None, None, None]
     offset = (np.nan_to_num(src)[:, None] - target_xy[:, :, None]) / side  # (T, Q, P, 2) in sides
     distance = np.linalg.norm(offset, axis=-1)

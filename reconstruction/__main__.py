@@ -37,7 +37,7 @@ def _levels(text: str | None) -> tuple[int, ...] | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from networks.config import KEEP_OWN_CELLS, SMOOTH_CROSSPOINTS_PX  # torch-free
+    from networks.config import KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX  # torch-free
 
     parser = argparse.ArgumentParser(prog="python -m reconstruction", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="networks mode: rounds of growth, each later one from the markers placed before "
                        "(default %(default)s)")
         add_crosspoint_options(p, SMOOTH_CROSSPOINTS_PX, prefix="networks mode: ")
-        add_completion_options(p, KEEP_OWN_CELLS, prefix="networks mode: ")
+        add_completion_options(p, KEEP_OWN_CELLS, (NEIGHBOUR_SIGMA_SIDES, NEIGHBOUR_DEGREE), prefix="networks mode: ")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
                        "the post-processing starts from (default: a factory capture's sim/dressed.npz when "
                        "--views is one, else the template's placement pose)")

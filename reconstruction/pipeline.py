@@ -35,7 +35,8 @@ from tqdm import tqdm
 from assets.cameras import Camera
 from assets.fileio import load_json, save_json
 from assets.garments import Template, load_template
-from networks.config import KEEP_OWN_CELLS, SMOOTH_CROSSPOINTS_PX, crop_px_problem, keep_own_problem
+from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX,
+                             crop_px_problem, keep_own_problem, neighbour_fit_problem)
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +63,9 @@ class RunSettings:
     smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off);
     crosspoint_shift_px: networks mode, `networks.DetectorConfig.crosspoint_shift_px` (None: one pass);
     keep_own_cells: networks mode, `networks.DetectorConfig.keep_own_cells` (None: a marker counted as
-    cut takes all five points from its neighbours' estimate)."""
+    cut takes all five points from its neighbours' estimate); neighbour_sigma_sides, neighbour_degree:
+    networks mode, the same of `networks.DetectorConfig` (None and 0: one homography over the
+    neighbourhood places grown and cut markers)."""
 
     template: str
     level_mm: int = 12
@@ -78,6 +81,8 @@ class RunSettings:
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     crosspoint_shift_px: float | None = None
     keep_own_cells: float | None = KEEP_OWN_CELLS
+    neighbour_sigma_sides: float | None = NEIGHBOUR_SIGMA_SIDES
+    neighbour_degree: int = NEIGHBOUR_DEGREE
 
     def __post_init__(self) -> None:
         if self.detections not in ("networks", "groundtruth"):
@@ -97,6 +102,8 @@ class RunSettings:
                 raise ValueError(problem)
         if problem := keep_own_problem(self.keep_own_cells):
             raise ValueError(problem)
+        if problem := neighbour_fit_problem(self.neighbour_sigma_sides, self.neighbour_degree):
+            raise ValueError(problem)
 
     @property
     def source(self) -> str:
@@ -113,9 +120,11 @@ class RunSettings:
 
 #: what a folder written before a setting existed was made with, where that is not the setting's
 #: default (otherwise the default): detections before the Detector grew missed markers had none, and
-#: before it smoothed crosspoints they were the network's raw outputs, and before cut markers kept
-#: their own points all five came from the neighbours' estimate
-BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None, "keep_own_cells": None}
+#: before it smoothed crosspoints they were the network's raw outputs, before cut markers kept
+#: their own points all five came from the neighbours' estimate, and before the neighbour placement
+#: bent with the cloth it was one homography over the neighbourhood
+BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None, "keep_own_cells": None,
+          "neighbour_sigma_sides": None, "neighbour_degree": 0}
 
 
 def start(out: str | Path, settings: RunSettings) -> Path:
@@ -199,7 +208,9 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
                                         grow_rounds=settings.grow_rounds,
                                         smooth_crosspoints_px=settings.smooth_crosspoints_px,
                                         crosspoint_shift_px=settings.crosspoint_shift_px,
-                                        keep_own_cells=settings.keep_own_cells)
+                                        keep_own_cells=settings.keep_own_cells,
+                                        neighbour_sigma_sides=settings.neighbour_sigma_sides,
+                                        neighbour_degree=settings.neighbour_degree)
                 detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables, config=config)
             for camera, found in zip(cameras, detector(opened.images(frame))):
                 found.save(_detection_path(out, camera, frame))

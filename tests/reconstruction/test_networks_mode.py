@@ -145,6 +145,24 @@ def test_keeping_cut_markers_own_points_is_a_recorded_setting_older_folders_repl
                             bad={"keep_own_cells": 0.0}, match="keep_own_cells must be > 0 or None")
 
 
+def test_the_neighbour_fit_is_a_recorded_setting_older_folders_fitted_one_homography(tmp_path):
+    """--neighbour-fit WIDTH/DEGREE goes to run.json (default 1.5/2); a folder made before the setting
+    placed grown and cut markers by one homography (none/0), so a default run there is refused."""
+    from reconstruction.__main__ import build_parser
+
+    def parse(*extra):
+        return build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o", *extra])
+
+    assert parse().neighbour_fit == (1.5, 2) and parse("--neighbour-fit", "none/0").neighbour_fit == (None, 0)
+    for bad in ("2", "0/2", "1/4", "x/1"):
+        with pytest.raises(SystemExit):
+            parse("--neighbour-fit", bad)
+    _check_recorded_setting(tmp_path, "neighbour_degree", default=2, other=0, before=0,
+                            bad={"neighbour_degree": 4}, match="degree in 0..3")
+    _check_recorded_setting(tmp_path / "sigma", "neighbour_sigma_sides", default=1.5, other=None, before=None,
+                            bad={"neighbour_sigma_sides": 0.0}, match="width > 0")
+
+
 def test_crosspoint_shift_is_a_recorded_setting_off_by_default(tmp_path):
     """--crosspoint-shift PX reaches run.json; a folder made before the setting read one pass, the default."""
     from reconstruction.__main__ import build_parser
