@@ -295,29 +295,32 @@ def place_from_neighbours(src: np.ndarray, dst: np.ndarray, mask: np.ndarray, ta
     offset = (np.nan_to_num(src)[:, None] - target_xy[:, :, None]) / side  # (T, Q, P, 2) in sides
     distance = np.linalg.norm(offset, axis=-1)
     seen = np.broadcast_to(mask[:, None], distance.shape)
-    weight = np.ones_like(distance) if sigma_sides is None else np.exp(-0.5 * (distance / sigma_sides) ** 2)
-    weight = np.where(seen, weight, 0.0).reshape(t * q, -1)
+    shared = seen & (distance <= SHARED_POINT_SIDES)
+    count = shared.sum(axis=-1)  # (T, Q)
+    placed = (np.where(shared[..., None], np.nan_to_num(dst)[:, None], 0.0)).sum(axis=2) / np.maximum(count, 1)[..., None]
+    fit = np.flatnonzero(count.ravel() == 0)  # only the points no neighbour shares need a fit
+    if len(fit) == 0:
+        return placed
     p = src.shape[1]
-    flat_src = np.broadcast_to(src[:, None], (t, q, p, 2)).reshape(t * q, p, 2)
-    flat_dst = np.broadcast_to(dst[:, None], (t, q, p, 2)).reshape(t * q, p, 2)
-    h = fit_homography_weighted(flat_src, flat_dst, weight)
+    pick = fit // q  # each fitted point's marker
+    weight = np.ones((len(fit), p)) if sigma_sides is None else \
+        np.exp(-0.5 * (distance.reshape(t * q, p)[fit] / sigma_sides) ** 2)
+    weight = np.where(mask[pick], weight, 0.0)
+    h = fit_homography_weighted(src[pick], dst[pick], weight)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        placed = apply_homography(h, target_xy.reshape(t * q, 1, 2))[:, 0]
+        fitted = apply_homography(h, target_xy.reshape(t * q, 1, 2)[fit])[:, 0]
         if degree > 0:
-            residual = np.nan_to_num(flat_dst - apply_homography(h, flat_src))  # (TQ, P, 2)
-            u = offset.reshape(t * q, p, 2)
+            residual = np.nan_to_num(dst[pick] - apply_homography(h, src[pick]))  # (F, P, 2)
+            u = offset.reshape(t * q, p, 2)[fit]
             terms = np.stack([u[..., 0] ** i * u[..., 1] ** j for i in range(degree + 1)
-                              for j in range(degree + 1 - i)], axis=-1)  # (TQ, P, C); at the target only 1 is not 0
+                              for j in range(degree + 1 - i)], axis=-1)  # (F, P, C); at the target only 1 is not 0
             weighted = np.swapaxes(weight[..., None] * terms, 1, 2)
             normal = weighted @ terms
             normal += np.eye(terms.shape[-1]) * 1e-6 * np.trace(normal, axis1=1, axis2=2)[:, None, None].clip(min=1e-12)
-            coef = np.linalg.solve(normal, weighted @ residual)  # (TQ, C, 2)
-            placed = placed + coef[:, 0]
-    placed = placed.reshape(t, q, 2)
-    shared = seen & (distance <= SHARED_POINT_SIDES)
-    count = shared.sum(axis=-1)
-    mean = (np.where(shared[..., None], np.nan_to_num(dst)[:, None], 0.0)).sum(axis=2) / np.maximum(count, 1)[..., None]
-    return np.where((count > 0)[..., None], mean, placed)
+            fitted = fitted + np.linalg.solve(normal, weighted @ residual)[:, 0]  # the constant term
+    placed = placed.reshape(t * q, 2)
+    placed[fit] = fitted
+    return placed.reshape(t, q, 2)
 
 
 def estimate_from_neighbours(
