@@ -346,8 +346,8 @@ def estimate_from_neighbours(
     prediction; its five points are that homography applied to its localization_xy.  With
     `keep_own_cells`, each of its own points in the image within that many cells of the prediction is
     kept instead: only the points further off (a corner guessed beyond the fabric's edge) are replaced.
-    With `sigma_sides`, both fits are `place_from_neighbours`' local ones instead of one homography (a
-    corner shared with a detected neighbour is that neighbour's corner).
+    With `sigma_sides` or `degree`, both fits are `place_from_neighbours`' bent ones instead of one
+    homography (a corner shared with a detected neighbour is that neighbour's corner).
 
     Returns (points (N, 5, 2) float64: estimated where `estimated`, else the input; estimated (N,) bool).
     """
@@ -405,7 +405,7 @@ def predict_missing(
     Arguments as `estimate_from_neighbours`.  Every garment ID on the same panel next to a `full`
     detection (`MarkerLayout.neighbours`) that was not detected at all, with at least
     `min_neighbours` full detected neighbours, is placed by their localization points
-    (`place_from_neighbours` with `sigma_sides`: a local fit, or with None one homography applied to its
+    (`place_from_neighbours` with `sigma_sides` and `degree`: None and 0 apply one homography to its
     own localization_xy); it is kept when one of its five
     points lies in the image.  A missed marker is one whose centre is hidden (the localizer has no
     target there), cut by a fold, or too oblique: its crosspoint network's visibility then says
