@@ -46,7 +46,7 @@ def crosspoint_options(args: argparse.Namespace) -> dict[str, float | None]:
 
 def parse_neighbour_fit(text: str) -> tuple[float | None, int]:
     """'1.5/2' -> (1.5, 2), 'none/0' -> (None, 0): the width (marker sides, or none for equal weights)
-    and degree of the Detector's neighbour placement (`networks.homography.place_from_neighbours`).
+    and degree of the Detector's neighbour placement (`networks.neighbours.place_from_neighbours`).
     Raises ValueError (argparse's type error) for anything else."""
     try:
         width, degree = text.strip().lower().split("/")

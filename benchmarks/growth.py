@@ -1,6 +1,6 @@
 """Where the Detector places the markers it grows from their detected neighbours
-(`networks.homography.predict_missing`): one homography over the whole neighbourhood (the baseline,
-`none/0`, the placement before 2026-11-27) against the fits of `networks.homography.place_from_neighbours`
+(`networks.neighbours.predict_missing`): one homography over the whole neighbourhood (the baseline,
+`none/0`, the placement before 2026-11-27) against the fits of `networks.neighbours.place_from_neighbours`
 that follow the cloth (WIDTH/DEGREE: weights of that width in marker sides, a residual polynomial of that
 degree; the Detector's default is `networks.config.NEIGHBOUR_SIGMA_SIDES`/`NEIGHBOUR_DEGREE`), on a
 factory dataset's exact ground truth.
@@ -37,7 +37,7 @@ from networks.data import dataset_spec  # noqa: E402
 from networks.detector import DetectorConfig  # noqa: E402
 from networks.evaluate import read_manifest, split_entries  # noqa: E402
 from networks.evaluate_detector import garment_tables  # noqa: E402
-from networks.homography import NEIGHBOUR_OFFSETS, MarkerLayout, predict_missing  # noqa: E402
+from networks.neighbours import NEIGHBOUR_OFFSETS, MarkerLayout, predict_missing  # noqa: E402
 
 DRAWS = 3
 KINDS = ("full", "partial", "surrounded", "one-sided")

@@ -34,7 +34,7 @@ import numpy as np  # noqa: E402
 
 from networks.detections import Detections  # noqa: E402
 from networks.detector import DetectorConfig, vote_markers  # noqa: E402
-from networks.homography import MarkerLayout  # noqa: E402
+from networks.neighbours import MarkerLayout  # noqa: E402
 from reconstruction.groundtruth import GroundTruthCapture, GroundTruthConfig  # noqa: E402
 from reconstruction.triangulate import TriangulationConfig, triangulate_frame  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""The Detector's ID votes (`networks.homography.vote_ids`) on a factory dataset's ground truth, against
+"""The Detector's ID votes (`networks.neighbours.vote_ids`) on a factory dataset's ground truth, against
 keeping the recognizer's IDs (the baseline), under the errors the chained networks make.
 
 For every image of the dataset (Blender renders with exact ground truth), the markers that show are
@@ -36,7 +36,7 @@ from networks.data import dataset_spec  # noqa: E402
 from networks.detector import DetectorConfig, fully_observed  # noqa: E402
 from networks.evaluate import read_manifest, split_entries  # noqa: E402
 from networks.evaluate_detector import garment_tables  # noqa: E402
-from networks.homography import MarkerLayout, vote_ids  # noqa: E402
+from networks.neighbours import MarkerLayout, vote_ids  # noqa: E402
 
 DRAWS = 3
 

@@ -46,7 +46,7 @@ KEEP_OWN_CELLS = 12.0
 
 
 #: how the Detector places a marker from its detected neighbours' points (the growth of missed markers,
-#: and the points of a cut marker that lie far from its own): `networks.homography.place_from_neighbours`
+#: and the points of a cut marker that lie far from its own): `networks.neighbours.place_from_neighbours`
 #: with Gaussian weights of this width (marker sides) around each placed point and a polynomial of this
 #: degree bending the homography's residuals; a corner shared with a neighbour is that neighbour's.
 #: (None, 0) is one homography over the whole neighbourhood, the placement before 2026-11-27.  Chosen

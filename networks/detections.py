@@ -30,7 +30,7 @@ class Detections:
       partial            (N,) bool           points_px come from a homography fitted to neighbouring
                                              markers (the marker is cut by a boundary or the image)
       id_support         (N,) int16          how many detected neighbours vote for marker_id on the
-                                             garment's layout (`networks.homography.vote_ids`); -1 where
+                                             garment's layout (`networks.neighbours.vote_ids`); -1 where
                                              no votes were taken (no garment, votes off, or detections
                                              saved before this field)
 

@@ -10,12 +10,12 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        argmax (over the garment's IDs when `tables` are given) and
        ``confidence = presence probability x softmax probability of that ID``.
     3. With the garment's `tables`, each ID is checked against the IDs its detected neighbours imply
-       on the layout (`networks.homography.vote_ids`) and replaced where they agree on another;
+       on the layout (`networks.neighbours.vote_ids`) and replaced where they agree on another;
        the confidence of a replaced ID uses the recognizer's probability of that ID.
     4. Markers whose five points are not a homography of the canonical layout (residual above
        `max_layout_residual_cells`, a non-convex or mirrored quad) or leave the image are cut; with the
        garment's `tables`, their points are re-estimated from the fully visible neighbours on the
-       pattern (`networks.homography.estimate_from_neighbours`, `partial=True`).  The ID comes from
+       pattern (`networks.neighbours.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
     5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`; wider for a network trained so) and the
        reference texture of its ID -> Crosspoint Localizer (with `crosspoint_shift_px`, also on the
@@ -58,18 +58,15 @@ from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_S
 from networks.decode import decode_localizer
 from networks.detections import Detections
 from networks.homography import (
-    MarkerLayout,
     auto_localizer_scale,
     crop_to_image,
-    estimate_from_neighbours,
     inside_image,
     layout_residual,
     points_from_crosspoints,
-    predict_missing,
     shifted_points,
     smooth_crosspoints,
-    vote_ids,
 )
+from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks.models import CELL, normalize
 
 
@@ -94,12 +91,12 @@ class DetectorConfig:
       0.8, 28% of centres moved more than 4 px), while 12 cells keeps 98% of centres within 4 px.
     neighbour_sigma_sides, neighbour_degree: how a marker is placed from its detected neighbours' points,
       in the completion of cut markers and the growth of missed ones
-      (`networks.homography.place_from_neighbours`; `networks.config.NEIGHBOUR_SIGMA_SIDES` says why
+      (`networks.neighbours.place_from_neighbours`; `networks.config.NEIGHBOUR_SIGMA_SIDES` says why
       these defaults); None and 0 fit one homography to the whole neighbourhood.
     visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
     image_batch_size: images per localizer forward pass (padded to the largest of the batch).
     restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
-    vote_ids: with tables, correct IDs by their neighbours' votes (`networks.homography.vote_ids`,
+    vote_ids: with tables, correct IDs by their neighbours' votes (`networks.neighbours.vote_ids`,
       fully observed markers vote; `vote_min`, `vote_min_partial` and `vote_tolerance` are its
       min_votes, min_votes_partial and tolerance).
     localizer_scale: the localizer sees the image resized by this factor (area resampling), so that
@@ -116,7 +113,7 @@ class DetectorConfig:
       (22 px), 0.75 on 1024 px renders' 32 px markers (24 px) and 1 on 512 px renders' 19.6 px ones.
     grow_missing: with tables, markers the localizer missed next to fully observed ones (a hidden
       centre, a fold, too oblique) are placed by at least `grow_min_neighbours` of them
-      (`networks.homography.predict_missing`), get their layout ID and go through the crosspoint
+      (`networks.neighbours.predict_missing`), get their layout ID and go through the crosspoint
       network; one is kept when at least `grow_min_visible` of its crosspoints (a share of K x K)
       are visible.  They are flagged `partial`, with `id_support` -1.  `grow_rounds` > 1 grows again
       from the markers placed so far: each later round also places markers by the cut and grown ones
@@ -284,7 +281,7 @@ def vote_markers(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray,
                  image_size: tuple[int, int], config: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
     """One image's markers (N,) with their five points (N, 5, 2) in an image of `image_size` (W, H):
     (IDs after the neighbours' votes, id_support (N,) int16), the fully observed markers voting
-    (`networks.homography.vote_ids` with the config's vote settings)."""
+    (`networks.neighbours.vote_ids` with the config's vote settings)."""
     points_px = np.asarray(points_px, dtype=np.float64)
     full = fully_observed(spec, points_px, image_size, config.max_layout_residual_cells)
     ids, support = vote_ids(layout, spec, marker_id, points_px, full, config.vote_min, config.vote_min_partial,
@@ -522,7 +519,7 @@ class Detector:
              marker_id: np.ndarray, confidence: np.ndarray, partial: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Stage 4b: the markers the localizer missed next to fully observed ones (`config.grow_missing`;
-        `networks.homography.predict_missing`): (image_index (A,), marker_id (A,), points (A, 5, 2),
+        `networks.neighbours.predict_missing`): (image_index (A,), marker_id (A,), points (A, 5, 2),
         confidence (A,)); none without tables."""
         found = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 5, 2)), np.zeros(0, np.float32))]
         if self.layout is None or not self.config.grow_missing:

@@ -6,7 +6,7 @@ import pytest
 
 from assets.pattern import MarkerTable, PatternSpec, generate_codebook
 from assets.pattern.observation import ImageGroundTruth
-from networks.homography import MarkerLayout
+from networks.neighbours import MarkerLayout
 
 SPEC = PatternSpec(rows=5, cols=5, num_ids=64)
 

@@ -26,18 +26,15 @@ from networks.config import TrainConfig
 from networks.detections import Detections
 from networks.detector import AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers, usable_points
 from networks.homography import (
-    MarkerLayout,
     auto_localizer_scale,
     crop_to_image,
-    estimate_from_neighbours,
-    predict_missing,
     fit_homography_masked,
     layout_residual,
     marker_side_px,
     points_from_crosspoints,
     shifted_points,
-    vote_ids,
 )
+from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks import homography as homography_module
 from networks.models import CrosspointLocalizer, MarkerLocalizer, MarkerRecognizer
 

@@ -1,4 +1,4 @@
-"""Placing a marker from its neighbours' points (`networks.homography.place_from_neighbours`): one
+"""Placing a marker from its neighbours' points (`networks.neighbours.place_from_neighbours`): one
 homography over the neighbourhood, or local weighted fits with the corners neighbours share, on a flat
 panel (both exact) and on a panel wrapped round a cylinder (the local fit follows the curvature)."""
 
@@ -7,8 +7,8 @@ import pytest
 
 from assets.geometry import apply_homography, fit_homography
 from assets.pattern import MarkerTable, PatternSpec, generate_codebook
-from networks.homography import (MarkerLayout, estimate_from_neighbours, fit_homography_masked,
-                                 fit_homography_weighted, place_from_neighbours, predict_missing)
+from networks.homography import fit_homography_masked, fit_homography_weighted
+from networks.neighbours import MarkerLayout, estimate_from_neighbours, place_from_neighbours, predict_missing
 
 SPEC = PatternSpec(rows=5, cols=5, num_ids=64)
 IMAGE_SIZE = (4000, 4000)
