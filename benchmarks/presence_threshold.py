@@ -11,8 +11,8 @@ threshold, the nearer the reference), and evaluates it beside the reference's 0.
     python benchmarks/presence_threshold.py --checkpoint store/localizer.pt --data .bench/rendered_m \\
         [--thresholds 0.2,0.3,0.4,0.5] [--choose-split val] [--test-split test] [--device cpu]
 
-Prints a table per split and a `RESULT {json}` line.  CPU or GPU; the localizer runs once per threshold
-and split.
+Prints a table per split and a `RESULT {json}` line.  CPU or GPU; the localizer runs once per split,
+decoded at every threshold (`networks.evaluate.evaluate_at`).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from networks.evaluate import evaluate  # noqa: E402
+from networks.evaluate import evaluate_at  # noqa: E402
 
 REFERENCE = 0.5
 #: the thresholds swept by default (`thresholds_arg` adds the reference)
@@ -73,17 +73,17 @@ def sweep(checkpoint: Path, data: Path, thresholds: list[float], choose_split: s
         raise ValueError("the threshold must be chosen on another split than the one it is tested on: a "
                          "threshold read off its test split proves nothing")
 
-    def measure(split: str, threshold: float) -> dict:
-        metrics = evaluate(checkpoint, data, split=split, task="localizer", device=device, threshold=threshold,
-                           progress=False)
-        if metrics["full"]["true_positive"] + metrics["full"]["false_negative"] == 0:
+    def measure(split: str, wanted: list[float]) -> dict[float, dict]:  # one localizer pass per split
+        metrics = evaluate_at(checkpoint, data, wanted, split=split, task="localizer", device=device, progress=False)
+        full = metrics[wanted[0]]["full"]
+        if full["true_positive"] + full["false_negative"] == 0:
             raise ValueError(f"{data}: the split {split!r} has no fully visible markers")
         return metrics
 
-    chosen_metrics = {t: measure(choose_split, t) for t in sorted(set(thresholds) | {REFERENCE})}
+    chosen_metrics = measure(choose_split, sorted(set(thresholds) | {REFERENCE}))
     chosen = choose(chosen_metrics)
     return {"chosen": chosen, "choose_split": choose_split, "test_split": test_split, "choose": chosen_metrics,
-            "test": {t: measure(test_split, t) for t in sorted({chosen, REFERENCE})}}
+            "test": measure(test_split, sorted({chosen, REFERENCE}))}
 
 
 def print_sweep(result: dict, title: str) -> None:

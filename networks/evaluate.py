@@ -28,7 +28,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -261,27 +261,40 @@ class _Results:
         return {"loss": loss, "samples": self.samples, **metrics}
 
 
-@torch.no_grad()
 def evaluate_model(task: str, model: nn.Module, batches: Iterable[dict], device: str | torch.device = "cpu",
                    spec: PatternSpec | None = None, mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX,
                    threshold: float = 0.5, progress: bool = False) -> dict:
     """Metrics of `model` (any mode; evaluated in eval mode, then restored) over `batches` (collated
     dataset items, optionally with the extra ground truth of `folder_batches`).  `spec` is needed for
     the crosspoints' image error.  Returns {"loss": {"total", parts}, "samples", task metrics}."""
+    return evaluate_model_at(task, model, batches, [threshold], device, spec, mixed_precision, radius_px,
+                             progress)[threshold]
+
+
+@torch.no_grad()
+def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thresholds: Sequence[float],
+                      device: str | torch.device = "cpu", spec: PatternSpec | None = None,
+                      mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX, progress: bool = False
+                      ) -> dict[float, dict]:
+    """`evaluate_model` at each of `thresholds` (presence or visibility probability) from one pass of the
+    network over `batches`: {threshold: metrics}."""
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
+    if not thresholds or not all(0 < t < 1 for t in thresholds):
+        raise ValueError(f"thresholds must be a non-empty list of values in (0, 1), got {list(thresholds)}")
     device = torch.device(device)
     was_training = model.training
     model.eval()
-    results = _Results(task, spec, radius_px, threshold, model_crop(model))
+    results = {t: _Results(task, spec, radius_px, t, model_crop(model)) for t in thresholds}
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):
                 output, loss, parts = forward(task, model, batch, device)
-            results.update(output, loss, parts, batch)
+            for result in results.values():
+                result.update(output, loss, parts, batch)
     finally:
         model.train(was_training)
-    return results.result()
+    return {t: result.result() for t, result in results.items()}
 
 
 def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task: str | None = None,
@@ -290,6 +303,13 @@ def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task
     """Evaluate the checkpoint on `split` of the factory dataset folder `data`, or on every item of a
     shard folder of synthesized samples (`networks.synth write`; `split` is then "shards"); a dict of
     metrics with the checkpoint's task, step and the data it was measured on."""
+    return evaluate_at(checkpoint, data, [threshold], split, task, device, batch_size, radius_px, progress)[threshold]
+
+
+def evaluate_at(checkpoint: str | Path, data: str | Path, thresholds: Sequence[float], split: str = "test",
+                task: str | None = None, device: str | torch.device | None = None, batch_size: int = 32,
+                radius_px: float = MATCH_RADIUS_PX, progress: bool = True) -> dict[float, dict]:
+    """`evaluate` at each of `thresholds`, the network run once: {threshold: metrics}."""
     device = resolve_device(device)
     model, config, saved = load_checkpoint(checkpoint, expected_task=task, device=device)
     spec = checkpoint_spec(saved)
@@ -298,10 +318,10 @@ def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task
     batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model))
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
-    metrics = evaluate_model(config.task, model, batches, device, spec, config.mixed_precision, radius_px,
-                             threshold, progress)
-    return {"task": config.task, "checkpoint": str(checkpoint), "step": int(saved["step"]), "data": str(data),
-            "split": split, **metrics}
+    metrics = evaluate_model_at(config.task, model, batches, thresholds, device, spec, config.mixed_precision,
+                                radius_px, progress)
+    return {t: {"task": config.task, "checkpoint": str(checkpoint), "step": int(saved["step"]), "data": str(data),
+                "split": split, **m} for t, m in metrics.items()}
 
 
 def format_table(metrics: dict) -> str:

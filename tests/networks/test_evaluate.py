@@ -16,7 +16,7 @@ from assets.pattern.observation import crosspoint_crops, localizer_targets, reco
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.decode import duplicate_border_targets
-from networks.evaluate import evaluate, folder_batches, format_table, main, split_entries
+from networks.evaluate import evaluate, evaluate_at, folder_batches, format_table, main, split_entries
 from networks.homography import crop_to_image
 from networks.metrics import (
     cells_to_markers,
@@ -284,6 +284,24 @@ def test_evaluate_untrained_checkpoint_in_range(task, dataset, tmp_path):
         assert metrics["crop_error_px"]["median"] >= 0 and metrics["image_error_px"]["count"] > 0
         assert metrics["crop_error_px"]["count"] == metrics["image_error_px"]["count"]
     assert task in format_table(metrics)
+
+
+@pytest.mark.parametrize("task", ["localizer", "crosspoints"])
+def test_one_pass_at_several_thresholds_is_each_threshold_s_own_evaluation(task, dataset, tmp_path):
+    torch.manual_seed(1)
+    model = build_model(task, SPEC.num_ids, SPEC.crosspoints_per_side)
+    path = save_checkpoint(tmp_path / "best.pt", task, model, TrainConfig(task), SPEC, step=3)
+    thresholds = [0.2, 0.5, 0.8]
+    together = evaluate_at(path, dataset, thresholds, "test", task=task, device="cpu", batch_size=8, progress=False)
+    assert list(together) == thresholds
+    for t in thresholds:
+        alone = evaluate(path, dataset, "test", task=task, device="cpu", batch_size=8, threshold=t, progress=False)
+        assert json.dumps(together[t], sort_keys=True, default=str) == json.dumps(alone, sort_keys=True, default=str)
+    key = ("all", "true_positive") if task == "localizer" else ("visibility", "true_positive")
+    counts = [together[t][key[0]][key[1]] for t in thresholds]
+    assert counts[0] >= counts[1] >= counts[2] and counts[0] > counts[2]  # the thresholds did apply
+    with pytest.raises(ValueError, match="thresholds must be"):
+        evaluate_at(path, dataset, [0.5, 1.0], "test", task=task, device="cpu", progress=False)
 
 
 def test_cli_writes_json(dataset, tmp_path, capsys):
