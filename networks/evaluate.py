@@ -38,7 +38,8 @@ from tqdm import tqdm
 
 from assets.fileio import load_npz, save_json
 from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_codebook, reference_textures
-from assets.pattern.observation import ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers
+from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
+                                       training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
 from networks.data import SHARD_META, ShardDataset
@@ -138,9 +139,14 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
     codebook = generate_codebook(spec) if task == "crosspoints" else None
     for entry in split_entries(root, split):
         samples_path = root / entry.get("samples", f"samples/{entry.get('name')}.npz")
-        samples = load_npz(samples_path, required=SAMPLE_KEYS[task])
         gt_path = root / entry["gt"] if "gt" in entry else None
         gt = ImageGroundTruth.load(gt_path) if gt_path is not None and gt_path.is_file() else None
+        if samples_path.is_file():
+            samples = load_npz(samples_path, required=SAMPLE_KEYS[task])
+        elif gt is not None:  # a folder that travelled without samples/: made in memory from image and truth
+            samples = training_samples(read_png(root / entry["image"]), gt, spec)
+        else:
+            raise ValueError(f"{samples_path}: no such file, and no ground truth (gt/) to make the samples from")
         if task == "localizer":
             image = read_png(root / entry["image"])
             cells = samples["cells"].astype(np.float32)

@@ -3,6 +3,7 @@ laid out as `factory.dataset` writes it (images from the real synthesizer, targe
 `assets.pattern.observation`)."""
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -302,6 +303,24 @@ def test_one_pass_at_several_thresholds_is_each_threshold_s_own_evaluation(task,
     assert counts[0] >= counts[1] >= counts[2] and counts[0] > counts[2]  # the thresholds did apply
     with pytest.raises(ValueError, match="thresholds must be"):
         evaluate_at(path, dataset, [0.5, 1.0], "test", task=task, device="cpu", progress=False)
+
+
+def test_a_folder_without_its_samples_is_evaluated_from_its_images_and_ground_truth(dataset, tmp_path):
+    """A dataset folder that travelled without samples/ (they are derived data) evaluates the same: the
+    samples are made in memory from the image and gt/; without gt/ either, the error names the file."""
+    torch.manual_seed(2)
+    model = build_model("recognizer", SPEC.num_ids, SPEC.crosspoints_per_side)
+    path = save_checkpoint(tmp_path / "rec.pt", "recognizer", model, TrainConfig("recognizer"), SPEC, step=1)
+    bare = tmp_path / "bare"
+    shutil.copytree(dataset, bare)
+    shutil.rmtree(bare / "samples")
+    full = evaluate(path, dataset, "test", task="recognizer", device="cpu", progress=False)
+    made = evaluate(path, bare, "test", task="recognizer", device="cpu", progress=False)
+    assert made["samples"] == full["samples"] > 0 and made["top1"] == full["top1"]
+    assert made["loss"]["total"] == pytest.approx(full["loss"]["total"], rel=1e-6)
+    shutil.rmtree(bare / "gt")
+    with pytest.raises(ValueError, match=r"samples/.*\.npz: no such file, and no ground truth"):
+        evaluate(path, bare, "test", task="recognizer", device="cpu", progress=False)
 
 
 def test_cli_writes_json(dataset, tmp_path, capsys):
