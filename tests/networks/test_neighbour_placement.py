@@ -84,8 +84,8 @@ def _neighbourhood(layout: MarkerLayout, table: MarkerTable, project, marker: in
 def test_a_flat_panel_is_placed_exactly_by_every_model(layout, table):
     src, dst, mask, own_xy, side = _neighbourhood(layout, table, flat_camera, CENTRE)
     truth = flat_camera(own_xy)
-    for sigma in (None, 0.5, 1.0, 3.0):
-        assert np.abs(place_from_neighbours(src, dst, mask, own_xy, side, sigma) - truth).max() < 1e-6
+    for sigma, degree in ((None, 0), (0.5, 0), (3.0, 0), (None, 2), (1.5, 2), (1.0, 3)):
+        assert np.abs(place_from_neighbours(src, dst, mask, own_xy, side, sigma, degree) - truth).max() < 1e-6
 
 
 def test_on_a_curved_panel_the_local_fits_follow_the_curvature(layout, table):
@@ -115,7 +115,7 @@ def test_on_a_curved_panel_the_local_fits_follow_the_curvature(layout, table):
         place_from_neighbours(src, dst, mask, own_xy, side, None, -1)
 
 
-def test_growth_and_completion_place_markers_locally_with_a_width(layout, table):
+def test_growth_and_completion_place_markers_with_the_bend(layout, table):
     """The middle marker missed (growth) or cut (completion) on the cylinder: with a bend, its corners
     are its neighbours' and its centre is far closer to the truth than one homography puts it."""
     project = cylinder_camera(table)
