@@ -295,7 +295,7 @@ def test_one_pass_at_several_thresholds_is_each_threshold_s_own_evaluation(task,
     thresholds = [0.2, 0.5, 0.8]
     together = evaluate_at(path, dataset, thresholds, "test", task=task, device="cpu", batch_size=8, progress=False)
     assert list(together) == thresholds
-    for t in thresholds:
+    for t in thresholds[1:]:  # a crosspoint pass takes 13 s here: two thresholds checked alone
         alone = evaluate(path, dataset, "test", task=task, device="cpu", batch_size=8, threshold=t, progress=False)
         assert json.dumps(together[t], sort_keys=True, default=str) == json.dumps(alone, sort_keys=True, default=str)
     key = ("all", "true_positive") if task == "localizer" else ("visibility", "true_positive")
