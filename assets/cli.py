@@ -47,15 +47,18 @@ def crosspoint_options(args: argparse.Namespace) -> dict[str, float | None]:
 def parse_neighbour_fit(text: str) -> tuple[float | None, int]:
     """'1.5/2' -> (1.5, 2), 'none/0' -> (None, 0): the width (marker sides, or none for equal weights)
     and degree of the Detector's neighbour placement (`networks.neighbours.place_from_neighbours`).
-    Raises ValueError (argparse's type error) for anything else."""
+    Raises ValueError (argparse's type error) for anything else: the values are checked by the
+    Detector's own rule (`networks.config.neighbour_fit_problem`)."""
+    from networks.config import neighbour_fit_problem  # torch-free
+
     try:
         width, degree = text.strip().lower().split("/")
         sigma = None if width == "none" else float(width)
         order = int(degree)
     except ValueError:
         raise ValueError(f"{text!r} is not WIDTH/DEGREE (WIDTH a number or none, DEGREE an integer)") from None
-    if (sigma is not None and not sigma > 0) or not 0 <= order <= 3:
-        raise ValueError(f"{text!r}: the width must be > 0 (or none) and the degree in 0..3")
+    if problem := neighbour_fit_problem(sigma, order):
+        raise ValueError(f"{text!r}: {problem}")
     return sigma, order
 
 

@@ -71,7 +71,7 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
                  low_threshold: float) -> tuple[list[dict], int]:
     """(one dict per missed fully visible marker: "id", "size_px", "reason", "presence", "right_neighbours"
     (its pattern neighbours detected with their right ID), "neighbours" (on the garment),
-    "id_claimed_elsewhere"; the image's fully visible markers)."""
+    "id_claimed_elsewhere"; the image's fully visible markers).  `detector` knows the garment (tables)."""
     from foreshortening import marker_shape  # benchmarks/, on the path from main
 
     (detections,), ((located, _),) = detector.detect([image])
@@ -93,8 +93,7 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
         marker_id = int(truth.marker_id[m])
         why, score = reason(truth.points_px[m, 0], located, usable, low_points[:, 0], low_scores,
                             detections.points_px[:, 0], radius)
-        neighbours = [n for n in (detector.layout.neighbours(np.array([marker_id]))[0].tolist()
-                                  if detector.layout is not None else []) if n >= 0]
+        neighbours = [n for n in detector.layout.neighbours(np.array([marker_id]))[0].tolist() if n >= 0]
         misses.append({"id": marker_id, "size_px": float(marker_shape(truth.points_px[m:m + 1])[1][0]),
                        "reason": why, "presence": score, "neighbours": len(neighbours),
                        "right_neighbours": sum(n in right_ids for n in neighbours),
@@ -118,19 +117,20 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.low_threshold < args.presence_threshold:
         parser.error(f"--low-threshold must lie in (0, --presence-threshold {args.presence_threshold}), "
                      f"got {args.low_threshold}")
-    from assets.garments import load_template  # needs triangle
-
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from foreshortening import rendered_pairs
 
     from networks.data import _read_png as read_png
+    from networks.evaluate_detector import load_detector  # the garment's tables from the dataset folder
 
     pairs = rendered_pairs(args.rendered, (args.split,))
     if not pairs:
         parser.error(f"{args.rendered}: no images in split {args.split!r}")
-    detector = Detector.from_checkpoints(
-        *args.checkpoints, device=args.device, tables=load_template(args.rendered / "template.npz").layout.tables(),
-        config=DetectorConfig(localizer_scale=args.localizer_scale, presence_threshold=args.presence_threshold))
+    detector = load_detector(*args.checkpoints, args.rendered, args.device,
+                             DetectorConfig(localizer_scale=args.localizer_scale,
+                                            presence_threshold=args.presence_threshold))
+    if detector.layout is None:
+        parser.error(f"{args.rendered}: no template.npz, so no garment layout for the completion and growth")
     rows, total = [], 0
     for image_path, gt_path in tqdm(pairs, desc="chain misses", unit="image"):
         misses, full = image_misses(detector, read_png(image_path), ImageGroundTruth.load(gt_path), args.radius,

@@ -37,6 +37,7 @@ from networks.data import dataset_spec  # noqa: E402
 from networks.detector import DetectorConfig  # noqa: E402
 from networks.evaluate import read_manifest, split_entries  # noqa: E402
 from networks.evaluate_detector import garment_tables  # noqa: E402
+from networks.metrics import rows_by_id  # noqa: E402
 from networks.neighbours import NEIGHBOUR_OFFSETS, MarkerLayout, predict_missing  # noqa: E402
 
 DRAWS = 3
@@ -74,8 +75,7 @@ def grow_errors(layout: MarkerLayout, truth: list[ImageGroundTruth], model: tupl
             ids, points, _ = predict_missing(layout, gt.marker_id[detected].astype(np.int64), noisy,
                                              np.ones(len(detected), bool), np.ones(len(detected)),
                                              (gt.width, gt.height), min_neighbours, *model)
-            row_of_id = {int(m): r for r, m in enumerate(gt.marker_id)}
-            rows = np.array([row_of_id.get(int(m), -1) for m in ids], dtype=np.int64)
+            rows = rows_by_id(gt.marker_id, ids)
             known = rows >= 0
             rows, points = rows[known], points[known]
             error = np.linalg.norm(points - gt.points_px[rows], axis=-1)

@@ -141,14 +141,16 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
         samples_path = root / entry.get("samples", f"samples/{entry.get('name')}.npz")
         gt_path = root / entry["gt"] if "gt" in entry else None
         gt = ImageGroundTruth.load(gt_path) if gt_path is not None and gt_path.is_file() else None
+        image = None  # read once, where needed
         if samples_path.is_file():
             samples = load_npz(samples_path, required=SAMPLE_KEYS[task])
         elif gt is not None:  # a folder that travelled without samples/: made in memory from image and truth
-            samples = training_samples(read_png(root / entry["image"]), gt, spec)
+            image = read_png(root / entry["image"])
+            samples = training_samples(image, gt, spec)
         else:
             raise ValueError(f"{samples_path}: no such file, and no ground truth (gt/) to make the samples from")
         if task == "localizer":
-            image = read_png(root / entry["image"])
+            image = read_png(root / entry["image"]) if image is None else image
             cells = samples["cells"].astype(np.float32)
             batch = {"image": torch.from_numpy(image).permute(2, 0, 1)[None].contiguous(),
                      "cells": torch.from_numpy(cells)[None]}
@@ -171,7 +173,7 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                 raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a {crop.size_px} x "
                                  f"{crop.size_px} crosspoint crop is cut with (the samples store 112 x 112 ones)")
             else:
-                made = crosspoint_crops(read_png(root / entry["image"]), gt, spec, crop)
+                made = crosspoint_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, crop)
             arrays = crosspoint_arrays(spec, codebook, *made, crop=crop)
             if gt is not None:
                 arrays["points_px"], arrays["gt_xy_image"] = crosspoint_crop_points(gt, spec, made[1], gt_path, crop)

@@ -272,6 +272,18 @@ def _found_by_id(detections: "Detections", gt: "ImageGroundTruth", rows: np.ndar
     return int((median <= radius_px).sum())
 
 
+def rows_by_id(marker_id: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """(W,) int64: the row of `marker_id` (M,) holding each `wanted` ID, -1 where none does (IDs are
+    unique in an image's ground truth; -1 entries of `marker_id` are never matched)."""
+    marker_id = np.asarray(marker_id, dtype=np.int64)
+    wanted = np.asarray(wanted, dtype=np.int64)
+    if len(marker_id) == 0:
+        return np.full(len(wanted), -1, dtype=np.int64)
+    order = np.argsort(marker_id, kind="stable")
+    rows = order[np.minimum(np.searchsorted(marker_id[order], wanted), len(order) - 1)]
+    return np.where((marker_id[rows] == wanted) & (wanted >= 0), rows, -1).astype(np.int64)
+
+
 def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: PatternSpec,
                      radius_px: float = MATCH_RADIUS_PX, localized_px: np.ndarray | None = None) -> dict:
     """One image's Detector output against its ground truth, as raw arrays that `detector_metrics` pools.
@@ -322,12 +334,9 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
     crosspoint_error = np.linalg.norm(detections.crosspoints_px[d_right].astype(np.float64)
                                       - truth.crosspoints_px[g_right], axis=-1)[both]
 
-    grown = np.flatnonzero(detections.partial.astype(bool) & (detections.id_support < 0))
-    row_of_id = np.full(max(int(gt.marker_id.max(initial=-1)), int(detections.marker_id.max(initial=-1))) + 1, -1)
-    shown = np.flatnonzero(gt.status > 0)
-    row_of_id[gt.marker_id[shown]] = shown
-    rows = row_of_id[detections.marker_id[grown]]
-    grown, rows = grown[rows >= 0], rows[rows >= 0]
+    grown_all = np.flatnonzero(detections.partial.astype(bool) & (detections.id_support < 0))
+    rows = rows_by_id(np.where(gt.status > 0, gt.marker_id, -1), detections.marker_id[grown_all])
+    grown, rows = grown_all[rows >= 0], rows[rows >= 0]
     grown_error = np.linalg.norm(detections.points_px[grown].astype(np.float64) - gt.points_px[rows], axis=-1)
     grown_error = np.where(gt.point_visible[rows], grown_error, np.nan)
     grown_both = detections.crosspoint_visible[grown] & gt.crosspoint_visible[rows]
@@ -354,7 +363,7 @@ def match_detections(detections: "Detections", gt: "ImageGroundTruth", spec: Pat
         "crosspoint_counts": np.array([both.sum(), (pred_visible & ~gt_visible).sum(),
                                        (~pred_visible & gt_visible).sum()], dtype=np.int64),
         "crosspoint_error_px": crosspoint_error,
-        "grown": int((detections.partial.astype(bool) & (detections.id_support < 0)).sum()),
+        "grown": len(grown_all),
         "grown_shown": len(grown),
         "grown_point_error_px": grown_error.reshape(-1, 5),
         "grown_crosspoint_error_px": grown_crosspoint_error,

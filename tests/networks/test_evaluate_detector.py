@@ -18,7 +18,7 @@ from networks.config import TrainConfig
 from networks.detections import Detections
 from networks.detector import DetectorConfig
 from networks.evaluate_detector import evaluate_detector, garment_tables, load_detector, main
-from networks.metrics import detector_metrics, match_detections
+from networks.metrics import detector_metrics, match_detections, rows_by_id
 from tests.networks.test_detector import _networks
 from tests.networks.test_evaluate import SPEC, write_factory_dataset
 
@@ -84,6 +84,11 @@ def _localized(gt: ImageGroundTruth) -> np.ndarray:
     points[0, 0, 0] += 2.0
     points[2, 0, 1] += 3.0
     return points
+
+
+def test_rows_by_id_finds_each_id_once_and_marks_the_absent():
+    assert rows_by_id([5, 3, -1, 9], [9, 3, 4, -1, 5]).tolist() == [3, 1, -1, -1, 0]
+    assert rows_by_id([], [1, 2]).tolist() == [-1, -1] and rows_by_id([1], []).tolist() == []
 
 
 def test_match_detections_exact_counts():
