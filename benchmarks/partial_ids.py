@@ -28,6 +28,7 @@ import torch  # noqa: E402
 
 from assets.cli import localizer_scale_arg  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, completed_points, recognizer_markers  # noqa: E402
+from networks.augment import MarkerShrink, shrink_around  # noqa: E402
 from networks.detector import Detector, DetectorConfig  # noqa: E402
 
 
@@ -95,6 +96,34 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, 
     (`tally` of `recognized`)."""
     return tally(recognized(detector, pairs))
 
+def shrunk(detector: Detector, pairs: list[tuple[Path, Path]], targets: list[float],
+           min_side: float = 16.0) -> dict[float, dict]:
+    """Per target side (px): the recognizer's top-1 given the true points on the fully visible markers
+    of at least `min_side` px, each cut from its image shrunk around it to that side
+    (`networks.augment.shrink_around`, as `MarkerShrink` makes training crops): do they read as the
+    rendered markers of that size do?  Markers smaller than a target are left out of it."""
+    from foreshortening import marker_shape  # benchmarks/, on the path from main and networks.py
+
+    margin = MarkerShrink().margin_sides
+    counts = {target: [0, 0] for target in targets}
+    for image_path, gt_path in pairs:
+        image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+        gt = ImageGroundTruth.load(gt_path)
+        pick = np.flatnonzero(groups(gt, detector.spec)[GROUPS[0]])
+        points = gt.points_px[pick].astype(np.float64)
+        sides = marker_shape(points)[1] if len(pick) else np.zeros(0)
+        for target in targets:
+            take = np.flatnonzero((sides >= min_side) & (sides > target))
+            if not len(take):
+                continue
+            windows, moved = zip(*(shrink_around(image, points[k], target / sides[k], margin * sides[k] + 2)
+                                   for k in take))
+            ids, _ = detector.recognize(list(windows), np.arange(len(take)), np.stack(moved))
+            counts[target][0] += len(take)
+            counts[target][1] += int((ids == gt.marker_id[pick[take]]).sum())
+    return {target: {"markers": n, "top1": right / max(n, 1)} for target, (n, right) in counts.items()}
+
+
 #: the chain's groups: the two above, and partial markers with a visible centre whose five points do
 #: not give a sane crop (folded, seen edge-on, behind the camera, or cut with too little of it on the
 #: fabric to complete: the recognizer never trains on them)
@@ -145,8 +174,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every-image", action="store_true", help="--rendered: every image of the folder (a "
                         "held-out set such as the networks benchmark's --extra-heldout), not only its val and test")
     parser.add_argument("--by-motion", action="store_true", help="--rendered: the top-1 per motion too")
+    parser.add_argument("--shrink-to", default="", metavar="PX,PX", help="--rendered: also the fully visible "
+                        "markers of 16 px and more shrunk around themselves to these sides (e.g. 10,14), beside the "
+                        "rendered markers of that size: how real `networks.augment.MarkerShrink`'s small markers are")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
+    try:
+        targets = [float(v) for v in args.shrink_to.split(",") if v.strip()]
+    except ValueError:
+        parser.error(f"--shrink-to takes sides in pixels separated by commas, got {args.shrink_to!r}")
+    if any(not 4 <= t < 16 for t in targets):
+        parser.error(f"--shrink-to sides must be in [4, 16) px (the markers shrunk measure 16 px and more), "
+                     f"got {args.shrink_to}")
     from assets.garments import load_template  # needs triangle: here only, so top1 runs on the GPU machine
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -157,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources, sizes, chains, motions = {}, {}, {}, {}
+    sources, sizes, chains, motions, shrinks = {}, {}, {}, {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
@@ -173,6 +212,8 @@ def main(argv: list[str] | None = None) -> int:
         source = f"{label} ({len(pairs)} images)"
         records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
         sources[source], sizes[source] = tally(records)
+        if targets and rendered is not None:
+            shrinks[source] = shrunk(detector, pairs, targets)
         if args.chain:
             chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
         if args.by_motion and rendered is not None:
@@ -190,6 +231,12 @@ def main(argv: list[str] | None = None) -> int:
         for name, by_size in rows.items():
             for label, r in by_size.items():
                 print(f"| {source} | {name} | {label} | {r['markers']} | {r['top1']:.3f} |")
+    if shrinks:
+        print("\n# fully visible markers of 16 px and more, shrunk around themselves to a side")
+        print("| images | side px | markers | top-1 |\n|---|---|---|---|")
+        for source, rows in shrinks.items():
+            for target, r in rows.items():
+                print(f"| {source} | {target:g} | {r['markers']} | {r['top1']:.3f} |")
     if chains:
         print(f"\n# the chain: {', '.join(p.name for p in args.checkpoints)}")
         print("| images | markers | count | found | identified, recognizer alone | identified after the votes "
@@ -204,7 +251,9 @@ def main(argv: list[str] | None = None) -> int:
         for motion, rows in motions.items():
             for name, r in rows.items():
                 print(f"| {motion} | {name} | {r['markers']} | {r['top1']:.3f} |")
-    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions}))
+    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions,
+                                    "shrunk": {source: {f"{t:g}": r for t, r in rows.items()}
+                                               for source, rows in shrinks.items()}}))
     return 0
 
 

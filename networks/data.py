@@ -51,7 +51,7 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
                                         localizer_targets, marker_cells, recognizer_crops, recognizer_markers,
                                         training_samples)
 from assets.pattern.spec import PatternSpec
-from networks.augment import Augment, ViewWarp, warp_image
+from networks.augment import Augment, MarkerShrink, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
 from networks.config import TASKS, marker_px_problem
 from networks.decoded import DecodedArrays
@@ -73,6 +73,8 @@ _ATTEMPTS = 32
 _JITTER = 7
 #: the stream of a rendered localizer item's view warp (`ViewWarp`), apart from its crop's and augmentation's
 _VIEW = 8
+#: the stream of a rendered recognizer item's marker shrink (`MarkerShrink`)
+_SHRINK = 9
 #: shard folders: the format name in shards.json, and the arrays of a part per task (first axis: item)
 SHARD_FORMAT = "clothcapture-synth-shards"
 SHARD_META = "shards.json"
@@ -198,6 +200,10 @@ class RenderedDataset(_Items, Dataset):
     partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
     (whole markers and partial ones with a visible centre), their crops cut from the image
     (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
+    marker_shrink (recognizer): each crop is cut from its image shrunk around the marker at the
+    shrink's odds (`networks.augment.MarkerShrink`: the marker seen smaller, as a farther camera
+    renders it; seeded per (seed, epoch, index)), before the crop jitter, which so stays in the
+    pixels the marker is seen in; crops are then cut anew from the image.
     marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
     median side of its fully visible markers is this many pixels, as the Detector's automatic scale
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
@@ -216,7 +222,7 @@ class RenderedDataset(_Items, Dataset):
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
                  partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2,
-                 decode_ahead: bool = False):
+                 decode_ahead: bool = False, marker_shrink: MarkerShrink | None = None):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -236,6 +242,9 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
+        if marker_shrink is not None and task != "recognizer":
+            raise ValueError(f"marker_shrink is for the recognizer's crops, not the {task} task's")
+        self.marker_shrink = marker_shrink
         if crosspoint_margin_cells != CROSSPOINT_CROP.margin_cells and task != "crosspoints":
             raise ValueError(f"crosspoint_margin_cells is for the crosspoint network's crops, not the {task} task's")
         self.crosspoint_crop = crosspoint_crop(crosspoint_margin_cells)
@@ -318,10 +327,12 @@ class RenderedDataset(_Items, Dataset):
             return self._item(index, image=image, cells=cells)
         if self.task == "recognizer":
             if self._cut_anew:
-                points = arrays["points_px"][crop]
+                image, points = arrays["image"], arrays["points_px"][crop]
+                if self.marker_shrink is not None:
+                    image, points = self.marker_shrink(image, points, self._rng(index, _SHRINK))
                 if self.crop_jitter_px > 0:
                     points = points + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
-                cut = unwarp(arrays["image"], self.spec, RECOGNIZER_CROP, points)
+                cut = unwarp(image, self.spec, RECOGNIZER_CROP, points)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
@@ -401,9 +412,10 @@ class RenderedDataset(_Items, Dataset):
 
     @property
     def _cut_anew(self) -> bool:
-        """Crops are cut from the image per item (crop jitter, partial markers or another crosspoint
-        crop than the stored ones'), not read stored."""
-        return self.crop_jitter_px > 0 or self.partial_markers or self.crosspoint_crop != CROSSPOINT_CROP
+        """Crops are cut from the image per item (crop jitter, partial markers, shrunk markers or another
+        crosspoint crop than the stored ones'), not read stored."""
+        return (self.crop_jitter_px > 0 or self.partial_markers or self.marker_shrink is not None
+                or self.crosspoint_crop != CROSSPOINT_CROP)
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per

@@ -397,3 +397,10 @@ def test_the_small_marker_recognizer_run_differs_from_the_main_one_only_in_its_m
     assert small == main.__class__(**{**main.__dict__, "marker_px": (10.0, 32.0)})
     assert bench.RUNS["recognizer_small"][:4] == bench.RUNS[bench.MAIN["recognizer"]][:4]
     assert bench.run_config("recognizer_small", 1, 2, {}).recognizer_partial
+
+
+def test_the_shrink_recognizer_run_differs_from_the_main_one_only_in_its_shrunk_crops(bench):
+    shrink, main = bench.run_config("recognizer_shrink", 1, 2, {}), bench.run_config(bench.MAIN["recognizer"], 1, 2, {})
+    assert shrink.recognizer_shrink == 0.5 and main.recognizer_shrink == 0.0
+    assert shrink == main.replace(recognizer_shrink=0.5)
+    assert bench.RUNS["recognizer_shrink"] == bench.RUNS[bench.MAIN["recognizer"]]

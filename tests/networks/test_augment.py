@@ -1,5 +1,5 @@
-"""Augmentation: photometric steps change appearance only, reproducibly; the view warp moves pixels
-as it moves points."""
+"""Augmentation: photometric steps change appearance only, reproducibly; the view warp and the marker
+shrink move pixels as they move points."""
 
 from dataclasses import replace
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from assets.geometry import apply_homography
-from networks.augment import Augment, ViewWarp, augment, warp_image
+from networks.augment import Augment, MarkerShrink, ViewWarp, augment, shrink_around, warp_image
+from networks.homography import marker_side_px
 
 OFF = Augment(blur_probability=0, motion_blur_probability=0, colour_probability=0, noise_probability=0,
               gamma_probability=0, jpeg_probability=0)
@@ -151,3 +152,45 @@ def test_a_view_warp_stays_inside_its_source_and_draws_its_ranges():
         ViewWarp(squeeze=0.0)
     with pytest.raises(ValueError, match="scale"):
         ViewWarp(scale=(1.4, 0.75))
+
+
+def test_a_shrunk_window_keeps_its_points_on_the_same_image_content():
+    # on a linear ramp, area resampling is exact: the shrunk image sampled at a moved point (bilinear,
+    # pixel centres at integer + 0.5) reads the ramp at the original point, for whole and odd factors
+    yy, xx = np.mgrid[0:120, 0:160] + 0.5
+    ramp = (0.7 * xx + 1.3 * yy).astype(np.float32)[..., None].repeat(3, axis=2)
+    points = np.array([[80.2, 60.7], [70.0, 50.5], [91.3, 49.9], [68.8, 71.1], [90.6, 70.4]])
+    for scale in (0.5, 0.37, 1.0):
+        small, moved = shrink_around(ramp, points, scale, margin_px=8.0)
+        assert small.shape[0] < ramp.shape[0] and small.shape[1] < ramp.shape[1]
+        read = [cv2.getRectSubPix(small[..., 0], (1, 1), (float(x) - 0.5, float(y) - 0.5))[0, 0] for x, y in moved]
+        np.testing.assert_allclose(read, 0.7 * points[:, 0] + 1.3 * points[:, 1], atol=0.05)  # 0.03 px
+        side = marker_side_px(moved[None])[0] / marker_side_px(points[None])[0]
+        assert abs(side - scale) < 0.03  # the window's size is rounded to whole pixels
+    # a window at the image's edge is clipped to it, and points beyond stay beyond
+    off = points + [-75.0, 0.0]
+    small, moved = shrink_around(ramp, off, 0.5, margin_px=4.0)
+    assert moved[1, 0] < 0
+    np.testing.assert_allclose(moved[:, 0], off[:, 0] * small.shape[1] / np.ceil(off[:, 0].max() + 4), atol=1e-9)
+    with pytest.raises(ValueError, match="scale"):
+        shrink_around(ramp, points, 1.5, 2.0)
+
+
+def test_a_marker_shrink_draws_sizes_between_its_floor_and_the_marker():
+    image = np.zeros((200, 200, 3), np.uint8)
+    square = np.array([[100, 100], [85, 85], [115, 85], [85, 115], [115, 115]], np.float64)  # a 30 px marker
+    shrink = MarkerShrink(probability=1.0, min_px=10.0)
+    sides = []
+    for seed in range(200):
+        _, moved = shrink(image, square, np.random.default_rng(seed))
+        sides.append(marker_side_px(moved[None])[0])
+    sides = np.array(sides)
+    assert 9.8 < sides.min() < 11.5 and 28.5 < sides.max() < 30.2
+    assert abs(np.median(sides) - 20.0) < 1.5  # uniform over [10, 30]
+    kept = [MarkerShrink(probability=0.3)(image, square, np.random.default_rng(seed))[0] is image for seed in range(400)]
+    assert abs(np.mean(kept) - 0.7) < 0.07
+    small = square * 0.25 + 75  # a 7.5 px marker: under the floor, left as it is
+    assert MarkerShrink(probability=1.0, min_px=8.0)(image, small, np.random.default_rng(0))[1] is small
+    for bad in ({"probability": 1.2}, {"min_px": 2.0}, {"margin_sides": -1.0}):
+        with pytest.raises(ValueError, match="invalid MarkerShrink"):
+            MarkerShrink(**bad)

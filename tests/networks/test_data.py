@@ -18,7 +18,7 @@ from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, refe
 from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops,
                                         recognizer_markers)
-from networks.augment import Augment, ViewWarp, warp_image
+from networks.augment import Augment, MarkerShrink, ViewWarp, warp_image
 from networks.homography import auto_localizer_scale, marker_side_px
 from networks.data import (_VIEW, MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids,
                            synth_crops)
@@ -231,6 +231,28 @@ def test_partial_marker_items_add_the_partial_markers_crops_cut_from_the_image(f
     assert len(same) == len(whole) and all(same)
     with pytest.raises(ValueError, match="partial_markers is for the recognizer"):
         RenderedDataset(folder, "train", "crosspoints", partial_markers=True)
+
+
+def test_shrunk_recognizer_crops_show_the_same_marker_smaller(folder):
+    exact = RenderedDataset(folder, "train", "recognizer")
+    never = RenderedDataset(folder, "train", "recognizer", marker_shrink=MarkerShrink(probability=0.0))
+    near = RenderedDataset(folder, "train", "recognizer", marker_shrink=MarkerShrink(probability=1.0, min_px=30.0))
+    far = RenderedDataset(folder, "train", "recognizer", marker_shrink=MarkerShrink(probability=1.0, min_px=8.0))
+    assert len(exact) == len(never) == len(near) == len(far) > 2
+    moved = {"near": [], "far": []}
+    for i in range(len(exact)):
+        stored = exact[i]["crop"].numpy().astype(float)
+        assert np.array_equal(never[i]["crop"].numpy(), exact[i]["crop"].numpy())  # cut anew, unshrunk: the same
+        for name, dataset in (("near", near), ("far", far)):
+            item = dataset[i]
+            assert item["marker_id"] == exact[i]["marker_id"] and item["crop"].shape == exact[i]["crop"].shape
+            assert torch.equal(item["crop"], dataset[i]["crop"])  # reproducible per (seed, epoch, index)
+            moved[name].append(np.abs(item["crop"].numpy().astype(float) - stored).mean())
+            # the same marker, in place: the crop still follows the stored one
+            assert np.corrcoef(item["crop"].numpy().ravel(), stored.ravel())[0, 1] > 0.5
+    assert 0 < np.mean(moved["near"]) < np.mean(moved["far"])  # the smaller, the more detail is lost
+    with pytest.raises(ValueError, match="marker_shrink is for the recognizer"):
+        RenderedDataset(folder, "train", "crosspoints", marker_shrink=MarkerShrink())
 
 
 def test_per_image_marker_work_is_done_once_when_the_dataset_is_made_and_stale_samples_are_refused_then(

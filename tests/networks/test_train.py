@@ -17,13 +17,14 @@ import torch
 from assets.fileio import save_npz
 from assets.pattern import PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
+from networks.augment import MarkerShrink
 from networks.config import TrainConfig
 from networks.data import RenderedDataset
 from networks.evaluate import evaluate
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
-from networks.train import FIT_SKIP_STEPS, MASKED_LOGIT, StepOrder, lr_factor, main, train
+from networks.train import FIT_SKIP_STEPS, MASKED_LOGIT, StepOrder, lr_factor, main, make_datasets, train
 from tests.networks.test_evaluate import write_factory_dataset
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
@@ -350,6 +351,22 @@ def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset
     with pytest.raises(ValueError, match="whole and partial.*write shards with --whole-markers-only"):
         train(config.replace(recognizer_partial=False), dataset, tmp_path / "whole", device="cpu", spec=SPEC,
               shards=shards, progress=False)
+
+
+def test_the_recognizer_trains_on_rendered_crops_shrunk_at_the_configured_odds(dataset, tmp_path):
+    config = _config("recognizer", steps=2, augment=True, recognizer_shrink=1.0)
+    rendered, _ = make_datasets(config, dataset, SPEC)
+    assert rendered.marker_shrink == MarkerShrink(probability=1.0)
+    assert make_datasets(config.replace(recognizer_shrink=0.0), dataset, SPEC)[0].marker_shrink is None
+    assert make_datasets(config.replace(augment=False), dataset, SPEC)[0].marker_shrink is None  # --no-augment
+    result = main(["recognizer", "--data", str(dataset), "--out", str(tmp_path / "run"), "--steps", "2",
+                   "--batch-size", "2", "--num-workers", "0", "--recognizer-classes", "codebook",
+                   "--recognizer-shrink", "0.5", "--device", "cpu"])
+    assert result == 0
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["recognizer_shrink"] == 0.5
+    assert TrainConfig.from_dict({"task": "recognizer"}).recognizer_shrink == 0.0  # saved before the field
+    with pytest.raises(ValueError, match="recognizer_shrink must be a probability"):
+        _config("recognizer", recognizer_shrink=1.5)
 
 
 def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
