@@ -26,8 +26,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    Detector's automatic scale shows them; chained in its place at that scale), localizer_upright
    (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
    renders' are), recognizer_small (the main recognizer's config on synthesized markers from 10 px,
-   `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_shrink (the main recognizer's config
-   with half its rendered crops showing their marker shrunk, `RUN_SHRINK`), crosspoints_margin4 (the main crosspoint
+   `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_shrink and crosspoints_shrink (the
+   main recognizer's and crosspoint run's configs with half their rendered crops showing their marker
+   shrunk, `RUN_SHRINK`), crosspoints_margin4 (the main crosspoint
    run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
@@ -164,13 +165,15 @@ RUNS = {
     # schedule: the outer crosspoints, nearest the reference crop's edge, err most; the sixteenth run
     # found no gain (0.464 against 0.453 px on renders at near-equal steps from a 112 px start)
     "crosspoints_margin4": ("crosspoints", 0.75, None, 3, "crosspoints_margin4"),
+    # the main crosspoint run's config with half its rendered crops showing their marker shrunk (`RUN_SHRINK`)
+    "crosspoints_shrink": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
 }
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
 RUN_MARKER_PX = {"localizer_22px": 22.0}
-#: runs whose rendered recognizer crops are cut from their image shrunk around the marker at these
-#: odds (`TrainConfig.recognizer_shrink`)
-RUN_SHRINK = {"recognizer_shrink": 0.5}
+#: runs whose rendered crops are cut from their image shrunk around the marker at these odds
+#: (`TrainConfig.marker_shrink`)
+RUN_SHRINK = {"recognizer_shrink": 0.5, "crosspoints_shrink": 0.5}
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_rendered"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
@@ -480,7 +483,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        crosspoint_margin_cells=run_margin(name) if task == "crosspoints" else CROSSPOINT_CROP.margin_cells,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
-                       localizer_marker_px=marker_px, recognizer_shrink=RUN_SHRINK.get(name, 0.0))
+                       localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0))
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,

@@ -96,15 +96,17 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, 
     (`tally` of `recognized`)."""
     return tally(recognized(detector, pairs))
 
-def shrunk(detector: Detector, pairs: list[tuple[Path, Path]], targets: list[float],
-           min_side: float = 16.0) -> dict[float, dict]:
+def shrunk(detector: Detector, pairs: list[tuple[Path, Path]], targets: list[float], squeeze: float = 1.0,
+           min_side: float = 16.0, seed: int = 0) -> dict[float, dict]:
     """Per target side (px): the recognizer's top-1 given the true points on the fully visible markers
-    of at least `min_side` px, each cut from its image shrunk around it to that side
-    (`networks.augment.shrink_around`, as `MarkerShrink` makes training crops): do they read as the
-    rendered markers of that size do?  Markers smaller than a target are left out of it."""
+    of at least `min_side` px, each cut from its image compressed by `squeeze` along a random
+    direction and shrunk around it to that side (`networks.augment.shrink_around`, as `MarkerShrink`
+    makes training crops): do they read as the rendered markers of that size do?  Markers that the
+    squeeze alone takes under a target are left out of it."""
     from foreshortening import marker_shape  # benchmarks/, on the path from main and networks.py
 
     margin = MarkerShrink().margin_sides
+    rng = np.random.default_rng(seed)
     counts = {target: [0, 0] for target in targets}
     for image_path, gt_path in pairs:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
@@ -113,12 +115,13 @@ def shrunk(detector: Detector, pairs: list[tuple[Path, Path]], targets: list[flo
         points = gt.points_px[pick].astype(np.float64)
         sides = marker_shape(points)[1] if len(pick) else np.zeros(0)
         for target in targets:
-            take = np.flatnonzero((sides >= min_side) & (sides > target))
+            take = np.flatnonzero((sides >= min_side) & (sides * np.sqrt(squeeze) > target))
             if not len(take):
                 continue
-            windows, moved = zip(*(shrink_around(image, points[k], target / sides[k], margin * sides[k] + 2)
-                                   for k in take))
-            ids, _ = detector.recognize(list(windows), np.arange(len(take)), np.stack(moved))
+            shrunk = [shrink_around(image, points[k], target / (sides[k] * np.sqrt(squeeze)), margin * sides[k] + 2,
+                                    squeeze, rng.uniform(0.0, np.pi)) for k in take]
+            ids, _ = detector.recognize([s.image for s in shrunk], np.arange(len(take)),
+                                        np.stack([s.points(points[k]) for s, k in zip(shrunk, take)]))
             counts[target][0] += len(take)
             counts[target][1] += int((ids == gt.marker_id[pick[take]]).sum())
     return {target: {"markers": n, "top1": right / max(n, 1)} for target, (n, right) in counts.items()}
@@ -177,8 +180,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shrink-to", default="", metavar="PX,PX", help="--rendered: also the fully visible "
                         "markers of 16 px and more shrunk around themselves to these sides (e.g. 10,14), beside the "
                         "rendered markers of that size: how real `networks.augment.MarkerShrink`'s small markers are")
+    parser.add_argument("--shrink-squeeze", type=float, default=1.0, metavar="F", help="with --shrink-to: first "
+                        "compress the markers by F (0-1) along a random direction, as an oblique view does (the "
+                        "renders' markers under 12 px have an axis ratio of 0.26 at the median)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
+    if not 0 < args.shrink_squeeze <= 1:
+        parser.error(f"--shrink-squeeze must be in (0, 1], got {args.shrink_squeeze}")
     try:
         targets = [float(v) for v in args.shrink_to.split(",") if v.strip()]
     except ValueError:
@@ -213,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
         sources[source], sizes[source] = tally(records)
         if targets and rendered is not None:
-            shrinks[source] = shrunk(detector, pairs, targets)
+            shrinks[source] = shrunk(detector, pairs, targets, args.shrink_squeeze)
         if args.chain:
             chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
         if args.by_motion and rendered is not None:
@@ -232,7 +240,8 @@ def main(argv: list[str] | None = None) -> int:
             for label, r in by_size.items():
                 print(f"| {source} | {name} | {label} | {r['markers']} | {r['top1']:.3f} |")
     if shrinks:
-        print("\n# fully visible markers of 16 px and more, shrunk around themselves to a side")
+        print(f"\n# fully visible markers of 16 px and more, compressed by {args.shrink_squeeze:g} along a random "
+              "direction and shrunk around themselves to a side")
         print("| images | side px | markers | top-1 |\n|---|---|---|---|")
         for source, rows in shrinks.items():
             for target, r in rows.items():

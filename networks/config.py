@@ -126,10 +126,11 @@ class TrainConfig:
     are read shrunk so their markers' median side is this many pixels, the size the Detector's
     automatic scale shows them at (`networks.DetectorConfig.localizer_marker_px`, 22; the renders'
     `RenderedDataset` marker_px); None: at their own scale, as the reference.
-    recognizer_shrink (recognizer, with augment): the probability that a rendered training crop is
-    cut from its image shrunk around the marker, so that it shows a marker between 8 px and its own
-    size (`networks.augment.MarkerShrink`): small markers as a farther camera renders them, where
-    the recognizer errs; not in the reference.  0: crops at the renders' own scale.
+    marker_shrink (crop tasks, with augment): the probability that a rendered training crop is cut
+    from its image shrunk around the marker, so that it shows a marker between 8 px and its own size
+    (`networks.augment.MarkerShrink`, crosspoint targets moved with it): small markers as a farther
+    camera renders them, where the recognizer and the crosspoint network err most; not in the
+    reference.  0: crops at the renders' own scale.
     crosspoint_margin_cells (crosspoints): the crop's margin around the marker in cells (2: the
     reference's 112 x 112; 4: 128 x 128, `assets.pattern.crosspoint_crop`), so the outer crosspoints
     have more image around them; shards must have been written with the same
@@ -161,7 +162,7 @@ class TrainConfig:
     recognizer_partial: bool = True
     localizer_marker_px: float | None = None
     crosspoint_margin_cells: int = 2
-    recognizer_shrink: float = 0.0
+    marker_shrink: float = 0.0
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -194,8 +195,11 @@ class TrainConfig:
             problems.append(f"crosspoint_margin_cells: {exc}")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
-        if not (isinstance(self.recognizer_shrink, (int, float)) and 0 <= self.recognizer_shrink <= 1):
-            problems.append(f"recognizer_shrink must be a probability in [0, 1], got {self.recognizer_shrink!r}")
+        if not (isinstance(self.marker_shrink, (int, float)) and 0 <= self.marker_shrink <= 1):
+            problems.append(f"marker_shrink must be a probability in [0, 1], got {self.marker_shrink!r}")
+        elif self.marker_shrink > 0 and self.task == "localizer":
+            problems.append("marker_shrink is for the crop tasks (the localizer's images scale by localizer_marker_px "
+                            "and view_warp)")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:

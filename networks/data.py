@@ -200,10 +200,10 @@ class RenderedDataset(_Items, Dataset):
     partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
     (whole markers and partial ones with a visible centre), their crops cut from the image
     (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
-    marker_shrink (recognizer): each crop is cut from its image shrunk around the marker at the
+    marker_shrink (crop tasks): each crop is cut from its image shrunk around the marker at the
     shrink's odds (`networks.augment.MarkerShrink`: the marker seen smaller, as a farther camera
-    renders it; seeded per (seed, epoch, index)), before the crop jitter, which so stays in the
-    pixels the marker is seen in; crops are then cut anew from the image.
+    renders it, crosspoint targets moved with it; seeded per (seed, epoch, index)), before the crop
+    jitter, which so stays in the pixels the marker is seen in; crops are then cut anew.
     marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
     median side of its fully visible markers is this many pixels, as the Detector's automatic scale
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
@@ -242,8 +242,9 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
-        if marker_shrink is not None and task != "recognizer":
-            raise ValueError(f"marker_shrink is for the recognizer's crops, not the {task} task's")
+        if marker_shrink is not None and task == "localizer":
+            raise ValueError("marker_shrink is for the crop tasks' crops, not the localizer's images "
+                             "(marker_px and view_warp scale those)")
         self.marker_shrink = marker_shrink
         if crosspoint_margin_cells != CROSSPOINT_CROP.margin_cells and task != "crosspoints":
             raise ValueError(f"crosspoint_margin_cells is for the crosspoint network's crops, not the {task} task's")
@@ -329,20 +330,24 @@ class RenderedDataset(_Items, Dataset):
             if self._cut_anew:
                 image, points = arrays["image"], arrays["points_px"][crop]
                 if self.marker_shrink is not None:
-                    image, points = self.marker_shrink(image, points, self._rng(index, _SHRINK))
+                    shrunk = self.marker_shrink(image, points, self._rng(index, _SHRINK))
+                    image, points = shrunk.image, shrunk.points(points)
                 if self.crop_jitter_px > 0:
                     points = points + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
                 cut = unwarp(image, self.spec, RECOGNIZER_CROP, points)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
-            one = arrays["gt"].select(np.array([crop]))
+            image, one = arrays["image"], arrays["gt"].select(np.array([crop]))
+            if self.marker_shrink is not None:  # the crop-sanity test is blind to scale: the marker still passes
+                shrunk = self.marker_shrink(image, completed_points(one)[0], self._rng(index, _SHRINK))
+                image, one = shrunk.image, shrunk.ground_truth(one)
             made = None
             if self.crop_jitter_px > 0:
-                made = crosspoint_crops(arrays["image"], one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
+                made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
                                         self.spec, self.crosspoint_crop)
             if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the crop-sanity test
-                made = crosspoint_crops(arrays["image"], one, self.spec, self.crosspoint_crop)
+                made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop)
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],

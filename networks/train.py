@@ -254,8 +254,8 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     root = _dataset_root(data)
     view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
     marker_px = config.localizer_marker_px if task == "localizer" else None
-    shrink = MarkerShrink(config.recognizer_shrink) \
-        if task == "recognizer" and config.augment and config.recognizer_shrink > 0 else None
+    shrink = MarkerShrink(config.marker_shrink) \
+        if task != "localizer" and config.augment and config.marker_shrink > 0 else None
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
                                crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
@@ -562,7 +562,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "view_warp": False if args.no_view_warp else None,
                  "localizer_marker_px": args.localizer_marker_px,
                  "crosspoint_margin_cells": args.crosspoint_margin,
-                 "recognizer_shrink": args.recognizer_shrink,
+                 "marker_shrink": args.marker_shrink,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -610,9 +610,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
                         help="localizer: read rendered images shrunk so their markers measure this many pixels, "
                         "as the Detector's automatic scale shows them (22); default: their own scale")
-    parser.add_argument("--recognizer-shrink", type=float, metavar="P",
-                        help="recognizer: cut this share of the rendered crops from the image shrunk around the "
-                        "marker, so it shows between 8 px and its own size (default 0)")
+    parser.add_argument("--marker-shrink", type=float, metavar="P",
+                        help="recognizer, crosspoints: cut this share of the rendered crops from the image shrunk "
+                        "around the marker, so it shows between 8 px and its own size (default 0)")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
                         "markers with a visible centre too; shards need the same: networks.synth write "

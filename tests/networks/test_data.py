@@ -251,8 +251,6 @@ def test_shrunk_recognizer_crops_show_the_same_marker_smaller(folder):
             # the same marker, in place: the crop still follows the stored one
             assert np.corrcoef(item["crop"].numpy().ravel(), stored.ravel())[0, 1] > 0.5
     assert 0 < np.mean(moved["near"]) < np.mean(moved["far"])  # the smaller, the more detail is lost
-    with pytest.raises(ValueError, match="marker_shrink is for the recognizer"):
-        RenderedDataset(folder, "train", "crosspoints", marker_shrink=MarkerShrink())
 
 
 def test_per_image_marker_work_is_done_once_when_the_dataset_is_made_and_stale_samples_are_refused_then(
@@ -333,6 +331,25 @@ def test_jittered_crosspoint_crops_move_their_targets_with_the_crop(folder):
     assert len(same) > 2
     assert 0.3 < np.mean(shift) < 10  # 1.5 px of jitter moves the targets by a few crop pixels
     assert np.mean(same) < 0.5 * np.mean(shuffled)
+
+
+def test_shrunk_crosspoint_crops_show_the_same_marker_with_its_targets(folder):
+    # the crop maps the same place of the pattern to the same crop pixel at any image scale: a shrunk
+    # marker's crop has (nearly) the stored crop's targets and visibility, and a blurrier likeness of it
+    exact = RenderedDataset(folder, "train", "crosspoints")
+    shrunk = RenderedDataset(folder, "train", "crosspoints", marker_shrink=MarkerShrink(probability=1.0, min_px=10.0))
+    assert len(shrunk) == len(exact) > 2
+    changed = []
+    for i in range(len(exact)):
+        want, item = exact[i], shrunk[i]
+        assert torch.equal(item["visible"], want["visible"]) and torch.equal(item["reference"], want["reference"])
+        assert np.allclose(item["xy"].numpy(), want["xy"].numpy(), atol=0.2, equal_nan=True)
+        assert torch.equal(item["crop"], shrunk[i]["crop"])  # reproducible per (seed, epoch, index)
+        assert np.corrcoef(item["crop"].numpy().ravel(), want["crop"].numpy().ravel())[0, 1] > 0.5
+        changed.append(np.abs(item["crop"].numpy().astype(float) - want["crop"].numpy()).mean())
+    assert np.mean(changed) > 2  # the detail lost in the shrink
+    with pytest.raises(ValueError, match="marker_shrink is for the crop tasks"):
+        RenderedDataset(folder, "train", "localizer", marker_shrink=MarkerShrink())
 
 
 def test_wider_crosspoint_crops_are_cut_anew_around_the_stored_ones(folder, codebook):

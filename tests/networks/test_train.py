@@ -353,20 +353,24 @@ def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset
               shards=shards, progress=False)
 
 
-def test_the_recognizer_trains_on_rendered_crops_shrunk_at_the_configured_odds(dataset, tmp_path):
-    config = _config("recognizer", steps=2, augment=True, recognizer_shrink=1.0)
+def test_the_crop_networks_train_on_rendered_crops_shrunk_at_the_configured_odds(dataset, tmp_path):
+    config = _config("recognizer", steps=2, augment=True, marker_shrink=1.0)
     rendered, _ = make_datasets(config, dataset, SPEC)
     assert rendered.marker_shrink == MarkerShrink(probability=1.0)
-    assert make_datasets(config.replace(recognizer_shrink=0.0), dataset, SPEC)[0].marker_shrink is None
+    assert make_datasets(config.replace(marker_shrink=0.0), dataset, SPEC)[0].marker_shrink is None
     assert make_datasets(config.replace(augment=False), dataset, SPEC)[0].marker_shrink is None  # --no-augment
     result = main(["recognizer", "--data", str(dataset), "--out", str(tmp_path / "run"), "--steps", "2",
                    "--batch-size", "2", "--num-workers", "0", "--recognizer-classes", "codebook",
-                   "--recognizer-shrink", "0.5", "--device", "cpu"])
+                   "--marker-shrink", "0.5", "--device", "cpu"])
     assert result == 0
-    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["recognizer_shrink"] == 0.5
-    assert TrainConfig.from_dict({"task": "recognizer"}).recognizer_shrink == 0.0  # saved before the field
-    with pytest.raises(ValueError, match="recognizer_shrink must be a probability"):
-        _config("recognizer", recognizer_shrink=1.5)
+    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["marker_shrink"] == 0.5
+    assert TrainConfig.from_dict({"task": "recognizer"}).marker_shrink == 0.0  # saved before the field
+    with pytest.raises(ValueError, match="marker_shrink must be a probability"):
+        _config("recognizer", marker_shrink=1.5)
+    with pytest.raises(ValueError, match="marker_shrink is for the crop tasks"):
+        _config("localizer", marker_shrink=0.5)
+    crosspoints = _config("crosspoints", steps=2, augment=True, marker_shrink=0.5)
+    assert make_datasets(crosspoints, dataset, SPEC)[0].marker_shrink == MarkerShrink(probability=0.5)
 
 
 def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
