@@ -26,7 +26,9 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    Detector's automatic scale shows them; chained in its place at that scale), localizer_upright
    (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
    renders' are), recognizer_small (the main recognizer's config on synthesized markers from 10 px,
-   `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_shrink and crosspoints_shrink (the
+   `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_bent (the main recognizer's config
+   with its crops cut through the bent crop map that follows curved cloth, rendered and synthesized,
+   `SHARD_SYNTH`; evaluated on bent crops), recognizer_shrink and crosspoints_shrink (the
    main recognizer's and crosspoint run's configs with half their rendered crops showing their marker
    shrunk, `RUN_SHRINK`), crosspoints_margin4 (the main crosspoint
    run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place), and
@@ -155,6 +157,9 @@ RUNS = {
     # the main recognizer's config with half its rendered crops cut from the image shrunk around the
     # marker (`RUN_SHRINK`, `networks.augment.MarkerShrink`): small markers as a farther camera renders them
     "recognizer_shrink": ("recognizer", 0.25, None, 6, "recognizer_partial"),
+    # the main recognizer's config with its crops bent (`assets.pattern.bent_crop_map`, `SHARD_SYNTH`):
+    # the crop follows curved cloth, where it errs (markers off a homography by more than 4 cells)
+    "recognizer_bent": ("recognizer", 0.25, None, 6, "recognizer_bent"),
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
     # the main crosspoint run: mostly rendered crops, which beat 0.75 synthesized from the same start on
@@ -186,6 +191,7 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
           "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX, False),
           "recognizer_partial": ("recognizer", 9600, CROP_JITTER_PX, True),
           "recognizer_small": ("recognizer", 9600, CROP_JITTER_PX, True),
+          "recognizer_bent": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False),
           "crosspoints_margin4": ("crosspoints", 4800, CROP_JITTER_PX, False)}
@@ -196,6 +202,7 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
 #: markers from 10 px (the default's 16 px is the edge along the direction not foreshortened)
 SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
                "recognizer_small": {"marker_px": (10.0, 32.0)},
+               "recognizer_bent": {"recognizer_bend": True},
                "crosspoints_margin4": {"crosspoint_margin_cells": 4}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
@@ -483,7 +490,8 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        crosspoint_margin_cells=run_margin(name) if task == "crosspoints" else CROSSPOINT_CROP.margin_cells,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
-                       localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0))
+                       localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0),
+                       recognizer_bend=bool(SHARD_SYNTH.get(folder, {}).get("recognizer_bend", False)))
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,

@@ -131,6 +131,11 @@ class TrainConfig:
     (`networks.augment.MarkerShrink`, crosspoint targets moved with it): small markers as a farther
     camera renders them, where the recognizer and the crosspoint network err most; not in the
     reference.  0: crops at the renders' own scale.
+    recognizer_bend (recognizer): its crops (training, evaluation and the Detector's) are cut through
+    `assets.pattern.bent_crop_map`, which follows curved cloth (the centre on its own point), not
+    the least-squares homography of the five points; shards must have been written with the same
+    (`networks.synth write --recognizer-bend`).  False: the reference's homography crops (and what a
+    saved config without the field trained on).
     crosspoint_margin_cells (crosspoints): the crop's margin around the marker in cells (2: the
     reference's 112 x 112; 4: 128 x 128, `assets.pattern.crosspoint_crop`), so the outer crosspoints
     have more image around them; shards must have been written with the same
@@ -163,6 +168,7 @@ class TrainConfig:
     localizer_marker_px: float | None = None
     crosspoint_margin_cells: int = 2
     marker_shrink: float = 0.0
+    recognizer_bend: bool = False
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -200,6 +206,10 @@ class TrainConfig:
         elif self.marker_shrink > 0 and self.task == "localizer":
             problems.append("marker_shrink is for the crop tasks (the localizer's images scale by localizer_marker_px "
                             "and view_warp)")
+        if not isinstance(self.recognizer_bend, bool):
+            problems.append(f"recognizer_bend must be true or false, got {self.recognizer_bend!r}")
+        elif self.recognizer_bend and self.task != "recognizer":
+            problems.append("recognizer_bend is for the recognizer's crops")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:

@@ -204,6 +204,8 @@ class RenderedDataset(_Items, Dataset):
     shrink's odds (`networks.augment.MarkerShrink`: the marker seen smaller, as a farther camera
     renders it, crosspoint targets moved with it; seeded per (seed, epoch, index)), before the crop
     jitter, which so stays in the pixels the marker is seen in; crops are then cut anew.
+    recognizer_bend (recognizer): crops cut anew through `assets.pattern.bent_crop_map` (curved cloth)
+    instead of the crop homography.
     marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
     median side of its fully visible markers is this many pixels, as the Detector's automatic scale
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
@@ -222,7 +224,7 @@ class RenderedDataset(_Items, Dataset):
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
                  partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2,
-                 decode_ahead: bool = False, marker_shrink: MarkerShrink | None = None):
+                 decode_ahead: bool = False, marker_shrink: MarkerShrink | None = None, recognizer_bend: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -246,6 +248,9 @@ class RenderedDataset(_Items, Dataset):
             raise ValueError("marker_shrink is for the crop tasks' crops, not the localizer's images "
                              "(marker_px and view_warp scale those)")
         self.marker_shrink = marker_shrink
+        if recognizer_bend and task != "recognizer":
+            raise ValueError(f"recognizer_bend is for the recognizer's crops, not the {task} task's")
+        self.recognizer_bend = bool(recognizer_bend)
         if crosspoint_margin_cells != CROSSPOINT_CROP.margin_cells and task != "crosspoints":
             raise ValueError(f"crosspoint_margin_cells is for the crosspoint network's crops, not the {task} task's")
         self.crosspoint_crop = crosspoint_crop(crosspoint_margin_cells)
@@ -334,7 +339,7 @@ class RenderedDataset(_Items, Dataset):
                     image, points = shrunk.image, shrunk.points(points)
                 if self.crop_jitter_px > 0:
                     points = points + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
-                cut = unwarp(image, self.spec, RECOGNIZER_CROP, points)
+                cut = unwarp(image, self.spec, RECOGNIZER_CROP, points, self.recognizer_bend)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
@@ -417,10 +422,10 @@ class RenderedDataset(_Items, Dataset):
 
     @property
     def _cut_anew(self) -> bool:
-        """Crops are cut from the image per item (crop jitter, partial markers, shrunk markers or another
-        crosspoint crop than the stored ones'), not read stored."""
+        """Crops are cut from the image per item (crop jitter, partial markers, shrunk markers, bent
+        recognizer crops or another crosspoint crop than the stored ones'), not read stored."""
         return (self.crop_jitter_px > 0 or self.partial_markers or self.marker_shrink is not None
-                or self.crosspoint_crop != CROSSPOINT_CROP)
+                or self.recognizer_bend or self.crosspoint_crop != CROSSPOINT_CROP)
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
@@ -554,12 +559,13 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
     see them (the localizer finds those); recognizer crops of partial markers too unless
-    config.recognizer_partial is False (config None: the defaults).  config.crop_jitter_px > 0: cut
+    config.recognizer_partial is False, bent if config.recognizer_bend (config None: the defaults).  config.crop_jitter_px > 0: cut
     from jittered points (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
-        return recognizer_crops(image, gt, spec, partial=(config or SynthConfig()).recognizer_partial)
+        config = config or SynthConfig()
+        return recognizer_crops(image, gt, spec, partial=config.recognizer_partial, bend=config.recognizer_bend)
     made = crosspoint_crops(image, gt, spec, crosspoint_crop((config or SynthConfig()).crosspoint_margin_cells))
     centre = spec.crosspoints_per_side // 2
     return tuple(a[made[3][:, centre, centre]] for a in made)

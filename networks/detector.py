@@ -235,13 +235,13 @@ def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, n
 
 
 def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
-                   spec: PatternSpec, crop: CropSpec) -> np.ndarray:
+                   spec: PatternSpec, crop: CropSpec, bend: bool = False) -> np.ndarray:
     """Crops of markers from several images: image_index (N,) into `images`, points_px (N, 5, 2).
-    Returns (N, S, S, 3) uint8, exactly `assets.pattern.unwarp` (as the training crops)."""
+    Returns (N, S, S, 3) uint8, exactly `assets.pattern.unwarp` (as the training crops; bend: bent)."""
     out = np.zeros((len(image_index), crop.size_px, crop.size_px, 3), dtype=np.uint8)
     for i in np.unique(image_index):
         pick = np.flatnonzero(image_index == i)
-        out[pick] = unwarp(images[i], spec, crop, np.asarray(points_px[pick], dtype=np.float64))
+        out[pick] = unwarp(images[i], spec, crop, np.asarray(points_px[pick], dtype=np.float64), bend)
     return out
 
 
@@ -423,7 +423,8 @@ class Detector:
             allowed = torch.as_tensor(self.layout.table_of_id >= 0, device=self.device)
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):
-                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP)
+                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP,
+                                       self.recognizer.bend)
                 prob = torch.softmax(self.recognizer(self._to_device(crops)).float(), dim=1)
                 if marker_id is not None:
                     given = torch.as_tensor(ids[part], device=self.device)

@@ -39,7 +39,7 @@ from tqdm import tqdm
 from assets.fileio import load_npz, save_json
 from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_codebook, reference_textures
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
-                                       training_samples)
+                                       recognizer_crops, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
 from networks.data import SHARD_META, ShardDataset
@@ -126,7 +126,7 @@ def crop_batches(arrays: dict[str, np.ndarray], batch_size: int = 32) -> Iterato
 
 
 def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
-                   crop: CropSpec = CROSSPOINT_CROP) -> Iterator[dict]:
+                   crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> Iterator[dict]:
     """Batches of the split's samples as the datasets' items collated (`networks.tasks`), with the
     ground truth the metrics need beside them: localizer batches carry "gt_full" (per image (M,)
     bool, matching `cells_to_markers`) and "gt_ignore" (per image (L, 2) centres of the markers the
@@ -134,7 +134,9 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
     true nor false), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
     (B, K, K, 2) image pixels when `gt/<name>.npz` exists.  Localizer batches hold one image each.
     crop: the crosspoint crops' (a network's `crop`); other than the reference's, whose crops the
-    samples store, they are cut from the images with their ground truth (`crosspoint_crops`)."""
+    samples store, they are cut from the images with their ground truth (`crosspoint_crops`).
+    bend: the recognizer's crops are bent (a `MarkerRecognizer`'s `bend`): cut from the images with
+    their ground truth (`recognizer_crops(bend=True)`; the samples store homography crops)."""
     root = Path(root)
     codebook = generate_codebook(spec) if task == "crosspoints" else None
     for entry in split_entries(root, split):
@@ -164,7 +166,13 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                 batch["gt_ignore"] = [shown[~target]]
             yield batch
             continue
-        if task == "recognizer":
+        if task == "recognizer" and bend:
+            if gt is None:
+                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a bent recognizer's "
+                                 "crops are cut with (the samples store homography crops)")
+            made = recognizer_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, bend=True)
+            arrays = {"crop": made[0], "marker_id": made[1].astype(np.int64)}
+        elif task == "recognizer":
             arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
         else:
             if crop == CROSSPOINT_CROP:
@@ -181,17 +189,22 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
 
 
 def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
-                 crop: CropSpec = CROSSPOINT_CROP) -> Iterable[dict]:
+                 crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> Iterable[dict]:
     """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
     is not used), or of a factory dataset's split (`folder_batches`); crop: the crosspoint crops' (a
-    shard folder's must be it)."""
+    shard folder's must be it); bend: the recognizer's crops are bent (a shard folder's must be so)."""
     if (Path(data) / SHARD_META).is_file():
         shards = ShardDataset(data, task, spec=spec)
         if task == "crosspoints" and shards.crosspoint_crop != crop:
             raise ValueError(f"{data}: crosspoint crops of {shards.crosspoint_crop.size_px} px, but the network's "
                              f"are {crop.size_px} px; write shards with --crosspoint-margin {crop.margin_cells:g}")
+        written = bool(shards.meta["synth"].get("recognizer_bend", False))
+        if task == "recognizer" and written != bend:
+            raise ValueError(f"{data}: recognizer crops {'bent' if written else 'through the homography'}, but the "
+                             f"network's are {'bent' if bend else 'not'}; write shards "
+                             f"{'with' if bend else 'without'} --recognizer-bend")
         return DataLoader(shards, batch_size=batch_size)
-    return folder_batches(task, data, split, spec, batch_size, crop)
+    return folder_batches(task, data, split, spec, batch_size, crop, bend)
 
 
 def model_crop(model: nn.Module) -> CropSpec:
@@ -323,7 +336,7 @@ def evaluate_at(checkpoint: str | Path, data: str | Path, thresholds: Sequence[f
     spec = checkpoint_spec(saved)
     if (Path(data) / "template.npz").is_file():
         check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
-    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model))
+    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model), getattr(model, "bend", False))
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
     metrics = evaluate_model_at(config.task, model, batches, thresholds, device, spec, config.mixed_precision,

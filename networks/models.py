@@ -118,14 +118,17 @@ class MarkerRecognizer(nn.Module):
     """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> num_ids).
 
     forward: x float (B, 3, 96, 96) normalised crops (`assets.pattern.RECOGNIZER_CROP`) -> logits
-    (B, num_ids); softmax at inference.
+    (B, num_ids); softmax at inference.  bend: the crops it reads are cut through
+    `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`), not the crop homography: whoever
+    cuts its crops (the Detector, `networks.evaluate`) reads it here.
     """
 
-    def __init__(self, num_ids: int, pretrained: str | Path | None = None) -> None:
+    def __init__(self, num_ids: int, pretrained: str | Path | None = None, bend: bool = False) -> None:
         super().__init__()
         if num_ids < 2:
             raise ValueError(f"MarkerRecognizer: num_ids must be >= 2, got {num_ids}")
         self.num_ids = num_ids
+        self.bend = bool(bend)
         self.backbone = resnet50(num_classes=num_ids)
         _load_backbone(self.backbone, pretrained)
 

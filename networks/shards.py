@@ -201,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     write.add_argument("--whole-markers-only", action="store_true", help="recognizer: crops of whole markers only, "
                        "the reference's (default: partial markers with a visible centre too; "
                        "SynthConfig.recognizer_partial)")
+    write.add_argument("--recognizer-bend", action="store_true", help="recognizer: crops through the bent crop "
+                       "map that follows curved cloth (SynthConfig.recognizer_bend; default: the homography)")
     write.add_argument("--crosspoint-margin", type=int, metavar="CELLS", help="crosspoints: the crops' margin "
                        "around the marker (SynthConfig.crosspoint_margin_cells; default 2, the reference's 112 px "
                        "crop; 4: 128 px)")
@@ -221,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(crop_jitter_px=args.crop_jitter)
         if args.whole_markers_only:
             config = config.replace(recognizer_partial=False)
+        if args.recognizer_bend:
+            config = config.replace(recognizer_bend=True)
         if args.crosspoint_margin is not None:
             config = config.replace(crosspoint_margin_cells=args.crosspoint_margin)
         if args.pattern is not None:

@@ -89,7 +89,8 @@ class SynthConfig:
     (`ImageGroundTruth.jittered`), as the Detector cuts them from the localizer's points (0: exact
     points, the reference's crops).  recognizer_partial: recognizer crops of partial markers with a
     visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones
-    (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).
+    (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).  recognizer_bend:
+    recognizer crops through `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`).
     crosspoint_margin_cells: the crosspoint crops' margin around the marker, cells
     (`assets.pattern.crosspoint_crop`; 2: the reference's 112 x 112; `TrainConfig.crosspoint_margin_cells`).
     """
@@ -124,6 +125,7 @@ class SynthConfig:
     crop_jitter_px: float = 0.0
     recognizer_partial: bool = True
     crosspoint_margin_cells: int = 2
+    recognizer_bend: bool = False
 
     def __post_init__(self) -> None:
         w, h = self.image_size

@@ -405,3 +405,10 @@ def test_the_shrink_runs_differ_from_the_main_ones_only_in_their_shrunk_crops(be
         assert shrink.marker_shrink == 0.5 and main.marker_shrink == 0.0
         assert shrink == main.replace(marker_shrink=0.5)
         assert bench.RUNS[name] == bench.RUNS[bench.MAIN[task]]
+
+
+def test_the_bent_recognizer_run_differs_from_the_main_one_only_in_its_bent_crops(bench):
+    bent, main = bench.run_config("recognizer_bent", 1, 2, {}), bench.run_config(bench.MAIN["recognizer"], 1, 2, {})
+    assert bent.recognizer_bend and not main.recognizer_bend and bent == main.replace(recognizer_bend=True)
+    assert bench.shard_config("recognizer_bent") == bench.shard_config(bench.MAIN["recognizer"]).replace(
+        recognizer_bend=True)

@@ -32,6 +32,7 @@ from assets.pattern.crops import (
     CROSSPOINT_CROP,
     RECOGNIZER_CROP,
     CropSpec,
+    bent_crop_map,
     crop_crosspoints_px,
     crop_homography,
     crosspoint_crop,
@@ -62,6 +63,7 @@ __all__ = [
     "reference_textures",
     "render_region",
     "unwarp",
+    "bent_crop_map",
     "write_png",
     "xy_to_pixel",
 ]

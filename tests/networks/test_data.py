@@ -14,7 +14,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from assets.fileio import save_json, save_npz
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
+from assets.pattern import CROSSPOINT_CROP, RECOGNIZER_CROP, PatternSpec, generate_codebook, reference_textures, unwarp
 from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops,
                                         recognizer_markers)
@@ -253,6 +253,22 @@ def test_shrunk_recognizer_crops_show_the_same_marker_smaller(folder):
             # the same marker, in place: the crop still follows the stored one
             assert np.corrcoef(item["crop"].numpy().ravel(), stored.ravel())[0, 1] > 0.5
     assert 0 < np.mean(moved["near"]) < np.mean(moved["far"])  # the smaller, the more detail is lost
+
+
+def test_bent_recognizer_crops_are_cut_through_the_bent_map(folder):
+    bent = RenderedDataset(folder, "train", "recognizer", recognizer_bend=True)
+    exact = RenderedDataset(folder, "train", "recognizer")
+    assert len(bent) == len(exact) > 2
+    for i in range(len(bent)):
+        image_index, k = (int(v) for v in bent._index[i])
+        entry = bent.entries[image_index]
+        image = cv2.imread(str(folder / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1]
+        points = bent._sources[image_index]["points_px"][k]
+        assert np.array_equal(bent[i]["crop"].permute(1, 2, 0).numpy(), unwarp(image, SPEC, RECOGNIZER_CROP, points,
+                                                                               bend=True))
+        assert bent[i]["marker_id"] == exact[i]["marker_id"]
+    with pytest.raises(ValueError, match="recognizer_bend is for the recognizer"):
+        RenderedDataset(folder, "train", "crosspoints", recognizer_bend=True)
 
 
 def test_per_image_marker_work_is_done_once_when_the_dataset_is_made_and_stale_samples_are_refused_then(

@@ -440,6 +440,28 @@ def test_a_wider_crop_network_gets_its_crops_and_maps_its_output_back(codebook, 
     assert np.abs(xy - crosspoints).max() < 1e-3
 
 
+def test_a_recognizer_trained_on_bent_crops_gets_bent_crops(codebook, table, scene):
+    """The Detector cuts a recognizer's crops as it was trained (`MarkerRecognizer.bend`): the IDs and
+    probabilities are the network's on `unwarp(bend=True)` crops, which differ from the homography's
+    where the centre is off the corners' homography (moved 2 px here, as curved cloth moves it)."""
+    image, points, _ = scene
+    points = points.copy()
+    points[:, 0] += [2.0, -1.5]
+    localizer, _, crosspoints = _networks(0)
+    torch.manual_seed(3)
+    bent = MarkerRecognizer(SPEC.num_ids, bend=True).eval()
+    detector = Detector(localizer, bent, crosspoints, SPEC, tables=[table], codebook=codebook)
+    index = np.zeros(len(points), np.int64)
+    ids, probability = detector.recognize([image], index, points)
+    outputs = {}
+    with torch.inference_mode():
+        for bend in (True, False):
+            crops = unwarp_markers([image], index, points, SPEC, RECOGNIZER_CROP, bend)
+            outputs[bend] = torch.softmax(bent(detector._to_device(crops)).float(), dim=1).numpy()
+    assert np.allclose(outputs[True][np.arange(len(ids)), ids], probability, atol=1e-5)
+    assert not np.allclose(outputs[True], outputs[False], atol=1e-4)
+
+
 def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, scene):
     """smooth_crosspoints_px: the same markers and visibility, the visible crosspoints moved (a
     crosspoint network with a noisy last layer), the hidden ones not."""

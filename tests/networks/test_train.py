@@ -20,7 +20,7 @@ from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoin
 from networks.augment import MarkerShrink
 from networks.config import TrainConfig
 from networks.data import RenderedDataset
-from networks.evaluate import evaluate
+from networks.evaluate import evaluate, folder_batches
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
@@ -371,6 +371,29 @@ def test_the_crop_networks_train_on_rendered_crops_shrunk_at_the_configured_odds
         _config("localizer", marker_shrink=0.5)
     crosspoints = _config("crosspoints", steps=2, augment=True, marker_shrink=0.5)
     assert make_datasets(crosspoints, dataset, SPEC)[0].marker_shrink == MarkerShrink(probability=0.5)
+
+
+def test_a_bent_recognizer_trains_evaluates_and_loads_on_bent_crops(dataset, tmp_path):
+    out = tmp_path / "bent"
+    assert main(["recognizer", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
+                 "--num-workers", "0", "--recognizer-classes", "codebook", "--recognizer-bend", "--device", "cpu"]) == 0
+    model, config, _ = load_checkpoint(out / "last.pt", expected_task="recognizer")
+    assert config.recognizer_bend and model.bend
+    rendered, val = make_datasets(config, dataset, SPEC)
+    assert rendered.recognizer_bend and val.recognizer_bend
+    # evaluation cuts bent crops from the images (the samples store homography ones)
+    bent = next(iter(folder_batches("recognizer", dataset, "test", SPEC, batch_size=64, bend=True)))
+    stored = next(iter(folder_batches("recognizer", dataset, "test", SPEC, batch_size=64)))
+    assert torch.equal(bent["marker_id"], stored["marker_id"]) and not torch.equal(bent["crop"], stored["crop"])
+    assert evaluate(out / "last.pt", dataset, split="test", device="cpu")["samples"] == len(bent["marker_id"])
+    shards = tmp_path / "shards"
+    write_shards(shards, "recognizer", SPEC, count=2, config=SynthConfig(image_size=(128, 128)), images_per_part=2,
+                 progress=False)
+    with pytest.raises(ValueError, match="write shards with --recognizer-bend"):
+        train(config.replace(synth_weight=0.5, init=None), dataset, tmp_path / "mixed", device="cpu", spec=SPEC,
+              shards=shards, progress=False)
+    with pytest.raises(ValueError, match="recognizer_bend is for the recognizer"):
+        _config("crosspoints", recognizer_bend=True)
 
 
 def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
