@@ -361,22 +361,31 @@ def run_margin(name: str) -> int:
     return int(SHARD_SYNTH.get(RUNS[name][4], {}).get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
 
 
+def run_crop(name: str) -> tuple[int, bool]:
+    """How run `name`'s crops are cut: (crosspoint crop margin, `run_margin`; bent recognizer crops)."""
+    return run_margin(name), bool(SHARD_SYNTH.get(RUNS[name][4], {}).get("recognizer_bend", False))
+
+
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
-    synthesized samples of its shard folder (`synth_heldout`); an --init with another crosspoint crop
-    than its run's (a wider-crop run started from a reference-crop network) is measured on its own
-    crop's folder, under its run's label, when a run of that crop has one."""
+    synthesized samples of its shard folder (`synth_heldout`); an --init whose crops are cut otherwise
+    than its run's (`run_crop`: a wider-crop run started from a reference-crop network, a bent
+    recognizer from a homography one) is measured on the folder of a run that cuts them as it does,
+    under its run's label, when there is one."""
     checkpoints = {name: (name, out / name / "run" / "last.pt") for name in RUNS
                    if (out / name / "run" / "last.pt").exists()}
     for name, path in (init or {}).items():
+        task = RUNS[name][0]
         config = TrainConfig.from_dict(read_checkpoint(path)["config"], source=f"{path}:config") \
-            if RUNS[name][0] == "crosspoints" else None
-        if config is None or config.crosspoint_margin_cells == run_margin(name):
+            if task != "localizer" else None
+        cut = None if config is None else (config.crosspoint_margin_cells if task == "crosspoints" else
+                                          CROSSPOINT_CROP.margin_cells, config.recognizer_bend)
+        if cut is None or cut == run_crop(name):
             checkpoints[f"{name}, its --init"] = (name, Path(path))
             continue
-        same = [other for other in RUNS if RUNS[other][4] in folders and RUNS[other][0] == "crosspoints"
-                and run_margin(other) == config.crosspoint_margin_cells]
+        same = [other for other in RUNS if RUNS[other][4] in folders and RUNS[other][0] == task
+                and run_crop(other) == cut]
         if same:
             checkpoints[f"{name}, its --init (on {same[0]}'s samples)"] = (same[0], Path(path))
     return {label: evaluate(path, folders[RUNS[name][4]], device=device, progress=False)
