@@ -183,6 +183,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shrink-squeeze", type=float, default=1.0, metavar="F", help="with --shrink-to: first "
                         "compress the markers by F (0-1) along a random direction, as an oblique view does (the "
                         "renders' markers under 12 px have an axis ratio of 0.26 at the median)")
+    parser.add_argument("--recognizer-bend", choices=("trained", "on", "off"), default="trained",
+                        help="cut the recognizer's crops through the bent crop map (on), the homography (off) or as "
+                        "the recognizer was trained (DetectorConfig.recognizer_bend)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
     if not 0 < args.shrink_squeeze <= 1:
@@ -216,7 +219,9 @@ def main(argv: list[str] | None = None) -> int:
             pairs = [p for p in pairs if p[0].stem in wanted]
         detector = Detector.from_checkpoints(*args.checkpoints, device=args.device,
                                              tables=load_template(template).layout.tables(),
-                                             config=DetectorConfig(localizer_scale=args.localizer_scale))
+                                             config=DetectorConfig(localizer_scale=args.localizer_scale,
+                                                                   recognizer_bend={"on": True, "off": False}.get(
+                                                                       args.recognizer_bend)))
         source = f"{label} ({len(pairs)} images)"
         records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
         sources[source], sizes[source] = tally(records)

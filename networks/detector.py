@@ -96,6 +96,8 @@ class DetectorConfig:
     visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
     image_batch_size: images per localizer forward pass (padded to the largest of the batch).
     restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
+    recognizer_bend: cut the recognizer's crops through `assets.pattern.bent_crop_map` (True) or the
+      crop homography (False); None: as the recognizer was trained (`MarkerRecognizer.bend`).
     vote_ids: with tables, correct IDs by their neighbours' votes (`networks.neighbours.vote_ids`,
       fully observed markers vote; `vote_min`, `vote_min_partial` and `vote_tolerance` are its
       min_votes, min_votes_partial and tolerance).
@@ -155,6 +157,7 @@ class DetectorConfig:
     grow_rounds: int = 1
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     crosspoint_shift_px: float | None = None
+    recognizer_bend: bool | None = None
 
     def __post_init__(self) -> None:
         problems = [problem for name in ("smooth_crosspoints_px", "crosspoint_shift_px")
@@ -412,6 +415,11 @@ class Detector:
                     out.append((points[keep], score[keep]))
         return out
 
+    @property
+    def recognizer_bend(self) -> bool:
+        """Whether the recognizer's crops are bent: `DetectorConfig.recognizer_bend`, else as it was trained."""
+        return self.recognizer.bend if self.config.recognizer_bend is None else self.config.recognizer_bend
+
     def recognize(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
                   marker_id: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Stage 2: (marker_id (N,) int64, softmax probability of that ID (N,) float32): the most
@@ -424,7 +432,7 @@ class Detector:
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):
                 crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP,
-                                       self.recognizer.bend)
+                                       self.recognizer_bend)
                 prob = torch.softmax(self.recognizer(self._to_device(crops)).float(), dim=1)
                 if marker_id is not None:
                     given = torch.as_tensor(ids[part], device=self.device)

@@ -22,9 +22,9 @@ network trained on it says so in its config, `networks.config.TrainConfig.recogn
 homography through the four corners plus a displacement that puts the centre on its own point and
 vanishes at the corners (the mean of a paraboloid and of one parabola per marker axis, `bent_crop_map`).
 Five points do not fit a homography on curved cloth, and the least-squares one misplaces the
-crosspoints: on the 10,195 fully visible markers of 120 renders their median distance from the
-crop's canonical grid is 0.35 cells with the homography, 0.14 with the bend (the quarter of markers
-furthest off a homography: 1.20 against 0.45 cells; the paraboloid alone 0.17 and 0.52).
+crosspoints: on the 10,195 fully visible markers of 120 renders their median distance from where the
+map puts the crop's canonical grid is 0.36 cells with the homography, 0.14 with the bend (the tenth of
+markers furthest off a homography: 1.22 against 0.45 cells; `benchmarks/crop_bend.py`).
 """
 
 from __future__ import annotations

@@ -460,6 +460,11 @@ def test_a_recognizer_trained_on_bent_crops_gets_bent_crops(codebook, table, sce
             outputs[bend] = torch.softmax(bent(detector._to_device(crops)).float(), dim=1).numpy()
     assert np.allclose(outputs[True][np.arange(len(ids)), ids], probability, atol=1e-5)
     assert not np.allclose(outputs[True], outputs[False], atol=1e-4)
+    # the config overrides how the network was trained
+    homography = Detector(localizer, bent, crosspoints, SPEC, tables=[table], codebook=codebook,
+                          config=DetectorConfig(recognizer_bend=False))
+    ids, probability = homography.recognize([image], index, points)
+    assert np.allclose(outputs[False][np.arange(len(ids)), ids], probability, atol=1e-5)
 
 
 def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, scene):
