@@ -30,6 +30,7 @@ from assets.cli import localizer_scale_arg  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, completed_points, recognizer_markers  # noqa: E402
 from networks.augment import MarkerShrink, shrink_around  # noqa: E402
 from networks.detector import Detector, DetectorConfig  # noqa: E402
+from networks.homography import layout_residual  # noqa: E402
 
 
 GROUPS = ("all five points visible", "partial: centre visible, a point hidden")
@@ -68,7 +69,8 @@ def recognized(detector: Detector, pairs: list[tuple[Path, Path]]) -> list[tuple
                 points = completed[pick].astype(np.float64)
                 ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), points)
                 # crops' points are finite: every marker has a size
-                records.append((image_path, name, ids == gt.marker_id[pick], marker_shape(points)[1]))
+                records.append((image_path, name, ids == gt.marker_id[pick], marker_shape(points)[1],
+                                layout_residual(detector.spec, points)))
     return records
 
 
@@ -77,7 +79,7 @@ def tally(records: list[tuple[Path, str, np.ndarray, np.ndarray]]) -> tuple[dict
     (`SIZES`): the recognizer's misses by how large the marker is in the image."""
     counts = {name: [0, 0] for name in GROUPS}
     bins = {(name, size_bin(lo, hi)): [0, 0] for name in GROUPS for lo, hi in zip(SIZES[:-1], SIZES[1:])}
-    for _, name, right, size in records:
+    for _, name, right, size, *_ in records:
         counts[name][0] += len(right)
         counts[name][1] += int(right.sum())
         which = np.digitize(size, SIZES[1:-1])
@@ -89,6 +91,24 @@ def tally(records: list[tuple[Path, str, np.ndarray, np.ndarray]]) -> tuple[dict
         if n:
             by_size[name][label] = {"markers": n, "top1": right / n}
     return {name: {"markers": n, "top1": right / max(n, 1)} for name, (n, right) in counts.items()}, by_size
+
+
+#: bins of how far a marker's five points are off a homography, cells (`networks.homography.layout_residual`)
+RESIDUALS = (0.0, 1.0, 2.0, 4.0, np.inf)
+
+
+def by_residual(records: list[tuple]) -> dict[str, dict]:
+    """Markers and top-1 of `recognized`'s whole markers (all five points visible) by their layout
+    residual (`RESIDUALS`): the crop homography's misfit, which curved cloth makes."""
+    right = np.concatenate([r[2] for r in records if r[1] == GROUPS[0]] or [np.zeros(0, bool)])
+    residual = np.concatenate([r[4] for r in records if r[1] == GROUPS[0]] or [np.zeros(0)])
+    which = np.digitize(residual, RESIDUALS[1:-1])
+    out = {}
+    for k, (lo, hi) in enumerate(zip(RESIDUALS[:-1], RESIDUALS[1:])):
+        label = f"residual {lo:g}-{hi:g} cells" if np.isfinite(hi) else f"residual >= {lo:g} cells"
+        if (which == k).any():
+            out[label] = {"markers": int((which == k).sum()), "top1": float(right[which == k].mean())}
+    return out
 
 
 def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, dict], dict[str, dict]]:
@@ -207,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources, sizes, chains, motions, shrinks = {}, {}, {}, {}, {}
+    sources, sizes, chains, motions, shrinks, residuals = {}, {}, {}, {}, {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
@@ -225,6 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         source = f"{label} ({len(pairs)} images)"
         records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
         sources[source], sizes[source] = tally(records)
+        residuals[source] = by_residual(records)
         if targets and rendered is not None:
             shrinks[source] = shrunk(detector, pairs, targets, args.shrink_squeeze)
         if args.chain:
@@ -244,6 +265,11 @@ def main(argv: list[str] | None = None) -> int:
         for name, by_size in rows.items():
             for label, r in by_size.items():
                 print(f"| {source} | {name} | {label} | {r['markers']} | {r['top1']:.3f} |")
+    print("\n# whole markers by how far their five points are off a homography (curved cloth; layout residual)")
+    print("| images | residual | count | top-1 |\n|---|---|---|---|")
+    for source, rows in residuals.items():
+        for label, r in rows.items():
+            print(f"| {source} | {label} | {r['markers']} | {r['top1']:.3f} |")
     if shrinks:
         print(f"\n# fully visible markers of 16 px and more, compressed by {args.shrink_squeeze:g} along a random "
               "direction and shrunk around themselves to a side")
@@ -265,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         for motion, rows in motions.items():
             for name, r in rows.items():
                 print(f"| {motion} | {name} | {r['markers']} | {r['top1']:.3f} |")
-    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions,
+    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions, "by_residual": residuals,
                                     "shrunk": {source: {f"{t:g}": r for t, r in rows.items()}
                                                for source, rows in shrinks.items()}}))
     return 0
