@@ -28,7 +28,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from assets.geometry import apply_homography, invert_3x3  # noqa: E402
-from assets.pattern import RECOGNIZER_CROP, PatternSpec, bent_crop_map, crop_crosspoints_px, crop_homography  # noqa: E402
+from assets.pattern import (RECOGNIZER_CROP, PatternSpec, bent_crop_map, crop_crosspoints_px,  # noqa: E402
+                            crop_homography)
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
 from networks.data import dataset_spec  # noqa: E402
 from networks.evaluate import read_manifest, split_entries  # noqa: E402

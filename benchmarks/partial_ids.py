@@ -291,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
         for motion, rows in motions.items():
             for name, r in rows.items():
                 print(f"| {motion} | {name} | {r['markers']} | {r['top1']:.3f} |")
-    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions, "by_residual": residuals,
+    print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions,
+                                    "by_residual": residuals,
                                     "shrunk": {source: {f"{t:g}": r for t, r in rows.items()}
                                                for source, rows in shrinks.items()}}))
     return 0

@@ -220,15 +220,14 @@ class MarkerShrink:
     never takes the side under `min_px`; markers at most `min_px`, or with a point off the fabric,
     are left as they are.
 
-    The recognizer's errors are on small markers (fully visible ones: 0.87-0.90 top-1 under 12 px,
-    0.998 at 16-24 px, twenty-fourth GPU run), as are the crosspoint network's largest crop errors,
-    and both learn their renders' crops by heart (the recognizer's training loss 4e-5).  The small
-    markers of renders are small because they are oblique (held-out markers under 12 px: median
-    axis ratio 0.26, against 0.83 over 16 px): the stored recognizer reads markers of 16 px and more
-    shrunk evenly to 8 px 0.999 right (`benchmarks/partial_ids.py --shrink-to`), so the compression is
-    what makes a hard example.  Synthesized small markers did not help (the nineteenth and
-    twenty-third runs); a compressed rendered marker keeps the render's shading, folds and
-    anti-aliasing, and every larger marker of a render becomes a new hard one."""
+    Written because the recognizer's errors are on small markers (fully visible ones: 0.87-0.90 top-1
+    under 12 px, 0.998 at 16-24 px, twenty-fourth GPU run), as are the crosspoint network's largest
+    crop errors, and synthesized small markers did not help (the nineteenth and twenty-third runs).
+    Measured since (`benchmarks/partial_ids.py --shrink-to --shrink-squeeze`, RESULTS.md): the stored
+    recognizer reads larger held-out markers shrunk to 8 px 0.999 right, and compressed by 0.3 and
+    shrunk to 10 px 0.994, against 0.87 for rendered markers under 12 px.  What it misreads is
+    curved cloth (five points off a homography), not size, so these examples are mostly easy ones;
+    off by default (`TrainConfig.marker_shrink` 0) and not yet measured in training."""
 
     probability: float = 0.5
     min_px: float = 8.0

@@ -127,10 +127,11 @@ class TrainConfig:
     automatic scale shows them at (`networks.DetectorConfig.localizer_marker_px`, 22; the renders'
     `RenderedDataset` marker_px); None: at their own scale, as the reference.
     marker_shrink (crop tasks, with augment): the probability that a rendered training crop is cut
-    from its image shrunk around the marker, so that it shows a marker between 8 px and its own size
-    (`networks.augment.MarkerShrink`, crosspoint targets moved with it): small markers as a farther
-    camera renders them, where the recognizer and the crosspoint network err most; not in the
-    reference.  0: crops at the renders' own scale.
+    from its image compressed along a random direction and shrunk around the marker, so that it
+    shows a marker between 8 px and its own size (`networks.augment.MarkerShrink`, crosspoint
+    targets moved with it): small, oblique markers as a farther camera renders them; not in the
+    reference.  0 (the default; the stored recognizer already reads such markers, RESULTS.md): crops
+    at the renders' own scale.
     recognizer_bend (recognizer): its crops (training, evaluation and the Detector's) are cut through
     `assets.pattern.bent_crop_map`, which follows curved cloth (the centre on its own point), not
     the least-squares homography of the five points; shards must have been written with the same

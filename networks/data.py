@@ -73,7 +73,7 @@ _ATTEMPTS = 32
 _JITTER = 7
 #: the stream of a rendered localizer item's view warp (`ViewWarp`), apart from its crop's and augmentation's
 _VIEW = 8
-#: the stream of a rendered recognizer item's marker shrink (`MarkerShrink`)
+#: the stream of a rendered crop item's marker shrink (`MarkerShrink`)
 _SHRINK = 9
 #: shard folders: the format name in shards.json, and the arrays of a part per task (first axis: item)
 SHARD_FORMAT = "clothcapture-synth-shards"
@@ -559,8 +559,9 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
     see them (the localizer finds those); recognizer crops of partial markers too unless
-    config.recognizer_partial is False, bent if config.recognizer_bend (config None: the defaults).  config.crop_jitter_px > 0: cut
-    from jittered points (`ImageGroundTruth.jittered`), drawn from (config.seed, index)."""
+    config.recognizer_partial is False, bent if config.recognizer_bend (config None: the defaults).
+    config.crop_jitter_px > 0: cut from jittered points (`ImageGroundTruth.jittered`), drawn from
+    (config.seed, index)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":

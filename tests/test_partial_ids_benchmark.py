@@ -34,7 +34,8 @@ def test_whole_markers_are_tallied_by_how_far_they_are_off_a_homography(bench):
                (Path("b.png"), whole, np.array([False]), np.array([9.0]), np.array([4.5])),
                (Path("b.png"), partial, np.array([False]), np.array([14.0]), np.array([0.2]))]
     rows = bench.by_residual(records)
-    assert rows == {"residual 0-1 cells": {"markers": 1, "top1": 1.0}, "residual 1-2 cells": {"markers": 1, "top1": 1.0},
+    assert rows == {"residual 0-1 cells": {"markers": 1, "top1": 1.0},
+                    "residual 1-2 cells": {"markers": 1, "top1": 1.0},
                     "residual >= 4 cells": {"markers": 2, "top1": 0.0}}  # partial markers are not in it
     assert bench.tally(records)[0][whole] == {"markers": 4, "top1": 0.5}  # the residual leaves the tally as it was
     assert bench.by_residual([]) == {}

@@ -133,7 +133,8 @@ def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray
     _, tl, tr, bl, br = (points[:, k] for k in range(5))
     axes = np.stack([(tr - tl + br - bl) / 2, (bl - tl + br - tr) / 2], axis=-1)  # (N, 2, 2): columns e_x, e_y
     det = axes[:, 0, 0] * axes[:, 1, 1] - axes[:, 0, 1] * axes[:, 1, 0]
-    adjugate = np.stack([np.stack([axes[:, 1, 1], -axes[:, 0, 1]], -1), np.stack([-axes[:, 1, 0], axes[:, 0, 0]], -1)], 1)
+    adjugate = np.stack([np.stack([axes[:, 1, 1], -axes[:, 0, 1]], -1),
+                         np.stack([-axes[:, 1, 0], axes[:, 0, 0]], -1)], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
         along = (adjugate @ offset[..., None])[..., 0] / det[:, None]  # (N, 2): a, b
     along = np.where(np.isfinite(along), along, 0.0)  # a degenerate quad: the dome alone
