@@ -500,7 +500,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
                        localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0),
-                       recognizer_bend=bool(SHARD_SYNTH.get(folder, {}).get("recognizer_bend", False)))
+                       recognizer_bend=run_crop(name)[1])
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,

@@ -632,6 +632,16 @@ def shard_margin_cells(meta: dict) -> int:
     return int(meta["synth"].get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
 
 
+def shard_bend_problem(root: str | Path, meta: dict, bend: bool) -> str | None:
+    """Why a shard folder's recognizer crops do not suit a network whose crops are `bend`
+    (`SynthConfig.recognizer_bend`, False for folders written before the option), or None."""
+    written = bool(meta["synth"].get("recognizer_bend", False))
+    if written == bend:
+        return None
+    return (f"{root}: recognizer crops {'bent' if written else 'through the homography'}, but the network's are "
+            f"{'bent' if bend else 'not'}; write shards {'with' if bend else 'without'} --recognizer-bend")
+
+
 def read_shard_meta(root: str | Path) -> dict:
     """shards.json of a shard folder, checked to be one."""
     path = Path(root) / SHARD_META

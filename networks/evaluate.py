@@ -42,7 +42,7 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
                                        recognizer_crops, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
-from networks.data import SHARD_META, ShardDataset
+from networks.data import SHARD_META, ShardDataset, shard_bend_problem
 from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
 from networks.data import dataset_spec
@@ -198,11 +198,8 @@ def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, bat
         if task == "crosspoints" and shards.crosspoint_crop != crop:
             raise ValueError(f"{data}: crosspoint crops of {shards.crosspoint_crop.size_px} px, but the network's "
                              f"are {crop.size_px} px; write shards with --crosspoint-margin {crop.margin_cells:g}")
-        written = bool(shards.meta["synth"].get("recognizer_bend", False))
-        if task == "recognizer" and written != bend:
-            raise ValueError(f"{data}: recognizer crops {'bent' if written else 'through the homography'}, but the "
-                             f"network's are {'bent' if bend else 'not'}; write shards "
-                             f"{'with' if bend else 'without'} --recognizer-bend")
+        if task == "recognizer" and (problem := shard_bend_problem(data, shards.meta, bend)):
+            raise ValueError(problem)
         return DataLoader(shards, batch_size=batch_size)
     return folder_batches(task, data, split, spec, batch_size, crop, bend)
 

@@ -56,7 +56,7 @@ from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint,
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
 from networks.data import (MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids,
-                           shard_margin_cells)
+                           shard_bend_problem, shard_margin_cells)
 from networks.evaluate import evaluate_model, resolve_device
 from networks.synth import SynthConfig
 from networks.tasks import autocast, build_model, forward
@@ -237,11 +237,8 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
             raise ValueError(f"{shards}: recognizer crops of {'whole and partial' if written_partial else 'whole'} "
                              f"markers, but this run's recognizer_partial is {partial}; write shards "
                              f"{'without' if partial else 'with'} --whole-markers-only")
-        written_bend = bool(dataset.meta["synth"].get("recognizer_bend", False))
-        if task == "recognizer" and written_bend != bend:
-            raise ValueError(f"{shards}: recognizer crops {'bent' if written_bend else 'through the homography'}, "
-                             f"but this run's recognizer_bend is {bend}; write shards "
-                             f"{'with' if bend else 'without'} --recognizer-bend")
+        if task == "recognizer" and (problem := shard_bend_problem(shards, dataset.meta, bend)):
+            raise ValueError(problem)
         if task == "crosspoints" and shard_margin_cells(dataset.meta) != margin:
             raise ValueError(f"{shards}: crops with a margin of {shard_margin_cells(dataset.meta)} cells, but this "
                              f"run's crosspoint_margin_cells is {margin}; write shards with --crosspoint-margin "
