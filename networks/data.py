@@ -344,15 +344,21 @@ class RenderedDataset(_Items, Dataset):
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
             image, one = arrays["image"], arrays["gt"].select(np.array([crop]))
-            if self.marker_shrink is not None:  # the crop-sanity test is blind to scale: the marker still passes
+            sources = [(image, one)]
+            if self.marker_shrink is not None:  # shrunk first; the source when the shrunk marker fails the
+                # crop-sanity test: its five-point fit is least squares, not invariant under the squeeze,
+                # so a marker at the test's limit can pass in one image and not in the other
                 shrunk = self.marker_shrink(image, completed_points(one)[0], self._rng(index, _SHRINK))
-                image, one = shrunk.image, shrunk.ground_truth(one)
-            made = None
-            if self.crop_jitter_px > 0:
-                made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
-                                        self.spec, self.crosspoint_crop)
-            if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the crop-sanity test
-                made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop)
+                sources.insert(0, (shrunk.image, shrunk.ground_truth(one)))
+            for image, one in sources:
+                made = None
+                if self.crop_jitter_px > 0:
+                    made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
+                                            self.spec, self.crosspoint_crop)
+                if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the sanity test
+                    made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop)
+                if len(made[0]):
+                    break
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],

@@ -9,6 +9,7 @@ import pytest
 
 from assets.geometry import apply_homography
 from assets.pattern import PatternSpec
+from assets.pattern.observation import completed_points
 from networks.augment import Augment, MarkerShrink, Shrunk, ViewWarp, augment, shrink_around, warp_image
 from networks.homography import marker_side_px
 from networks.synth import PatternSynthesizer, SynthConfig
@@ -190,10 +191,24 @@ def test_a_shrunk_ground_truth_moves_points_and_crosspoints_and_keeps_the_rest()
     gt = PatternSynthesizer(SPEC, SynthConfig(image_size=(160, 120), marker_px=(30, 40))).sample(0)[1]
     image = np.zeros((120, 160, 3), np.uint8)
     k = int(np.flatnonzero(gt.status == 2)[0])
-    shrunk = shrink_around(image, gt.points_px[k], 0.5, margin_px=6.0)
+    shrunk = shrink_around(image, gt.points_px[k], 0.5, margin_px=6.0, squeeze=0.3, angle=0.4)
     moved = shrunk.ground_truth(gt)
     assert (moved.width, moved.height) == (shrunk.image.shape[1], shrunk.image.shape[0])
     np.testing.assert_allclose(moved.points_px, shrunk.points(gt.points_px), atol=1e-4)
+    # a cut marker's corner off the fabric, known from two rows of crosspoints: completed in the source
+    # and moved (a completion after the squeeze is another least-squares fit)
+    whole = np.isfinite(gt.points_px).all(axis=(1, 2)) & np.isfinite(gt.crosspoints_px).all(axis=(1, 2, 3))
+    k_cut = int(np.flatnonzero(whole)[0])
+    points = gt.points_px
+    cut = points.copy()
+    cut[k_cut, 2] = np.nan  # TR
+    crosspoints = gt.crosspoints_px.copy()
+    crosspoints[k_cut, 2:] = np.nan
+    gt = replace(gt, points_px=cut, crosspoints_px=crosspoints)
+    moved = shrunk.ground_truth(gt)
+    assert np.isfinite(completed_points(gt)[k_cut]).all()
+    np.testing.assert_allclose(moved.points_px, shrunk.points(completed_points(gt)), atol=1e-3)
+    np.testing.assert_allclose(moved.points_px[k_cut, 2], shrunk.points(points[k_cut, 2]), atol=0.5)
     np.testing.assert_allclose(moved.crosspoints_px, shrunk.points(gt.crosspoints_px), atol=1e-4)
     for name in ("marker_id", "points_depth", "point_visible", "crosspoint_visible", "status"):
         assert np.array_equal(getattr(moved, name), getattr(gt, name))
