@@ -29,6 +29,7 @@ markers furthest off a homography: 1.22 against 0.45 cells; `benchmarks/crop_ben
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -120,29 +121,46 @@ def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray
     if points.shape[-2:] != (5, 2):
         raise ValueError(f"localization points must have shape (5, 2) or (N, 5, 2), got {points.shape}")
     if crop_xy is None:
-        centres = np.arange(crop.size_px, dtype=np.float64) + 0.5
-        crop_xy = np.stack(np.meshgrid(centres, centres), axis=-1)
-    crop_xy = np.asarray(crop_xy, dtype=np.float64)
+        shape, (homogeneous, weights) = (crop.size_px, crop.size_px, 2), _pixel_bend_basis(spec, crop)
+    else:
+        shape, (homogeneous, weights) = np.shape(crop_xy), _bend_basis(spec, crop, crop_xy)
     canonical = crop_localization_px(spec, crop)
     n = len(points)
     corners = fit_homography(np.broadcast_to(canonical[1:], (n, 4, 2)), points[:, 1:])  # (N, 3, 3) crop -> image
-    flat = crop_xy.reshape(-1, 2)
-    xy = (flat - canonical[0]) / (canonical[4] - canonical[0])  # centre 0, corners +-1
-    mapped = apply_homography(corners, np.broadcast_to(flat, (n, *flat.shape)))  # (N, P, 2)
+    mapped = homogeneous @ np.swapaxes(corners, -1, -2)  # (N, P, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mapped = mapped[..., :2] / mapped[..., 2:]
     offset = points[:, 0] - apply_homography(corners, np.broadcast_to(canonical[:1], (n, 1, 2)))[:, 0]  # (N, 2)
     _, tl, tr, bl, br = (points[:, k] for k in range(5))
-    axes = np.stack([(tr - tl + br - bl) / 2, (bl - tl + br - tr) / 2], axis=-1)  # (N, 2, 2): columns e_x, e_y
-    det = axes[:, 0, 0] * axes[:, 1, 1] - axes[:, 0, 1] * axes[:, 1, 0]
-    adjugate = np.stack([np.stack([axes[:, 1, 1], -axes[:, 0, 1]], -1),
-                         np.stack([-axes[:, 1, 0], axes[:, 0, 0]], -1)], 1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        along = (adjugate @ offset[..., None])[..., 0] / det[:, None]  # (N, 2): a, b
-    along = np.where(np.isfinite(along), along, 0.0)  # a degenerate quad: the dome alone
-    dome = (1.0 - 0.5 * (xy ** 2).sum(axis=-1))[None, :, None] * offset[:, None, :]
-    cylinders = (1.0 - xy ** 2)[None] * along[:, None, :]  # (N, P, 2): (1 - x^2) a, (1 - y^2) b
-    displacement = 0.5 * dome + 0.5 * cylinders @ np.swapaxes(axes, -1, -2)
-    out = (mapped + displacement).reshape(n, *crop_xy.shape)
+    e_x, e_y = (tr - tl + br - bl) / 2, (bl - tl + br - tr) / 2  # (N, 2): the marker's image axes
+    det = e_x[:, 0] * e_y[:, 1] - e_x[:, 1] * e_y[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):  # offset = a e_x + b e_y (Cramer)
+        a = (offset[:, 0] * e_y[:, 1] - offset[:, 1] * e_y[:, 0]) / det
+        b = (e_x[:, 0] * offset[:, 1] - e_x[:, 1] * offset[:, 0]) / det
+    a, b = (np.where(np.isfinite(v), v, 0.0)[:, None] for v in (a, b))  # a degenerate quad: the dome alone
+    fields = 0.5 * np.stack([offset, a * e_x, b * e_y], axis=1)  # (N, 3, 2): dome, cylinder x, cylinder y
+    out = (mapped + weights @ fields).reshape(n, *shape)
     return out[0] if single else out
+
+
+def _bend_basis(spec: PatternSpec, crop: CropSpec, crop_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`bent_crop_map`'s fixed parts at crop points (..., 2): their homogeneous coordinates (P, 3) and
+    the weights (P, 3) of the dome ``1 - (x^2 + y^2) / 2`` and the cylinders ``1 - x^2``, ``1 - y^2``."""
+    canonical = crop_localization_px(spec, crop)
+    flat = np.asarray(crop_xy, dtype=np.float64).reshape(-1, 2)
+    xy = (flat - canonical[0]) / (canonical[4] - canonical[0])  # centre 0, corners +-1
+    weights = np.stack([1.0 - 0.5 * (xy ** 2).sum(axis=-1), 1.0 - xy[:, 0] ** 2, 1.0 - xy[:, 1] ** 2], axis=-1)
+    return np.concatenate([flat, np.ones((len(flat), 1))], axis=1), weights
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_bend_basis(spec: PatternSpec, crop: CropSpec) -> tuple[np.ndarray, np.ndarray]:
+    """`_bend_basis` at every crop pixel's centre, kept: the map is cut for every training crop."""
+    centres = np.arange(crop.size_px, dtype=np.float64) + 0.5
+    basis = _bend_basis(spec, crop, np.stack(np.meshgrid(centres, centres), axis=-1))
+    for array in basis:
+        array.flags.writeable = False
+    return basis
 
 
 def unwarp(image: np.ndarray, spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray,
