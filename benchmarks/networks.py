@@ -723,7 +723,8 @@ def evaluate_threshold(out: Path, rendered: Path, device: str, init: dict[str, s
 def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """The recognizers' top-1 given the true five points on the held-out renders, whole against partial
-    markers and by marker size (`partial_ids.top1`: {"groups", "by_size"}): every recognizer run's
+    markers, by marker size, and whole markers by the share of their crosspoints visible and by layout
+    residual (`partial_ids.top1`: {"groups", "by_size", "by_visible", "by_residual"}): every recognizer run's
     last.pt, and the checkpoint the main one started from (`--init`), so a run's change shows beside its
     start in the same call.  The size shows where the errors are: the eighteenth run's recognizer read
     0.996 of the fully visible markers of 16-24 px and 0.78 of those under 12 px."""
@@ -741,8 +742,7 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
     pairs = rendered_pairs(test)
     results = {}
     for label, path in recognizers.items():
-        groups, by_size = top1(load_detector(localizer, path, crosspoints, test, device=device), pairs)
-        results[label] = {"groups": groups, "by_size": by_size}
+        results[label] = top1(load_detector(localizer, path, crosspoints, test, device=device), pairs)
     return results
 
 
@@ -764,7 +764,7 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     metrics = {task: evaluate(path, view, split="heldout", device=device, progress=False)
                for task, path in zip(("localizer", "recognizer", "crosspoints"), paths)}
     pairs = rendered_pairs(view)
-    groups, by_size = top1(load_detector(*paths, view, device=device), pairs)
+    recognizer_top1 = top1(load_detector(*paths, view, device=device), pairs)
     side = max(cv2.imread(str(pairs[0][0]), cv2.IMREAD_UNCHANGED).shape[:2])
     chains = {}
     for scale in [*sorted({1.0, min(1.0, 512 / side)}, reverse=True), None]:
@@ -777,7 +777,7 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
         chosen = chain["localizer_scale"]
         chains[f"{label}, scale auto ({chosen['min']:.2f}-{chosen['max']:.2f})"] = chain
     return {"images": len(pairs), "checkpoints": [str(p) for p in paths], "metrics": metrics,
-            "detector": chains, "recognizer_top1": {"groups": groups, "by_size": by_size}}
+            "detector": chains, "recognizer_top1": recognizer_top1}
 
 
 def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smoke: bool = False,
@@ -1105,8 +1105,9 @@ def _print_extra(extra: dict) -> None:
 
 
 def _print_top1(images: str, recognizers: dict[str, dict]) -> None:
-    """Per recognizer label, its top-1 given the true points (`partial_ids.top1`: {"groups", "by_size"})
-    per group, then per group and marker size."""
+    """Per recognizer label, its top-1 given the true points (`partial_ids.top1`) per group, then per
+    group and marker size, then whole markers by the share of their crosspoints visible (in the size
+    column; records of older results have none)."""
     print(f"\n| recognizer, top-1 given the true points ({images}) | markers | size px | count | top-1 "
           "|\n|---|---|---|---|---|")
     for label, record in recognizers.items():
@@ -1115,6 +1116,8 @@ def _print_top1(images: str, recognizers: dict[str, dict]) -> None:
         for group, bins in record["by_size"].items():
             for size, r in bins.items():
                 print(f"| {label} | {group} | {size} | {r['markers']} | {r['top1']:.3f} |")
+        for share, r in record.get("by_visible", {}).items():
+            print(f"| {label} | all five points visible | {share} | {r['markers']} | {r['top1']:.3f} |")
 
 
 def _stages(record: dict, images: float) -> str:

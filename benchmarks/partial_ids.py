@@ -55,7 +55,9 @@ def size_bin(low: float, high: float) -> str:
 
 def recognized(detector: Detector, pairs: list[tuple[Path, Path]]) -> list[tuple[Path, str, np.ndarray, np.ndarray]]:
     """Per image and group (`GROUPS`) that has markers: (image path, group, right (K,) bool: the
-    recognizer's ID given the true points is the marker's, size (K,) px: the marker's in the image)."""
+    recognizer's ID given the true points is the marker's, size (K,) px: the marker's in the image,
+    residual (K,) cells: its five points off a homography (`layout_residual`), visible (K,): the share
+    of its crosspoints visible in the image)."""
     from foreshortening import marker_shape  # benchmarks/, on the path from main and networks.py
 
     records = []
@@ -70,7 +72,8 @@ def recognized(detector: Detector, pairs: list[tuple[Path, Path]]) -> list[tuple
                 ids, _ = detector.recognize([image], np.zeros(len(pick), np.int64), points)
                 # crops' points are finite: every marker has a size
                 records.append((image_path, name, ids == gt.marker_id[pick], marker_shape(points)[1],
-                                layout_residual(detector.spec, points)))
+                                layout_residual(detector.spec, points),
+                                gt.crosspoint_visible[pick].reshape(len(pick), -1).mean(axis=1)))
     return records
 
 
@@ -95,26 +98,52 @@ def tally(records: list[tuple[Path, str, np.ndarray, np.ndarray]]) -> tuple[dict
 
 #: bins of how far a marker's five points are off a homography, cells (`networks.homography.layout_residual`)
 RESIDUALS = (0.0, 1.0, 2.0, 4.0, np.inf)
+#: bins of the share of a whole marker's crosspoints visible in the image (a fold, the body or the
+#: garment's edge hides the rest although its five points show): under 80%, 80-95%, 95% and more but
+#: not all, and `EVERY_CROSSPOINT`
+VISIBLE_SHARES = (0.0, 0.8, 0.95, 1.0)
+EVERY_CROSSPOINT = "every crosspoint visible"
+
+
+def _whole(records: list[tuple], column: int) -> tuple[np.ndarray, np.ndarray]:
+    """`recognized`'s whole markers (all five points visible): right (K,) and the record's `column` (K,)."""
+    rows = [r for r in records if r[1] == GROUPS[0]]
+    return (np.concatenate([r[2] for r in rows] or [np.zeros(0, bool)]),
+            np.concatenate([r[column] for r in rows] or [np.zeros(0)]))
+
+
+def _binned(right: np.ndarray, masks: dict[str, np.ndarray]) -> dict[str, dict]:
+    return {label: {"markers": int(mask.sum()), "top1": float(right[mask].mean())}
+            for label, mask in masks.items() if mask.any()}
 
 
 def by_residual(records: list[tuple]) -> dict[str, dict]:
     """Markers and top-1 of `recognized`'s whole markers (all five points visible) by their layout
     residual (`RESIDUALS`): the crop homography's misfit, which curved cloth makes."""
-    right = np.concatenate([r[2] for r in records if r[1] == GROUPS[0]] or [np.zeros(0, bool)])
-    residual = np.concatenate([r[4] for r in records if r[1] == GROUPS[0]] or [np.zeros(0)])
+    right, residual = _whole(records, 4)
     which = np.digitize(residual, RESIDUALS[1:-1])
-    out = {}
-    for k, (lo, hi) in enumerate(zip(RESIDUALS[:-1], RESIDUALS[1:])):
-        label = f"residual {lo:g}-{hi:g} cells" if np.isfinite(hi) else f"residual >= {lo:g} cells"
-        if (which == k).any():
-            out[label] = {"markers": int((which == k).sum()), "top1": float(right[which == k].mean())}
-    return out
+    return _binned(right, {(f"residual {lo:g}-{hi:g} cells" if np.isfinite(hi) else f"residual >= {lo:g} cells"):
+                           which == k for k, (lo, hi) in enumerate(zip(RESIDUALS[:-1], RESIDUALS[1:]))})
 
 
-def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> tuple[dict[str, dict], dict[str, dict]]:
-    """Per group, markers and top-1 given the true points; and the same per group and marker size
-    (`tally` of `recognized`)."""
-    return tally(recognized(detector, pairs))
+def by_visible(records: list[tuple]) -> dict[str, dict]:
+    """Markers and top-1 of `recognized`'s whole markers by the share of their crosspoints visible
+    (`VISIBLE_SHARES`, and `EVERY_CROSSPOINT`): a marker whose five points show can still lie partly
+    under a fold, and its crop then shows a part of its code or none."""
+    right, share = _whole(records, 5)
+    masks = {f"{lo:.0%}-{hi:.0%} of its crosspoints visible" + (" (not all)" if hi == 1.0 else ""):
+             (share >= lo) & (share < hi) for lo, hi in zip(VISIBLE_SHARES[:-1], VISIBLE_SHARES[1:])}
+    return _binned(right, {**masks, EVERY_CROSSPOINT: share >= 1.0})
+
+
+def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
+    """The recognizer's top-1 given the true points: {"groups": per group, "by_size": per group and
+    marker size (`tally`), "by_visible": whole markers by the share of their crosspoints visible,
+    "by_residual": by their layout residual} of `recognized`'s records."""
+    records = recognized(detector, pairs)
+    groups, by_size = tally(records)
+    return {"groups": groups, "by_size": by_size, "by_visible": by_visible(records), "by_residual": by_residual(records)}
+
 
 def shrunk(detector: Detector, pairs: list[tuple[Path, Path]], targets: list[float], squeeze: float = 1.0,
            min_side: float = 16.0, seed: int = 0) -> dict[float, dict]:
@@ -227,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources, sizes, chains, motions, shrinks, residuals = {}, {}, {}, {}, {}, {}
+    sources, sizes, chains, motions, shrinks, residuals, visibles = {}, {}, {}, {}, {}, {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
@@ -246,6 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
         sources[source], sizes[source] = tally(records)
         residuals[source] = by_residual(records)
+        visibles[source] = by_visible(records)
         if targets and rendered is not None:
             shrinks[source] = shrunk(detector, pairs, targets, args.shrink_squeeze)
         if args.chain:
@@ -270,6 +300,11 @@ def main(argv: list[str] | None = None) -> int:
     for source, rows in residuals.items():
         for label, r in rows.items():
             print(f"| {source} | {label} | {r['markers']} | {r['top1']:.3f} |")
+    print("\n# whole markers by the share of their crosspoints visible (a fold hides the rest)")
+    print("| images | crosspoints visible | count | top-1 |\n|---|---|---|---|")
+    for source, rows in visibles.items():
+        for label, r in rows.items():
+            print(f"| {source} | {label} | {r['markers']} | {r['top1']:.3f} |")
     if shrinks:
         print(f"\n# fully visible markers of 16 px and more, compressed by {args.shrink_squeeze:g} along a random "
               "direction and shrunk around themselves to a side")
@@ -292,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
             for name, r in rows.items():
                 print(f"| {motion} | {name} | {r['markers']} | {r['top1']:.3f} |")
     print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions,
-                                    "by_residual": residuals,
+                                    "by_residual": residuals, "by_visible": visibles,
                                     "shrunk": {source: {f"{t:g}": r for t, r in rows.items()}
                                                for source, rows in shrinks.items()}}))
     return 0

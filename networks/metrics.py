@@ -208,9 +208,10 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
     in the ground truth, whatever the predicted visibility.  marker_side_px (N,) optionally each
     crop's marker side in the image (`networks.homography.marker_side_px` of its five points).
     Returns {"visibility": {precision, recall, f1, counts}, "crop_error_px": {median, p95, count},
-    "image_error_px": the same or None, "crops": N}, and with marker_side_px "by_marker_size":
-    {"<lo>-<hi> px": {"crops", "crop_error_px", "image_error_px"}} per bin of `MARKER_SIZE_BINS_PX`
-    that holds a crop."""
+    "image_error_px": the same or None, "crops": N, "fully_visible": {"crops", "crop_error_px",
+    "image_error_px"} over the crops whose every crosspoint is visible (no fold or edge hides a part
+    of the marker)}, and with marker_side_px "by_marker_size": {"<lo>-<hi> px": {"crops",
+    "crop_error_px", "image_error_px"}} per bin of `MARKER_SIZE_BINS_PX` that holds a crop."""
     pred_visible = np.asarray(pred_visible, dtype=bool)
     gt_visible = np.asarray(gt_visible, dtype=bool)
     pred_xy = np.asarray(pred_xy, dtype=np.float64)
@@ -231,8 +232,13 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
                              f"{pred_image.shape} and {gt_image.shape}")
         image_error = np.where(gt_visible, np.linalg.norm(pred_image - gt_image, axis=-1), np.nan)
     # the errors are NaN where the truth hides the crosspoint, and `error_stats` counts finite values only
+    def errors(rows: np.ndarray) -> dict:
+        return {"crops": int(rows.sum()), "crop_error_px": error_stats(crop_error[rows]),
+                "image_error_px": None if image_error is None else error_stats(image_error[rows])}
+
     result = {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error),
-              "image_error_px": None if image_error is None else error_stats(image_error), "crops": int(len(gt_xy))}
+              "image_error_px": None if image_error is None else error_stats(image_error), "crops": int(len(gt_xy)),
+              "fully_visible": errors(gt_visible.reshape(len(gt_visible), -1).all(axis=1))}
     if marker_side_px is not None:
         side = np.asarray(marker_side_px, dtype=np.float64)
         if side.shape != (len(gt_xy),):
@@ -242,9 +248,7 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
         for lo, hi in zip(edges[:-1], edges[1:]):
             rows = (side >= lo) & (side < hi)
             if rows.any():
-                result["by_marker_size"][f"{lo:g}-{hi:g} px"] = {
-                    "crops": int(rows.sum()), "crop_error_px": error_stats(crop_error[rows]),
-                    "image_error_px": None if image_error is None else error_stats(image_error[rows])}
+                result["by_marker_size"][f"{lo:g}-{hi:g} px"] = errors(rows)
     return result
 
 

@@ -236,13 +236,20 @@ def test_the_recognizers_top1_is_reported_by_group_and_marker_size(bench, tmp_pa
     ids = bench.evaluate_partial_ids(tmp_path, test, "cpu", bench.init_weights(init_folder))
     assert list(ids) == ["recognizer_partial, its --init"]  # nothing trained here: the start alone
     record = ids["recognizer_partial, its --init"]
-    assert set(record) == {"groups", "by_size"}
+    assert set(record) == {"groups", "by_size", "by_visible", "by_residual"}
     counted = sum(r["markers"] for r in record["groups"].values())
     assert counted > 0 and counted == sum(r["markers"] for bins in record["by_size"].values() for r in bins.values())
+    whole = record["groups"]["all five points visible"]["markers"]
+    shares = {label: r["markers"] for label, r in record["by_visible"].items()}
+    assert sum(shares.values()) == whole  # the bins split the whole markers
     bench._print_top1("2 held-out renders", ids)
     printed = capsys.readouterr().out
     assert "| recognizer_partial, its --init | all five points visible | all |" in printed
     assert "| recognizer_partial, its --init | all five points visible | size " in printed
+    every = shares.get("every crosspoint visible")
+    row = f"| recognizer_partial, its --init | all five points visible | every crosspoint visible | {every} |"
+    assert every is None or row in printed
+    assert any(f"| {label} | {n} |" in printed for label, n in shares.items())
 
 
 def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, garment_dataset, init_folder, capsys):

@@ -27,15 +27,21 @@ def test_tally_counts_each_group_and_size_bin(bench):
     assert bench.tally([])[0][whole] == {"markers": 0, "top1": 0.0}
 
 
-def test_whole_markers_are_tallied_by_how_far_they_are_off_a_homography(bench):
+def test_whole_markers_are_tallied_by_how_far_they_are_off_a_homography_and_how_much_shows(bench):
     whole, partial = bench.GROUPS
     records = [(Path("a.png"), whole, np.array([True, False, True]), np.array([10.0, 12.0, 20.0]),
-                np.array([0.5, 5.0, 1.5])),
-               (Path("b.png"), whole, np.array([False]), np.array([9.0]), np.array([4.5])),
-               (Path("b.png"), partial, np.array([False]), np.array([14.0]), np.array([0.2]))]
+                np.array([0.5, 5.0, 1.5]), np.array([1.0, 0.9, 0.96])),
+               (Path("b.png"), whole, np.array([False]), np.array([9.0]), np.array([4.5]), np.array([0.5])),
+               (Path("b.png"), partial, np.array([False]), np.array([14.0]), np.array([0.2]), np.array([1.0]))]
     rows = bench.by_residual(records)
     assert rows == {"residual 0-1 cells": {"markers": 1, "top1": 1.0},
                     "residual 1-2 cells": {"markers": 1, "top1": 1.0},
                     "residual >= 4 cells": {"markers": 2, "top1": 0.0}}  # partial markers are not in it
     assert bench.tally(records)[0][whole] == {"markers": 4, "top1": 0.5}  # the residual leaves the tally as it was
     assert bench.by_residual([]) == {}
+    # and by the share of their crosspoints visible: every one apart, the bins holding all of them
+    assert bench.by_visible(records) == {"0%-80% of its crosspoints visible": {"markers": 1, "top1": 0.0},
+                                         "80%-95% of its crosspoints visible": {"markers": 1, "top1": 0.0},
+                                         "95%-100% of its crosspoints visible (not all)": {"markers": 1, "top1": 1.0},
+                                         "every crosspoint visible": {"markers": 1, "top1": 1.0}}
+    assert bench.by_visible([]) == {}

@@ -232,6 +232,10 @@ def test_crosspoint_errors_by_marker_size():
     assert by_size["20-24 px"]["crops"] == 2 and by_size["20-24 px"]["crop_error_px"]["count"] == 25 + 20
     assert by_size["20-24 px"]["crop_error_px"]["median"] == pytest.approx(0.5)  # 25 at 0.5 against 20 at 0.3
     assert "by_marker_size" not in crosspoint_metrics(gt_visible, pred_xy, gt_visible, gt_xy)
+    # the crops whose every crosspoint is visible: the first two (the third has a hidden row)
+    whole = result["fully_visible"]
+    assert whole["crops"] == 2 and whole["crop_error_px"]["count"] == 50
+    assert whole["crop_error_px"]["median"] == pytest.approx(1.25) and whole["image_error_px"]["median"] == pytest.approx(0.125)
     with pytest.raises(ValueError, match="marker_side_px"):
         crosspoint_metrics(gt_visible, pred_xy, gt_visible, gt_xy, marker_side_px=np.ones(2))
 
