@@ -39,7 +39,7 @@ from tqdm import tqdm
 from assets.fileio import load_npz, save_json
 from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_codebook, reference_textures
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
-                                       recognizer_crops, training_samples)
+                                       recognizer_crops, recognizer_markers, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.config import TASKS
 from networks.data import SHARD_META, ShardDataset, shard_bend_problem
@@ -131,8 +131,9 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
     ground truth the metrics need beside them: localizer batches carry "gt_full" (per image (M,)
     bool, matching `cells_to_markers`) and "gt_ignore" (per image (L, 2) centres of the markers the
     image shows that are not targets: `localizer_metrics` counts a prediction on one as neither
-    true nor false), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
-    (B, K, K, 2) image pixels when `gt/<name>.npz` exists.  Localizer batches hold one image each.
+    true nor false), recognizer batches "full" (B,) bool (the crop's marker is fully visible, status
+    2: no fold hides a part of it), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
+    (B, K, K, 2) image pixels, all when `gt/<name>.npz` exists.  Localizer batches hold one image each.
     crop: the crosspoint crops' (a network's `crop`); other than the reference's, whose crops the
     samples store, they are cut from the images with their ground truth (`crosspoint_crops`).
     bend: the recognizer's crops are bent (a `MarkerRecognizer`'s `bend`): cut from the images with
@@ -166,14 +167,20 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                 batch["gt_ignore"] = [shown[~target]]
             yield batch
             continue
-        if task == "recognizer" and bend:
-            if gt is None:
-                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a bent recognizer's "
-                                 "crops are cut with (the samples store homography crops)")
-            made = recognizer_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, bend=True)
-            arrays = {"crop": made[0], "marker_id": made[1].astype(np.int64)}
-        elif task == "recognizer":
-            arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
+        if task == "recognizer":
+            if bend:
+                if gt is None:
+                    raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a bent recognizer's "
+                                     "crops are cut with (the samples store homography crops)")
+                made = recognizer_crops(read_png(root / entry["image"]) if image is None else image, gt, spec,
+                                        bend=True)
+                arrays = {"crop": made[0], "marker_id": made[1].astype(np.int64)}
+            else:
+                arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
+            if gt is not None:  # which crops show a fully visible marker (status 2)
+                pick = recognizer_markers(gt, spec)  # the markers the crops are cut for, in their order
+                if len(pick) == len(arrays["marker_id"]) and np.array_equal(gt.marker_id[pick], arrays["marker_id"]):
+                    arrays["full"] = gt.status[pick] == 2
         else:
             if crop == CROSSPOINT_CROP:
                 made = tuple(samples[key] for key in SAMPLE_KEYS["crosspoints"])
@@ -246,7 +253,8 @@ class _Results:
                       ignore=batch.get("gt_ignore"))
         elif self.task == "recognizer":
             ranked = torch.topk(output, min(5, output.shape[1]), dim=1).indices
-            self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy())
+            self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy(),
+                      full=batch["full"].numpy() if "full" in batch else None)
         else:
             pred_visible, pred_xy = crosspoint_predictions(output, self.threshold)
             self._add(pred_visible=pred_visible, pred_xy=pred_xy, gt_visible=batch["visible"].numpy(),
@@ -268,7 +276,11 @@ class _Results:
             ignore = None if any(f is None for f in s["ignore"]) else [f for chunk in s["ignore"] for f in chunk]
             metrics = localizer_metrics(pred, gt, full, self.radius_px, ignore)
         elif self.task == "recognizer":
-            metrics = recognizer_metrics(np.concatenate(s["ranked"]), np.concatenate(s["marker_id"]))
+            ranked, marker_id = np.concatenate(s["ranked"]), np.concatenate(s["marker_id"])
+            metrics = recognizer_metrics(ranked, marker_id)
+            if all(f is not None for f in s["full"]):  # every batch knew its fully visible markers
+                full = np.concatenate(s["full"])
+                metrics["fully_visible"] = recognizer_metrics(ranked[full], marker_id[full])
         else:
             image = {}
             if len(s.get("pred_image", [])) == len(s["pred_xy"]):  # every batch had image points

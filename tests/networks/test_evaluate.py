@@ -13,7 +13,7 @@ import torch
 
 from assets.fileio import save_json, save_npz
 from assets.pattern import CROSSPOINT_CROP, PatternSpec
-from assets.pattern.observation import crosspoint_crops, localizer_targets, recognizer_crops
+from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.decode import duplicate_border_targets
@@ -259,6 +259,11 @@ def test_folder_batches_carry_consistent_ground_truth(dataset):
         visible = b["visible"].numpy()
         image = crop_to_image(SPEC, CROSSPOINT_CROP, b["points_px"].numpy().astype(np.float64), b["xy"].numpy())
         np.testing.assert_allclose(image[visible], b["gt_xy_image"].numpy()[visible], atol=1e-3)
+    # recognizer crops say which of their markers are fully visible (status 2), in the crops' order
+    full = np.concatenate([b["full"].numpy() for b in folder_batches("recognizer", dataset, "test", SPEC)])
+    truth = [ImageGroundTruth.load(dataset / e["gt"]) for e in entries]
+    assert full.tolist() == [s == 2 for gt in truth for s in gt.status[gt.point_visible.all(axis=1)]]
+    assert full.any()
     localizer = list(folder_batches("localizer", dataset, "test", SPEC))
     assert len(localizer) == 3
     for b in localizer:
@@ -284,10 +289,12 @@ def test_evaluate_untrained_checkpoint_in_range(task, dataset, tmp_path):
                 assert 0 <= metrics[subset][key] <= 1
     elif task == "recognizer":
         assert 0 <= metrics["top1"] <= metrics["top5"] <= 1
+        assert 0 < metrics["fully_visible"]["count"] <= metrics["count"]
     else:
         assert 0 <= metrics["visibility"]["precision"] <= 1 and 0 <= metrics["visibility"]["recall"] <= 1
         assert metrics["crop_error_px"]["median"] >= 0 and metrics["image_error_px"]["count"] > 0
         assert metrics["crop_error_px"]["count"] == metrics["image_error_px"]["count"]
+        assert 0 < metrics["fully_visible"]["crop_error_px"]["count"] <= metrics["crop_error_px"]["count"]
     assert task in format_table(metrics)
 
 
