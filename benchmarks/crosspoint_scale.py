@@ -6,7 +6,8 @@ network is measured.
 
 A marker of 20 px in the image is magnified about 5 times into its crop, one of 60 px about twice: the
 same image error is a larger crop error on small markers.  The table gives both errors per size bin
-(`partial_ids.SIZES`, the square root of the marker's area in the image) and their ratio.
+(`partial_ids.SIZES`, the square root of the marker's area in the image) and their ratio, and both
+errors on the crops whose every crosspoint is visible (no fold or edge hides a part of the marker).
 
     python benchmarks/crosspoint_scale.py --checkpoint crosspoints_jitter.pt --rendered .bench/rendered23 \
         --capture .bench/cap8/capture --frames f000120 [--max-images 10] [--device cpu]
@@ -95,12 +96,20 @@ def by_size(model, arrays: dict[str, np.ndarray], sizes: np.ndarray, spec, devic
                                          image[mask], arrays["gt_xy_image"][mask])
             result[label] = {"crops": metrics["crops"], "size_median": float(np.median(sizes[mask])),
                              "visibility": metrics["visibility"], "crop_error_px": metrics["crop_error_px"],
-                             "image_error_px": metrics["image_error_px"]}
+                             "image_error_px": metrics["image_error_px"], "fully_visible": metrics["fully_visible"]}
     return result
 
 
 def _number(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
+
+
+def _fully_visible(row: dict) -> str:
+    """A size bin's crops whose every crosspoint is visible: their count and median errors."""
+    full = row["fully_visible"]
+    image = full["image_error_px"] or {"median": None}
+    return (f"{full['crops']}, {_number(full['crop_error_px']['median'], '.3f')}, "
+            f"{_number(image['median'], '.3f')}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -136,14 +145,16 @@ def main(argv: list[str] | None = None) -> int:
         results[f"{label} ({len(pairs)} images)"] = by_size(model, arrays, sizes, spec, device, args.batch_size)
     print(f"# crosspoint error by marker size, {args.checkpoint.name} (crops cut from the true points)")
     print("| images | marker size | crops | size median px | visibility P / R | crop px median / p95 "
-          "| image px median / p95 | crop / image median |\n|---|---|---|---|---|---|---|---|")
+          "| image px median / p95 | crop / image median | fully visible: crops, crop px median, image px median "
+          "|\n|---|---|---|---|---|---|---|---|---|")
     for source, rows in results.items():
         for label, r in rows.items():
             crop, image, vis = r["crop_error_px"], r["image_error_px"], r["visibility"]
             ratio = crop["median"] / image["median"] if crop["median"] and image["median"] else None
             print(f"| {source} | {label} | {r['crops']} | {r['size_median']:.1f} | {vis['precision']:.3f} / "
                   f"{vis['recall']:.3f} | {_number(crop['median'], '.3f')} / {_number(crop['p95'], '.2f')} | "
-                  f"{_number(image['median'], '.3f')} / {_number(image['p95'], '.2f')} | {_number(ratio, '.1f')} |")
+                  f"{_number(image['median'], '.3f')} / {_number(image['p95'], '.2f')} | {_number(ratio, '.1f')} | "
+                  f"{_fully_visible(r)} |")
     print("RESULT " + json.dumps(results))
     return 0
 

@@ -37,6 +37,11 @@ def test_all_sizes_match_the_evaluation_of_the_same_crops_and_the_bins_split_the
         assert every[key]["median"] == pytest.approx(expected[key]["median"], rel=1e-4)
         assert every[key]["count"] == expected[key]["count"]
     assert every["visibility"] == expected["visibility"]
+    full = every["fully_visible"]  # the crops whose every crosspoint is visible, as evaluate counts them
+    assert full["crops"] == expected["fully_visible"]["crops"]
+    assert full["crop_error_px"]["median"] == pytest.approx(expected["fully_visible"]["crop_error_px"]["median"],
+                                                            rel=1e-4)
+    assert f"| {full['crops']}, " in out
     assert rows and sum(r["crops"] for r in rows.values()) == every["crops"]
     assert sum(r["crop_error_px"]["count"] for r in rows.values()) == every["crop_error_px"]["count"]
     assert all(label.startswith("size ") for label in rows) and "| all sizes |" in out
