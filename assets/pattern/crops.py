@@ -115,21 +115,86 @@ def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray
     localization_px: (5, 2) or (N, 5, 2) continuous image coordinates of centre, TL, TR, BL, BR;
     crop_xy: (..., 2) continuous crop coordinates (default: every crop pixel's centre, (S, S, 2)).
     Returns (N, ..., 2) (or (..., 2) for one marker) continuous image coordinates."""
+    points, single = _five_points(localization_px)
+    if crop_xy is None:
+        shape, (homogeneous, weights) = (crop.size_px, crop.size_px, 2), _pixel_bend_basis(spec, crop)
+    else:
+        shape, (homogeneous, weights) = np.shape(crop_xy), _bend_basis(spec, crop, crop_xy)
+    corners, fields = _bend_parts(spec, crop, points)
+    mapped = homogeneous @ np.swapaxes(corners, -1, -2)  # (N, P, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mapped = mapped[..., :2] / mapped[..., 2:]
+    out = (mapped + weights @ fields).reshape(len(points), *shape)
+    return out[0] if single else out
+
+
+def bent_crop_inverse(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray, image_xy: np.ndarray,
+                      iterations: int = 12, tolerance_px: float = 1e-6) -> np.ndarray:
+    """Image -> crop coordinates through `bent_crop_map`: the crop point each image point comes from,
+    by Newton's method from the corners' homography inverse (the map's Jacobian in closed form).
+
+    localization_px: (5, 2) or (N, 5, 2) as for `bent_crop_map`; image_xy: (..., 2) for one marker or
+    (N, ..., 2), continuous image coordinates (NaN stays NaN).  Returns crop coordinates of their
+    shape; NaN where the last Newton step is still longer than `tolerance_px` crop pixels (a fold the
+    map cannot describe: its Jacobian is singular there)."""
+    points, single = _five_points(localization_px)
+    target = np.asarray(image_xy, dtype=np.float64)
+    target = target[None] if single else target
+    if target.shape[0] != len(points) or target.shape[-1] != 2:
+        raise ValueError(f"image points must have shape (N, ..., 2) for N = {len(points)} markers, got "
+                         f"{np.shape(image_xy)}")
+    n, shape = len(points), target.shape
+    target = target.reshape(n, -1, 2)
+    canonical = crop_localization_px(spec, crop)
+    scale = 1.0 / (canonical[4] - canonical[0])  # crop px -> x, y of the bend's weights
+    corners, fields = _bend_parts(spec, crop, points)
+    inverse = np.linalg.inv(corners)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        xy = apply_homography(inverse, target)  # the start: the displacement left out
+        step = np.full_like(xy, np.inf)
+        for _ in range(iterations):
+            homogeneous = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
+            mapped = homogeneous @ np.swapaxes(corners, -1, -2)  # (N, P, 3)
+            w = mapped[..., 2:]
+            image = mapped[..., :2] / w
+            # d(image)/d(crop) of the homography: (row_i[:2] - image_i row_3[:2]) / w
+            jacobian = (corners[:, None, :2, :2] - image[..., :, None] * corners[:, None, 2:, :2]) / w[..., None]
+            u = (xy - canonical[0]) * scale  # the weights' x, y
+            weights = np.stack([1.0 - 0.5 * (u ** 2).sum(axis=-1), 1.0 - u[..., 0] ** 2, 1.0 - u[..., 1] ** 2], -1)
+            residual = image + weights @ fields - target
+            # d(displacement)/d(crop x) = scale_x (-x f_dome - 2 x f_x), and the same in y with f_y
+            jacobian[..., 0] -= (scale[0] * u[..., :1]) * (fields[:, None, 0] + 2.0 * fields[:, None, 1])
+            jacobian[..., 1] -= (scale[1] * u[..., 1:]) * (fields[:, None, 0] + 2.0 * fields[:, None, 2])
+            j00, j01, j10, j11 = jacobian[..., 0, 0], jacobian[..., 0, 1], jacobian[..., 1, 0], jacobian[..., 1, 1]
+            det = j00 * j11 - j01 * j10  # a 2 x 2 solve by Cramer's rule (NaN where singular)
+            det = np.where(np.abs(det) > 1e-12, det, np.nan)
+            step = np.stack([j11 * residual[..., 0] - j01 * residual[..., 1],
+                             j00 * residual[..., 1] - j10 * residual[..., 0]], axis=-1) / det[..., None]
+            xy = xy - step
+            if np.nanmax(np.abs(step), initial=0.0) <= 0.01 * tolerance_px:  # converged everywhere it can
+                break
+    xy[~(np.linalg.norm(step, axis=-1) <= tolerance_px)] = np.nan  # not converged (NaN steps included)
+    out = xy.reshape(shape)
+    return out[0] if single else out
+
+
+def _five_points(localization_px: np.ndarray) -> tuple[np.ndarray, bool]:
+    """(N, 5, 2) float64 localization points, and whether one marker's (5, 2) were given."""
     points = np.asarray(localization_px, dtype=np.float64)
     single = points.ndim == 2
     points = points[None] if single else points
     if points.shape[-2:] != (5, 2):
         raise ValueError(f"localization points must have shape (5, 2) or (N, 5, 2), got {points.shape}")
-    if crop_xy is None:
-        shape, (homogeneous, weights) = (crop.size_px, crop.size_px, 2), _pixel_bend_basis(spec, crop)
-    else:
-        shape, (homogeneous, weights) = np.shape(crop_xy), _bend_basis(spec, crop, crop_xy)
+    return points, single
+
+
+def _bend_parts(spec: PatternSpec, crop: CropSpec, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`bent_crop_map`'s per-marker parts for points (N, 5, 2): the corners' homographies (N, 3, 3)
+    crop -> image, and the fields (N, 3, 2) the weights of `_bend_basis` multiply: half the centre's
+    offset d (the dome), half a e_x and half b e_y (the cylinders; d = a e_x + b e_y)."""
     canonical = crop_localization_px(spec, crop)
     n = len(points)
     corners = fit_homography(np.broadcast_to(canonical[1:], (n, 4, 2)), points[:, 1:])  # (N, 3, 3) crop -> image
-    mapped = homogeneous @ np.swapaxes(corners, -1, -2)  # (N, P, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mapped = mapped[..., :2] / mapped[..., 2:]
     offset = points[:, 0] - apply_homography(corners, np.broadcast_to(canonical[:1], (n, 1, 2)))[:, 0]  # (N, 2)
     _, tl, tr, bl, br = (points[:, k] for k in range(5))
     e_x, e_y = (tr - tl + br - bl) / 2, (bl - tl + br - tr) / 2  # (N, 2): the marker's image axes
@@ -138,9 +203,7 @@ def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray
         a = (offset[:, 0] * e_y[:, 1] - offset[:, 1] * e_y[:, 0]) / det
         b = (e_x[:, 0] * offset[:, 1] - e_x[:, 1] * offset[:, 0]) / det
     a, b = (np.where(np.isfinite(v), v, 0.0)[:, None] for v in (a, b))  # a degenerate quad: the dome alone
-    fields = 0.5 * np.stack([offset, a * e_x, b * e_y], axis=1)  # (N, 3, 2): dome, cylinder x, cylinder y
-    out = (mapped + weights @ fields).reshape(n, *shape)
-    return out[0] if single else out
+    return corners, 0.5 * np.stack([offset, a * e_x, b * e_y], axis=1)
 
 
 def _bend_basis(spec: PatternSpec, crop: CropSpec, crop_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
