@@ -41,6 +41,7 @@ from assets.pattern.crops import (
     CROSSPOINT_CROP,
     RECOGNIZER_CROP,
     CropSpec,
+    bent_crop_inverse,
     crop_homography,
     crop_localization_px,
     unwarp,
@@ -228,7 +229,8 @@ def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec,
 
 
 def crosspoint_crops(
-    image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP
+    image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP,
+    bend: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Crosspoint localizer samples for the markers of `crosspoint_markers`.
 
@@ -237,18 +239,23 @@ def crosspoint_crops(
     positions in crop pixels (the crop's homography applied to the projected crosspoints; NaN off
     the fabric) and visible (N, K, K) bool: the crosspoint is visible in the image and its xy lies
     in the crop, [0, S] x [0, S] (a visible crosspoint of a curved marker can fall outside; the
-    network cannot see it there)."""
+    network cannot see it there).  bend: the crops are cut through `bent_crop_map` and xy are the
+    projected crosspoints through its inverse (`bent_crop_inverse`; NaN where it has none), for a
+    network trained on crops that follow curved cloth; the markers are the same."""
     image = _image(image, gt)
     if gt.crosspoints_px.shape[1] != spec.crosspoints_per_side:
         raise ValueError(f"spec has {spec.crosspoints_per_side} crosspoints per side, the ground truth "
                          f"{gt.crosspoints_px.shape[1]}")
     completed = completed_points(gt)
     pick, homography = crosspoint_markers(gt, spec, completed=completed, crop=crop)
-    crops = _unwarp(image, spec, crop, completed[pick])
+    crops = _unwarp(image, spec, crop, completed[pick], bend)
     k = spec.crosspoints_per_side
     projected = gt.crosspoints_px[pick].astype(np.float64).reshape(len(pick), k * k, 2)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        xy = apply_homography(homography, projected).reshape(-1, k, k, 2)
+        if bend and len(pick):
+            xy = bent_crop_inverse(spec, crop, completed[pick], projected).reshape(-1, k, k, 2)
+        else:
+            xy = apply_homography(homography, projected).reshape(-1, k, k, 2)
         inside = ((xy >= 0) & (xy <= crop.size_px)).all(axis=-1)
     return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick] & inside
 
