@@ -53,7 +53,7 @@ def size_bin(low: float, high: float) -> str:
     return f"size {low:.0f}-{high:.0f} px" if np.isfinite(high) else f"size >= {low:.0f} px"
 
 
-def recognized(detector: Detector, pairs: list[tuple[Path, Path]]) -> list[tuple[Path, str, np.ndarray, np.ndarray]]:
+def recognized(detector: Detector, pairs: list[tuple[Path, Path]]) -> list[tuple]:
     """Per image and group (`GROUPS`) that has markers: (image path, group, right (K,) bool: the
     recognizer's ID given the true points is the marker's, size (K,) px: the marker's in the image,
     residual (K,) cells: its five points off a homography (`layout_residual`), visible (K,): the share

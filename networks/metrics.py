@@ -210,7 +210,7 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
     Returns {"visibility": {precision, recall, f1, counts}, "crop_error_px": {median, p95, count},
     "image_error_px": the same or None, "crops": N, "fully_visible": {"crops", "crop_error_px",
     "image_error_px"} over the crops whose every crosspoint is visible (no fold or edge hides a part
-    of the marker)}, and with marker_side_px "by_marker_size": {"<lo>-<hi> px": {"crops",
+    of the marker, and none lies outside the crop)}, and with marker_side_px "by_marker_size": {"<lo>-<hi> px": {"crops",
     "crop_error_px", "image_error_px"}} per bin of `MARKER_SIZE_BINS_PX` that holds a crop."""
     pred_visible = np.asarray(pred_visible, dtype=bool)
     gt_visible = np.asarray(gt_visible, dtype=bool)
@@ -231,10 +231,11 @@ def crosspoint_metrics(pred_visible: np.ndarray, pred_xy: np.ndarray, gt_visible
             raise ValueError(f"crosspoint_metrics: image points must have shape {gt_xy.shape}, got "
                              f"{pred_image.shape} and {gt_image.shape}")
         image_error = np.where(gt_visible, np.linalg.norm(pred_image - gt_image, axis=-1), np.nan)
-    # the errors are NaN where the truth hides the crosspoint, and `error_stats` counts finite values only
     def errors(rows: np.ndarray) -> dict:
         return {"crops": int(rows.sum()), "crop_error_px": error_stats(crop_error[rows]),
                 "image_error_px": None if image_error is None else error_stats(image_error[rows])}
+
+    # the errors are NaN where the truth hides the crosspoint, and `error_stats` counts finite values only
 
     result = {"visibility": detection_scores(tp, fp, fn), "crop_error_px": error_stats(crop_error),
               "image_error_px": None if image_error is None else error_stats(image_error), "crops": int(len(gt_xy)),
