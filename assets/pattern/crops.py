@@ -160,8 +160,7 @@ def bent_crop_inverse(spec: PatternSpec, crop: CropSpec, localization_px: np.nda
             # d(image)/d(crop) of the homography: (row_i[:2] - image_i row_3[:2]) / w
             jacobian = (corners[:, None, :2, :2] - image[..., :, None] * corners[:, None, 2:, :2]) / w[..., None]
             u = (xy - canonical[0]) * scale  # the weights' x, y
-            weights = np.stack([1.0 - 0.5 * (u ** 2).sum(axis=-1), 1.0 - u[..., 0] ** 2, 1.0 - u[..., 1] ** 2], -1)
-            residual = image + weights @ fields - target
+            residual = image + _bend_weights(u) @ fields - target
             # d(displacement)/d(crop x) = scale_x (-x f_dome - 2 x f_x), and the same in y with f_y
             jacobian[..., 0] -= (scale[0] * u[..., :1]) * (fields[:, None, 0] + 2.0 * fields[:, None, 1])
             jacobian[..., 1] -= (scale[1] * u[..., 1:]) * (fields[:, None, 0] + 2.0 * fields[:, None, 2])
@@ -211,9 +210,14 @@ def _bend_basis(spec: PatternSpec, crop: CropSpec, crop_xy: np.ndarray) -> tuple
     the weights (P, 3) of the dome ``1 - (x^2 + y^2) / 2`` and the cylinders ``1 - x^2``, ``1 - y^2``."""
     canonical = crop_localization_px(spec, crop)
     flat = np.asarray(crop_xy, dtype=np.float64).reshape(-1, 2)
-    xy = (flat - canonical[0]) / (canonical[4] - canonical[0])  # centre 0, corners +-1
-    weights = np.stack([1.0 - 0.5 * (xy ** 2).sum(axis=-1), 1.0 - xy[:, 0] ** 2, 1.0 - xy[:, 1] ** 2], axis=-1)
+    weights = _bend_weights((flat - canonical[0]) / (canonical[4] - canonical[0]))
     return np.concatenate([flat, np.ones((len(flat), 1))], axis=1), weights
+
+
+def _bend_weights(xy: np.ndarray) -> np.ndarray:
+    """(..., 3): at marker coordinates xy (..., 2) (centre 0, corners +-1), the weights of the dome
+    ``1 - (x^2 + y^2) / 2`` and of the cylinders ``1 - x^2``, ``1 - y^2``."""
+    return np.stack([1.0 - 0.5 * (xy ** 2).sum(axis=-1), 1.0 - xy[..., 0] ** 2, 1.0 - xy[..., 1] ** 2], axis=-1)
 
 
 @functools.lru_cache(maxsize=8)
