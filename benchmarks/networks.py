@@ -28,10 +28,13 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    renders' are), recognizer_small (the main recognizer's config on synthesized markers from 10 px,
    `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_bent (the main recognizer's config
    with its crops cut through the bent crop map that follows curved cloth, rendered and synthesized,
-   `SHARD_SYNTH`; evaluated on bent crops), recognizer_shrink and crosspoints_shrink (the
+   `SHARD_SYNTH`; evaluated on bent crops), crosspoints_bent (the same for the main crosspoint run: crops
+   through the bent map, targets through its inverse; chained with its crosspoints mapped back through
+   it), recognizer_shrink and crosspoints_shrink (the
    main recognizer's and crosspoint run's configs with half their rendered crops showing their marker
    shrunk, `RUN_SHRINK`), crosspoints_margin4 (the main crosspoint
-   run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place), and
+   run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place, as
+   crosspoints_bent is), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
@@ -172,6 +175,10 @@ RUNS = {
     "crosspoints_margin4": ("crosspoints", 0.75, None, 3, "crosspoints_margin4"),
     # the main crosspoint run's config with half its rendered crops showing their marker shrunk (`RUN_SHRINK`)
     "crosspoints_shrink": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
+    # the main crosspoint run's config with its crops bent (`assets.pattern.bent_crop_map`, targets through
+    # its inverse, `SHARD_SYNTH`): its fully visible crops err with the marker's curvature (0.247 px
+    # nearly flat, 0.663 px 4 cells off a homography; RESULTS.md, fifteenth session)
+    "crosspoints_bent": ("crosspoints", 0.25, None, 6, "crosspoints_bent"),
 }
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
@@ -194,7 +201,8 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
           "recognizer_bent": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False),
-          "crosspoints_margin4": ("crosspoints", 4800, CROP_JITTER_PX, False)}
+          "crosspoints_margin4": ("crosspoints", 4800, CROP_JITTER_PX, False),
+          "crosspoints_bent": ("crosspoints", 4800, CROP_JITTER_PX, False)}
 #: shard folder -> SynthConfig fields that differ from the defaults.  localizer_upright: every marker
 #: near upright (the defaults turn one in five uniformly: 17% of the synthesizer's fully visible
 #: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's).
@@ -203,7 +211,8 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
 SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
                "recognizer_small": {"marker_px": (10.0, 32.0)},
                "recognizer_bent": {"recognizer_bend": True},
-               "crosspoints_margin4": {"crosspoint_margin_cells": 4}}
+               "crosspoints_margin4": {"crosspoint_margin_cells": 4},
+               "crosspoints_bent": {"crosspoint_bend": True}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
@@ -362,8 +371,10 @@ def run_margin(name: str) -> int:
 
 
 def run_crop(name: str) -> tuple[int, bool]:
-    """How run `name`'s crops are cut: (crosspoint crop margin, `run_margin`; bent recognizer crops)."""
-    return run_margin(name), bool(SHARD_SYNTH.get(RUNS[name][4], {}).get("recognizer_bend", False))
+    """How run `name`'s crops are cut: (crosspoint crop margin, `run_margin`; bent crops, of its task:
+    `SynthConfig.recognizer_bend` or `crosspoint_bend` of its shard folder)."""
+    synth = SHARD_SYNTH.get(RUNS[name][4], {})
+    return run_margin(name), bool(synth.get("recognizer_bend", False) or synth.get("crosspoint_bend", False))
 
 
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
@@ -380,7 +391,7 @@ def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init:
         config = TrainConfig.from_dict(read_checkpoint(path)["config"], source=f"{path}:config") \
             if task != "localizer" else None
         cut = None if config is None else (config.crosspoint_margin_cells if task == "crosspoints" else
-                                          CROSSPOINT_CROP.margin_cells, config.recognizer_bend)
+                                          CROSSPOINT_CROP.margin_cells, config.recognizer_bend or config.crosspoint_bend)
         if cut is None or cut == run_crop(name):
             checkpoints[f"{name}, its --init"] = (name, Path(path))
             continue
@@ -500,7 +511,8 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
                        localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0),
-                       recognizer_bend=run_crop(name)[1])
+                       recognizer_bend=run_crop(name)[1] and task == "recognizer",
+                       crosspoint_bend=run_crop(name)[1] and task == "crosspoints")
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
@@ -690,10 +702,11 @@ def stand_ins(out: Path, paths: list[Path]) -> dict[str, list[Path]]:
     """The comparison runs trained in `out` that stand in for a main run of the chain `paths`
     (localizer, recognizer, crosspoints), by a chain label, each with `paths` with that one network
     replaced: the localizers of RUN_MARKER_PX (in a Detector at the automatic scale, the scale they
-    trained at) and the crosspoint runs with a wider crop than the reference's (`run_margin`)."""
+    trained at) and the crosspoint runs whose crops are cut otherwise than the reference's (`run_crop`:
+    wider, or bent)."""
     slots = {name: 0 for name in RUN_MARKER_PX}
     slots.update({name: 2 for name in RUNS if RUNS[name][0] == "crosspoints"
-                  and run_margin(name) != CROSSPOINT_CROP.margin_cells})
+                  and run_crop(name) != (CROSSPOINT_CROP.margin_cells, False)})
     chains = {}
     for name, slot in slots.items():
         last = out / name / "run" / "last.pt"

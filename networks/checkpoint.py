@@ -227,7 +227,8 @@ def load_checkpoint(
     if spec is not None:
         check_pattern(data, spec, source=str(path))
     model = build_model(data["task"], int(data["num_ids"]), int(data["crosspoints_per_side"]),
-                        crosspoint_margin_cells=config.crosspoint_margin_cells, recognizer_bend=config.recognizer_bend)
+                        crosspoint_margin_cells=config.crosspoint_margin_cells, recognizer_bend=config.recognizer_bend,
+                        crosspoint_bend=config.crosspoint_bend)
     try:
         model.load_state_dict(data["model"])
     except RuntimeError as exc:

@@ -141,6 +141,10 @@ class TrainConfig:
     reference's 112 x 112; 4: 128 x 128, `assets.pattern.crosspoint_crop`), so the outer crosspoints
     have more image around them; shards must have been written with the same
     (`networks.synth write --crosspoint-margin`).
+    crosspoint_bend (crosspoints): as recognizer_bend, for the crosspoint network's crops: cut through
+    the bent map, the targets through its inverse (`assets.pattern.bent_crop_inverse`), and its
+    crosspoints mapped to the image through the map (`networks.homography.crop_to_image(bend=True)`);
+    shards written with `networks.synth write --crosspoint-bend`.  False: the reference's crops.
     """
 
     task: str
@@ -170,6 +174,7 @@ class TrainConfig:
     crosspoint_margin_cells: int = 2
     marker_shrink: float = 0.0
     recognizer_bend: bool = False
+    crosspoint_bend: bool = False
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -211,6 +216,10 @@ class TrainConfig:
             problems.append(f"recognizer_bend must be true or false, got {self.recognizer_bend!r}")
         elif self.recognizer_bend and self.task != "recognizer":
             problems.append("recognizer_bend is for the recognizer's crops")
+        if not isinstance(self.crosspoint_bend, bool):
+            problems.append(f"crosspoint_bend must be true or false, got {self.crosspoint_bend!r}")
+        elif self.crosspoint_bend and self.task != "crosspoints":
+            problems.append("crosspoint_bend is for the crosspoint network's crops")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:

@@ -204,8 +204,9 @@ class RenderedDataset(_Items, Dataset):
     shrink's odds (`networks.augment.MarkerShrink`: the marker seen smaller, as a farther camera
     renders it, crosspoint targets moved with it; seeded per (seed, epoch, index)), before the crop
     jitter, which so stays in the pixels the marker is seen in; crops are then cut anew.
-    recognizer_bend (recognizer): crops cut anew through `assets.pattern.bent_crop_map` (curved cloth)
-    instead of the crop homography.
+    recognizer_bend (recognizer), crosspoint_bend (crosspoints): crops cut anew through
+    `assets.pattern.bent_crop_map` (curved cloth) instead of the crop homography; crosspoint targets
+    through its inverse (`crosspoint_crops(bend=True)`).
     marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
     median side of its fully visible markers is this many pixels, as the Detector's automatic scale
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
@@ -224,7 +225,8 @@ class RenderedDataset(_Items, Dataset):
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
                  partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2,
-                 decode_ahead: bool = False, marker_shrink: MarkerShrink | None = None, recognizer_bend: bool = False):
+                 decode_ahead: bool = False, marker_shrink: MarkerShrink | None = None, recognizer_bend: bool = False,
+                 crosspoint_bend: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -251,6 +253,9 @@ class RenderedDataset(_Items, Dataset):
         if recognizer_bend and task != "recognizer":
             raise ValueError(f"recognizer_bend is for the recognizer's crops, not the {task} task's")
         self.recognizer_bend = bool(recognizer_bend)
+        if crosspoint_bend and task != "crosspoints":
+            raise ValueError(f"crosspoint_bend is for the crosspoint network's crops, not the {task} task's")
+        self.crosspoint_bend = bool(crosspoint_bend)
         if crosspoint_margin_cells != CROSSPOINT_CROP.margin_cells and task != "crosspoints":
             raise ValueError(f"crosspoint_margin_cells is for the crosspoint network's crops, not the {task} task's")
         self.crosspoint_crop = crosspoint_crop(crosspoint_margin_cells)
@@ -354,9 +359,9 @@ class RenderedDataset(_Items, Dataset):
                 made = None
                 if self.crop_jitter_px > 0:
                     made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
-                                            self.spec, self.crosspoint_crop)
+                                            self.spec, self.crosspoint_crop, self.crosspoint_bend)
                 if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the sanity test
-                    made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop)
+                    made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop, self.crosspoint_bend)
                 if len(made[0]):
                     break
             cut, marker_id, xy, visible = (a[0] for a in made)
@@ -429,9 +434,9 @@ class RenderedDataset(_Items, Dataset):
     @property
     def _cut_anew(self) -> bool:
         """Crops are cut from the image per item (crop jitter, partial markers, shrunk markers, bent
-        recognizer crops or another crosspoint crop than the stored ones'), not read stored."""
+        crops or another crosspoint crop than the stored ones'), not read stored."""
         return (self.crop_jitter_px > 0 or self.partial_markers or self.marker_shrink is not None
-                or self.recognizer_bend or self.crosspoint_crop != CROSSPOINT_CROP)
+                or self.recognizer_bend or self.crosspoint_bend or self.crosspoint_crop != CROSSPOINT_CROP)
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
@@ -565,7 +570,8 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
     see them (the localizer finds those); recognizer crops of partial markers too unless
-    config.recognizer_partial is False, bent if config.recognizer_bend (config None: the defaults).
+    config.recognizer_partial is False, bent if config.recognizer_bend (crosspoints:
+    config.crosspoint_bend; config None: the defaults).
     config.crop_jitter_px > 0: cut from jittered points (`ImageGroundTruth.jittered`), drawn from
     (config.seed, index)."""
     if config is not None and config.crop_jitter_px > 0:
@@ -573,7 +579,8 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     if task == "recognizer":
         config = config or SynthConfig()
         return recognizer_crops(image, gt, spec, partial=config.recognizer_partial, bend=config.recognizer_bend)
-    made = crosspoint_crops(image, gt, spec, crosspoint_crop((config or SynthConfig()).crosspoint_margin_cells))
+    config = config or SynthConfig()
+    made = crosspoint_crops(image, gt, spec, crosspoint_crop(config.crosspoint_margin_cells), config.crosspoint_bend)
     centre = spec.crosspoints_per_side // 2
     return tuple(a[made[3][:, centre, centre]] for a in made)
 
@@ -638,14 +645,18 @@ def shard_margin_cells(meta: dict) -> int:
     return int(meta["synth"].get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
 
 
-def shard_bend_problem(root: str | Path, meta: dict, bend: bool) -> str | None:
-    """Why a shard folder's recognizer crops do not suit a network whose crops are `bend`
-    (`SynthConfig.recognizer_bend`, False for folders written before the option), or None."""
-    written = bool(meta["synth"].get("recognizer_bend", False))
+def shard_bend_problem(root: str | Path, meta: dict, bend: bool, task: str = "recognizer") -> str | None:
+    """Why a shard folder's crops of a crop `task` do not suit a network whose crops are `bend`
+    (`SynthConfig.recognizer_bend` or `crosspoint_bend`, False for folders written before the
+    options), or None (also for the localizer, which cuts no crops)."""
+    if task == "localizer":
+        return None
+    name = "recognizer" if task == "recognizer" else "crosspoint"
+    written = bool(meta["synth"].get(f"{name}_bend", False))
     if written == bend:
         return None
-    return (f"{root}: recognizer crops {'bent' if written else 'through the homography'}, but the network's are "
-            f"{'bent' if bend else 'not'}; write shards {'with' if bend else 'without'} --recognizer-bend")
+    return (f"{root}: {name} crops {'bent' if written else 'through the homography'}, but the network's are "
+            f"{'bent' if bend else 'not'}; write shards {'with' if bend else 'without'} --{name}-bend")
 
 
 def read_shard_meta(root: str | Path) -> dict:

@@ -136,8 +136,9 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
     (B, K, K, 2) image pixels, all when `gt/<name>.npz` exists.  Localizer batches hold one image each.
     crop: the crosspoint crops' (a network's `crop`); other than the reference's, whose crops the
     samples store, they are cut from the images with their ground truth (`crosspoint_crops`).
-    bend: the recognizer's crops are bent (a `MarkerRecognizer`'s `bend`): cut from the images with
-    their ground truth (`recognizer_crops(bend=True)`; the samples store homography crops)."""
+    bend: the network's crops are bent (a `MarkerRecognizer`'s or `CrosspointLocalizer`'s `bend`): cut
+    from the images with their ground truth (`recognizer_crops` or `crosspoint_crops` with bend=True;
+    the samples store homography crops)."""
     root = Path(root)
     codebook = generate_codebook(spec) if task == "crosspoints" else None
     for entry in split_entries(root, split):
@@ -182,13 +183,15 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                 if len(pick) == len(arrays["marker_id"]) and np.array_equal(gt.marker_id[pick], arrays["marker_id"]):
                     arrays["full"] = gt.status[pick] == 2
         else:
-            if crop == CROSSPOINT_CROP:
+            if crop == CROSSPOINT_CROP and not bend:
                 made = tuple(samples[key] for key in SAMPLE_KEYS["crosspoints"])
             elif gt is None:
-                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a {crop.size_px} x "
-                                 f"{crop.size_px} crosspoint crop is cut with (the samples store 112 x 112 ones)")
+                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which "
+                                 f"{'a bent' if bend else f'a {crop.size_px} x {crop.size_px}'} crosspoint crop is "
+                                 "cut with (the samples store 112 x 112 homography crops)")
             else:
-                made = crosspoint_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, crop)
+                made = crosspoint_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, crop,
+                                        bend)
             arrays = crosspoint_arrays(spec, codebook, *made, crop=crop)
             if gt is not None:
                 arrays["points_px"], arrays["gt_xy_image"] = crosspoint_crop_points(gt, spec, made[1], gt_path, crop)
@@ -199,13 +202,13 @@ def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, bat
                  crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> Iterable[dict]:
     """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
     is not used), or of a factory dataset's split (`folder_batches`); crop: the crosspoint crops' (a
-    shard folder's must be it); bend: the recognizer's crops are bent (a shard folder's must be so)."""
+    shard folder's must be it); bend: the network's crops are bent (a shard folder's must be so)."""
     if (Path(data) / SHARD_META).is_file():
         shards = ShardDataset(data, task, spec=spec)
         if task == "crosspoints" and shards.crosspoint_crop != crop:
             raise ValueError(f"{data}: crosspoint crops of {shards.crosspoint_crop.size_px} px, but the network's "
                              f"are {crop.size_px} px; write shards with --crosspoint-margin {crop.margin_cells:g}")
-        if task == "recognizer" and (problem := shard_bend_problem(data, shards.meta, bend)):
+        if problem := shard_bend_problem(data, shards.meta, bend, task):
             raise ValueError(problem)
         return DataLoader(shards, batch_size=batch_size)
     return folder_batches(task, data, split, spec, batch_size, crop, bend)
@@ -215,6 +218,12 @@ def model_crop(model: nn.Module) -> CropSpec:
     """The crosspoint crop a network takes: a `CrosspointLocalizer`'s `crop`, the reference's for the
     others (which cut none)."""
     return getattr(model, "crop", CROSSPOINT_CROP)
+
+
+def model_bend(model: nn.Module) -> bool:
+    """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a `MarkerRecognizer`'s or
+    `CrosspointLocalizer`'s `bend`; False for the localizer, which cuts none."""
+    return bool(getattr(model, "bend", False))
 
 
 # ---- running a model -------------------------------------------------------------------------------
@@ -230,8 +239,9 @@ class _Results:
     """Accumulates one task's predictions, ground truth and loss over batches."""
 
     def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float,
-                 crop: CropSpec = CROSSPOINT_CROP) -> None:
+                 crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> None:
         self.task, self.spec, self.radius_px, self.threshold, self.crop = task, spec, radius_px, threshold, crop
+        self.bend = bend  # crosspoints: the crops are bent, and their points map back through the bent map
         self.samples = 0
         self.loss: dict[str, float] = {}
         self.store: dict[str, list] = {}
@@ -261,7 +271,7 @@ class _Results:
                       gt_xy=batch["xy"].numpy())
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
-                self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy),
+                self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy, self.bend),
                           gt_image=np.asarray(batch["gt_xy_image"]), side=marker_side_px(points))
 
     def result(self) -> dict:
@@ -315,7 +325,7 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
     device = torch.device(device)
     was_training = model.training
     model.eval()
-    results = {t: _Results(task, spec, radius_px, t, model_crop(model)) for t in thresholds}
+    results = {t: _Results(task, spec, radius_px, t, model_crop(model), model_bend(model)) for t in thresholds}
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):
@@ -345,7 +355,7 @@ def evaluate_at(checkpoint: str | Path, data: str | Path, thresholds: Sequence[f
     spec = checkpoint_spec(saved)
     if (Path(data) / "template.npz").is_file():
         check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
-    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model), getattr(model, "bend", False))
+    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model), model_bend(model))
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
     metrics = evaluate_model_at(config.task, model, batches, thresholds, device, spec, config.mixed_precision,

@@ -173,13 +173,17 @@ class CrosspointLocalizer(nn.Module):
     ``canonical_px`` (2, K, K) from `assets.pattern.crop_crosspoints_px`), so the output is absolute
     crop pixels but the regression starts at the right place (an offset of 0 is a flat,
     fronto-parallel marker).
+    bend: its crops are cut through `assets.pattern.bent_crop_map` (`TrainConfig.crosspoint_bend`), so
+    its crosspoints map back to the image through that map: whoever cuts its crops and maps its
+    output (the Detector, `networks.evaluate`) reads it here.
     """
 
     def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25,
-                 margin_cells: int = 2) -> None:
+                 margin_cells: int = 2, bend: bool = False) -> None:
         super().__init__()
         k = crosspoints_per_side
         self.crop = crosspoint_crop(margin_cells)
+        self.bend = bool(bend)
         # feature cells (4 px each) beyond the reference crop's on every side, cut off before the
         # decoder's convolution so its window stays centred on each crosspoint
         self.trim = (self.crop.size_px - CROSSPOINT_CROP.size_px) // 8

@@ -203,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
                        "SynthConfig.recognizer_partial)")
     write.add_argument("--recognizer-bend", action="store_true", help="recognizer: crops through the bent crop "
                        "map that follows curved cloth (SynthConfig.recognizer_bend; default: the homography)")
+    write.add_argument("--crosspoint-bend", action="store_true", help="crosspoints: crops through the bent crop "
+                       "map, targets through its inverse (SynthConfig.crosspoint_bend; default: the homography)")
     write.add_argument("--crosspoint-margin", type=int, metavar="CELLS", help="crosspoints: the crops' margin "
                        "around the marker (SynthConfig.crosspoint_margin_cells; default 2, the reference's 112 px "
                        "crop; 4: 128 px)")
@@ -225,6 +227,8 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(recognizer_partial=False)
         if args.recognizer_bend:
             config = config.replace(recognizer_bend=True)
+        if args.crosspoint_bend:
+            config = config.replace(crosspoint_bend=True)
         if args.crosspoint_margin is not None:
             config = config.replace(crosspoint_margin_cells=args.crosspoint_margin)
         if args.pattern is not None:

@@ -91,6 +91,7 @@ class SynthConfig:
     visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones
     (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).  recognizer_bend:
     recognizer crops through `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`).
+    crosspoint_bend: crosspoint crops through it, targets through its inverse (`TrainConfig.crosspoint_bend`).
     crosspoint_margin_cells: the crosspoint crops' margin around the marker, cells
     (`assets.pattern.crosspoint_crop`; 2: the reference's 112 x 112; `TrainConfig.crosspoint_margin_cells`).
     """
@@ -126,6 +127,7 @@ class SynthConfig:
     recognizer_partial: bool = True
     crosspoint_margin_cells: int = 2
     recognizer_bend: bool = False
+    crosspoint_bend: bool = False
 
     def __post_init__(self) -> None:
         w, h = self.image_size

@@ -36,17 +36,19 @@ BATCH_KEYS = {
 
 
 def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None,
-                crosspoint_margin_cells: int = 2, recognizer_bend: bool = False) -> nn.Module:
+                crosspoint_margin_cells: int = 2, recognizer_bend: bool = False,
+                crosspoint_bend: bool = False) -> nn.Module:
     """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file;
     crosspoint_margin_cells: the crosspoint network's crop margin (`TrainConfig.crosspoint_margin_cells`);
-    recognizer_bend: the recognizer's crops are bent (`TrainConfig.recognizer_bend`)."""
+    recognizer_bend, crosspoint_bend: the recognizer's or the crosspoint network's crops are bent
+    (`TrainConfig.recognizer_bend`, `crosspoint_bend`)."""
     if task == "localizer":
         return MarkerLocalizer(pretrained=pretrained)
     if task == "recognizer":
         return MarkerRecognizer(num_ids, pretrained=pretrained, bend=recognizer_bend)
     if task == "crosspoints":
         return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side,
-                                   margin_cells=crosspoint_margin_cells)
+                                   margin_cells=crosspoint_margin_cells, bend=crosspoint_bend)
     raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
 
 

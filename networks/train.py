@@ -214,6 +214,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     jitter = config.crop_jitter_px if task != "localizer" else 0.0
     partial = config.recognizer_partial and task == "recognizer"
     bend = config.recognizer_bend and task == "recognizer"
+    crosspoint_bend = config.crosspoint_bend and task == "crosspoints"
     margin = config.crosspoint_margin_cells if task == "crosspoints" else CROSSPOINT_CROP.margin_cells
 
     def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
@@ -223,7 +224,8 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
                                                                          crop_jitter_px=crop_jitter_px,
                                                                          recognizer_partial=partial,
                                                                          crosspoint_margin_cells=margin,
-                                                                         recognizer_bend=bend)
+                                                                         recognizer_bend=bend,
+                                                                         crosspoint_bend=crosspoint_bend)
             return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
                                 augment=with_augment, marker_ids=marker_ids)
         dataset = ShardDataset(shards, task, with_augment, spec, seed)
@@ -237,7 +239,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
             raise ValueError(f"{shards}: recognizer crops of {'whole and partial' if written_partial else 'whole'} "
                              f"markers, but this run's recognizer_partial is {partial}; write shards "
                              f"{'without' if partial else 'with'} --whole-markers-only")
-        if task == "recognizer" and (problem := shard_bend_problem(shards, dataset.meta, bend)):
+        if problem := shard_bend_problem(shards, dataset.meta, bend or crosspoint_bend, task):
             raise ValueError(problem)
         if task == "crosspoints" and shard_margin_cells(dataset.meta) != margin:
             raise ValueError(f"{shards}: crops with a margin of {shard_margin_cells(dataset.meta)} cells, but this "
@@ -264,9 +266,9 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
                                crop_px=config.image_size if task == "localizer" else None,
                                crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
                                crosspoint_margin_cells=margin, decode_ahead=True, marker_shrink=shrink,
-                               recognizer_bend=bend)
+                               recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px,
-                          crosspoint_margin_cells=margin, recognizer_bend=bend)
+                          crosspoint_margin_cells=margin, recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
             raise ValueError(f"{root}: the {split} split has no {task} samples")
@@ -394,7 +396,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained,
                         crosspoint_margin_cells=config.crosspoint_margin_cells,
-                        recognizer_bend=config.recognizer_bend).to(device)
+                        recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend).to(device)
     if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
         model = model.to(memory_format=torch.channels_last)
     if saved is None and config.init is not None:
@@ -570,6 +572,7 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "crosspoint_margin_cells": args.crosspoint_margin,
                  "marker_shrink": args.marker_shrink,
                  "recognizer_bend": True if args.recognizer_bend else None,
+                 "crosspoint_bend": True if args.crosspoint_bend else None,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -624,6 +627,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="recognizer: cut its crops through the bent crop map that follows curved cloth "
                         "(assets.pattern.bent_crop_map), not the homography; the checkpoint carries it and the "
                         "Detector and networks.evaluate cut so for it; shards need the same")
+    parser.add_argument("--crosspoint-bend", action="store_true",
+                        help="crosspoints: cut its crops through the bent crop map, targets through its inverse "
+                        "(assets.pattern.bent_crop_inverse); the checkpoint carries it, and the Detector and "
+                        "networks.evaluate cut so for it and map its crosspoints back through the map; shards need "
+                        "the same")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
                         "markers with a visible centre too; shards need the same: networks.synth write "

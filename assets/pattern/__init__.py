@@ -34,6 +34,7 @@ from assets.pattern.crops import (
     CropSpec,
     bent_crop_inverse,
     bent_crop_map,
+    bent_crop_points,
     crop_crosspoints_px,
     crop_homography,
     crosspoint_crop,
@@ -66,6 +67,7 @@ __all__ = [
     "unwarp",
     "bent_crop_inverse",
     "bent_crop_map",
+    "bent_crop_points",
     "write_png",
     "xy_to_pixel",
 ]

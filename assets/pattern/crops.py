@@ -128,6 +128,30 @@ def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray
     return out[0] if single else out
 
 
+def bent_crop_points(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray,
+                     crop_xy: np.ndarray) -> np.ndarray:
+    """Crop -> image through `bent_crop_map` for each marker's own crop points (a network's crosspoints
+    in a bent crop), where `bent_crop_map` maps one set of crop points for every marker.
+
+    localization_px: (5, 2) or (N, 5, 2) as for `bent_crop_map`; crop_xy: (..., 2) for one marker or
+    (N, ..., 2), continuous crop coordinates.  Returns image coordinates of crop_xy's shape."""
+    points, single = _five_points(localization_px)
+    xy = np.asarray(crop_xy, dtype=np.float64)
+    xy = xy[None] if single else xy
+    if xy.shape[0] != len(points) or xy.shape[-1] != 2:
+        raise ValueError(f"crop points must have shape (N, ..., 2) for N = {len(points)} markers, got "
+                         f"{np.shape(crop_xy)}")
+    shape = xy.shape
+    xy = xy.reshape(len(points), -1, 2)
+    canonical = crop_localization_px(spec, crop)
+    corners, fields = _bend_parts(spec, crop, points)
+    mapped = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1) @ np.swapaxes(corners, -1, -2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        image = mapped[..., :2] / mapped[..., 2:]
+    out = (image + _bend_weights((xy - canonical[0]) / (canonical[4] - canonical[0])) @ fields).reshape(shape)
+    return out[0] if single else out
+
+
 def bent_crop_inverse(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray, image_xy: np.ndarray,
                       iterations: int = 12, tolerance_px: float = 1e-6) -> np.ndarray:
     """Image -> crop coordinates through `bent_crop_map`: the crop point each image point comes from,

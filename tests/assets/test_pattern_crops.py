@@ -9,6 +9,7 @@ from assets.pattern import (
     RECOGNIZER_CROP,
     bent_crop_inverse,
     bent_crop_map,
+    bent_crop_points,
     crop_crosspoints_px,
     crop_homography,
     crop_localization_px,
@@ -174,3 +175,22 @@ def test_the_bent_crop_inverse_undoes_the_map_on_a_cylinder_and_a_flat_marker():
                                                  - np.delete(grid.reshape(-1, 2), 3 * 25 + 4, 0)).max() < 1e-9
     with pytest.raises(ValueError, match="image points must have shape"):
         bent_crop_inverse(spec, crop, points, image_points[0])
+
+
+def test_bent_crop_points_map_each_markers_own_crop_points_as_the_bent_map_does():
+    """Per-marker crop points through the bent map: each marker's equal `bent_crop_map`'s for that
+    marker alone, and `bent_crop_inverse` brings them back; one marker's (5, 2) keeps its shape."""
+    spec, crop = PatternSpec(), CROSSPOINT_CROP
+    canonical = crop_localization_px(spec, crop)
+    rng = np.random.default_rng(4)
+    camera = np.array([[0.8, 0.25, 40.0], [-0.1, 0.7, 60.0], [2.5e-4, 4e-4, 1.0]])
+    points = apply_homography(camera, canonical)[None] + rng.normal(0, 2.0, (3, 5, 2))  # not one homography
+    crop_xy = rng.uniform(0, 112, (3, 25, 25, 2))
+    image = bent_crop_points(spec, crop, points, crop_xy)
+    assert image.shape == crop_xy.shape
+    for k in range(3):
+        assert np.abs(image[k] - bent_crop_map(spec, crop, points[k], crop_xy[k])).max() < 1e-9
+    assert np.abs(bent_crop_inverse(spec, crop, points, image) - crop_xy).max() < 1e-8
+    assert np.abs(bent_crop_points(spec, crop, points[0], canonical) - points[0]).max() < 1e-9  # the five exactly
+    with pytest.raises(ValueError, match="crop points must have shape"):
+        bent_crop_points(spec, crop, points, crop_xy[:2])

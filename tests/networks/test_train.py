@@ -15,12 +15,13 @@ import pytest
 import torch
 
 from assets.fileio import save_npz
-from assets.pattern import PatternSpec
+from assets.pattern import CROSSPOINT_CROP, PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.augment import MarkerShrink
 from networks.config import TrainConfig
 from networks.data import RenderedDataset
-from networks.evaluate import evaluate, folder_batches
+from networks.evaluate import _Results, evaluate, folder_batches
+from networks.homography import crop_to_image
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
@@ -394,6 +395,43 @@ def test_a_bent_recognizer_trains_evaluates_and_loads_on_bent_crops(dataset, tmp
               shards=shards, progress=False)
     with pytest.raises(ValueError, match="recognizer_bend is for the recognizer"):
         _config("crosspoints", recognizer_bend=True)
+
+
+def test_a_bent_crosspoint_network_trains_evaluates_and_loads_on_bent_crops(dataset, tmp_path):
+    """--crosspoint-bend: the checkpoint carries it; its datasets cut bent crops; evaluation cuts them
+    from the images, and its targets map back through the bent map onto the true image crosspoints."""
+    out = tmp_path / "bent"
+    assert main(["crosspoints", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
+                 "--num-workers", "0", "--crosspoint-bend", "--device", "cpu"]) == 0
+    model, config, _ = load_checkpoint(out / "last.pt", expected_task="crosspoints")
+    assert config.crosspoint_bend and model.bend and not config.recognizer_bend
+    rendered, val = make_datasets(config, dataset, SPEC)
+    assert rendered.crosspoint_bend and val.crosspoint_bend
+    bent = next(iter(folder_batches("crosspoints", dataset, "test", SPEC, batch_size=64, bend=True)))
+    stored = next(iter(folder_batches("crosspoints", dataset, "test", SPEC, batch_size=64)))
+    assert torch.equal(bent["reference"], stored["reference"]) and not torch.equal(bent["crop"], stored["crop"])
+    shown = bent["visible"].numpy()
+    back = crop_to_image(SPEC, CROSSPOINT_CROP, bent["points_px"].numpy(), bent["xy"].numpy().astype(np.float64),
+                         bend=True)
+    assert shown.sum() > 100 and np.abs(back[shown] - bent["gt_xy_image"].numpy()[shown]).max() < 1e-3
+    metrics = evaluate(out / "last.pt", dataset, split="test", device="cpu")
+    assert metrics["samples"] == len(bent["xy"]) and metrics["image_error_px"]["count"] > 0
+    # predictions at the targets: no image error through the bent map, some through the homography
+    perfect = torch.cat([torch.where(bent["visible"], 20.0, -20.0)[:, None], bent["xy"].permute(0, 3, 1, 2)], dim=1)
+    errors = {}
+    for bend in (True, False):
+        results = _Results("crosspoints", SPEC, 2.0, 0.5, CROSSPOINT_CROP, bend)
+        results.update(perfect, torch.tensor(0.0), {}, bent)
+        errors[bend] = results.result()["image_error_px"]["median"]
+    assert errors[True] < 1e-3 < errors[False]
+    shards = tmp_path / "shards"
+    write_shards(shards, "crosspoints", SPEC, count=2, config=SynthConfig(image_size=(128, 128)), images_per_part=2,
+                 progress=False)
+    with pytest.raises(ValueError, match="write shards with --crosspoint-bend"):
+        train(config.replace(synth_weight=0.5, init=None), dataset, tmp_path / "mixed", device="cpu", spec=SPEC,
+              shards=shards, progress=False)
+    with pytest.raises(ValueError, match="crosspoint_bend is for the crosspoint network"):
+        _config("recognizer", crosspoint_bend=True)
 
 
 def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
