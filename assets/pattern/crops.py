@@ -136,13 +136,7 @@ def bent_crop_points(spec: PatternSpec, crop: CropSpec, localization_px: np.ndar
     localization_px: (5, 2) or (N, 5, 2) as for `bent_crop_map`; crop_xy: (..., 2) for one marker or
     (N, ..., 2), continuous crop coordinates.  Returns image coordinates of crop_xy's shape."""
     points, single = _five_points(localization_px)
-    xy = np.asarray(crop_xy, dtype=np.float64)
-    xy = xy[None] if single else xy
-    if xy.shape[0] != len(points) or xy.shape[-1] != 2:
-        raise ValueError(f"crop points must have shape (N, ..., 2) for N = {len(points)} markers, got "
-                         f"{np.shape(crop_xy)}")
-    shape = xy.shape
-    xy = xy.reshape(len(points), -1, 2)
+    xy, shape = _marker_points(points, single, crop_xy, "crop")
     canonical = crop_localization_px(spec, crop)
     corners, fields = _bend_parts(spec, crop, points)
     mapped = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1) @ np.swapaxes(corners, -1, -2)
@@ -162,13 +156,8 @@ def bent_crop_inverse(spec: PatternSpec, crop: CropSpec, localization_px: np.nda
     shape; NaN where the last Newton step is still longer than `tolerance_px` crop pixels (a fold the
     map cannot describe: its Jacobian is singular there)."""
     points, single = _five_points(localization_px)
-    target = np.asarray(image_xy, dtype=np.float64)
-    target = target[None] if single else target
-    if target.shape[0] != len(points) or target.shape[-1] != 2:
-        raise ValueError(f"image points must have shape (N, ..., 2) for N = {len(points)} markers, got "
-                         f"{np.shape(image_xy)}")
-    n, shape = len(points), target.shape
-    target = target.reshape(n, -1, 2)
+    target, shape = _marker_points(points, single, image_xy, "image")
+    n = len(points)
     canonical = crop_localization_px(spec, crop)
     scale = 1.0 / (canonical[4] - canonical[0])  # crop px -> x, y of the bend's weights
     corners, fields = _bend_parts(spec, crop, points)
@@ -209,6 +198,18 @@ def _five_points(localization_px: np.ndarray) -> tuple[np.ndarray, bool]:
     if points.shape[-2:] != (5, 2):
         raise ValueError(f"localization points must have shape (5, 2) or (N, 5, 2), got {points.shape}")
     return points, single
+
+
+def _marker_points(points: np.ndarray, single: bool, xy: np.ndarray, frame: str) -> tuple[np.ndarray, tuple]:
+    """Each marker's own points (..., 2) of one marker (`single`) or (N, ..., 2) for the N markers of
+    `points` (N, 5, 2), as (N, P, 2) float64 and the shape (with N) to give results back in; `frame`
+    ("crop", "image") names them in the error."""
+    values = np.asarray(xy, dtype=np.float64)
+    values = values[None] if single else values
+    if values.shape[0] != len(points) or values.shape[-1] != 2:
+        raise ValueError(f"{frame} points must have shape (N, ..., 2) for N = {len(points)} markers, got "
+                         f"{np.shape(xy)}")
+    return values.reshape(len(points), -1, 2), values.shape
 
 
 def _bend_parts(spec: PatternSpec, crop: CropSpec, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -374,6 +374,17 @@ def test_the_crop_networks_train_on_rendered_crops_shrunk_at_the_configured_odds
     assert make_datasets(crosspoints, dataset, SPEC)[0].marker_shrink == MarkerShrink(probability=0.5)
 
 
+def _refuses_homography_shards(config: TrainConfig, dataset: Path, tmp_path: Path) -> None:
+    """A run of a bent network (`config`) refuses shards written without its bend, naming the flag."""
+    shards = tmp_path / "shards"
+    write_shards(shards, config.task, SPEC, count=2, config=SynthConfig(image_size=(128, 128)), images_per_part=2,
+                 progress=False)
+    flag = "--recognizer-bend" if config.task == "recognizer" else "--crosspoint-bend"
+    with pytest.raises(ValueError, match=f"write shards with {flag}"):
+        train(config.replace(synth_weight=0.5, init=None), dataset, tmp_path / "mixed", device="cpu", spec=SPEC,
+              shards=shards, progress=False)
+
+
 def test_a_bent_recognizer_trains_evaluates_and_loads_on_bent_crops(dataset, tmp_path):
     out = tmp_path / "bent"
     assert main(["recognizer", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
@@ -387,12 +398,7 @@ def test_a_bent_recognizer_trains_evaluates_and_loads_on_bent_crops(dataset, tmp
     stored = next(iter(folder_batches("recognizer", dataset, "test", SPEC, batch_size=64)))
     assert torch.equal(bent["marker_id"], stored["marker_id"]) and not torch.equal(bent["crop"], stored["crop"])
     assert evaluate(out / "last.pt", dataset, split="test", device="cpu")["samples"] == len(bent["marker_id"])
-    shards = tmp_path / "shards"
-    write_shards(shards, "recognizer", SPEC, count=2, config=SynthConfig(image_size=(128, 128)), images_per_part=2,
-                 progress=False)
-    with pytest.raises(ValueError, match="write shards with --recognizer-bend"):
-        train(config.replace(synth_weight=0.5, init=None), dataset, tmp_path / "mixed", device="cpu", spec=SPEC,
-              shards=shards, progress=False)
+    _refuses_homography_shards(config, dataset, tmp_path)
     with pytest.raises(ValueError, match="recognizer_bend is for the recognizer"):
         _config("crosspoints", recognizer_bend=True)
 
@@ -424,12 +430,7 @@ def test_a_bent_crosspoint_network_trains_evaluates_and_loads_on_bent_crops(data
         results.update(perfect, torch.tensor(0.0), {}, bent)
         errors[bend] = results.result()["image_error_px"]["median"]
     assert errors[True] < 1e-3 < errors[False]
-    shards = tmp_path / "shards"
-    write_shards(shards, "crosspoints", SPEC, count=2, config=SynthConfig(image_size=(128, 128)), images_per_part=2,
-                 progress=False)
-    with pytest.raises(ValueError, match="write shards with --crosspoint-bend"):
-        train(config.replace(synth_weight=0.5, init=None), dataset, tmp_path / "mixed", device="cpu", spec=SPEC,
-              shards=shards, progress=False)
+    _refuses_homography_shards(config, dataset, tmp_path)
     with pytest.raises(ValueError, match="crosspoint_bend is for the crosspoint network"):
         _config("recognizer", crosspoint_bend=True)
 
