@@ -72,11 +72,19 @@ def _write_part(root: str, number: int) -> tuple[int, int, float]:
             columns["image"].append(image[None])
             columns["cells"].append(localizer_targets(gt)[None])
             continue
-        made = synth_crops(task, image, gt, spec, synth.config, index)
         rng = np.random.default_rng([synth.config.seed, index, _SUBSET])
-        keep = np.sort(rng.permutation(len(made[0]))[:_worker["crops_per_image"]])
+
+        def keep(count: int) -> np.ndarray:  # the image's crops kept, drawn from its seed
+            return np.sort(rng.permutation(count)[:_worker["crops_per_image"]])
+
+        if task == "crosspoints":  # only the kept crosspoint crops are cut (bent ones are costly)
+            made = synth_crops(task, image, gt, spec, synth.config, index, keep)
+        else:
+            made = synth_crops(task, image, gt, spec, synth.config, index)
+            kept = keep(len(made[0]))
+            made = tuple(array[kept] for array in made)
         for name, array in zip(SHARD_ARRAYS[task], made):
-            columns[name].append(array[keep])
+            columns[name].append(array)
     final = Path(root) / f"part_{number:05d}"
     tmp = final.with_suffix(".tmp")
     shutil.rmtree(tmp, ignore_errors=True)

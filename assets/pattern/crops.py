@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from assets.geometry import apply_homography, fit_homography
+from assets.geometry import apply_homography, fit_homography, invert_3x3
 from assets.pattern.raster import cell_weights, composite, line_coverage
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import localization_rc
@@ -161,7 +161,7 @@ def bent_crop_inverse(spec: PatternSpec, crop: CropSpec, localization_px: np.nda
     canonical = crop_localization_px(spec, crop)
     scale = 1.0 / (canonical[4] - canonical[0])  # crop px -> x, y of the bend's weights
     corners, fields = _bend_parts(spec, crop, points)
-    inverse = np.linalg.inv(corners)
+    inverse = invert_3x3(corners)  # no LAPACK: its threads stall after torch has run (assets.geometry)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         xy = apply_homography(inverse, target)  # the start: the displacement left out
         step = np.full_like(xy, np.inf)

@@ -249,15 +249,38 @@ def crosspoint_crops(
     completed = completed_points(gt)
     pick, homography = crosspoint_markers(gt, spec, completed=completed, crop=crop)
     crops = _unwarp(image, spec, crop, completed[pick], bend)
-    k = spec.crosspoints_per_side
-    projected = gt.crosspoints_px[pick].astype(np.float64).reshape(len(pick), k * k, 2)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        if bend and len(pick):
-            xy = bent_crop_inverse(spec, crop, completed[pick], projected).reshape(-1, k, k, 2)
-        else:
-            xy = apply_homography(homography, projected).reshape(-1, k, k, 2)
-        inside = ((xy >= 0) & (xy <= crop.size_px)).all(axis=-1)
+    xy, inside = _crop_targets(spec, crop, completed[pick], homography, gt.crosspoints_px[pick], bend)
     return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick] & inside
+
+
+def crosspoint_centre_markers(gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP,
+                              bend: bool = False) -> np.ndarray:
+    """Indices into `gt` of the markers `crosspoint_crops` cuts (in its order) whose centre crosspoint
+    is visible in their crop: the crops the Detector gets (the localizer finds those markers), found
+    without cutting any, so a caller that keeps a few of them cuts only those
+    (`crosspoint_crops(image, gt.select(...))` gives the same rows: every step is per marker)."""
+    completed = completed_points(gt)
+    pick, homography = crosspoint_markers(gt, spec, completed=completed, crop=crop)
+    c = spec.crosspoints_per_side // 2
+    _, inside = _crop_targets(spec, crop, completed[pick], homography, gt.crosspoints_px[pick, c:c + 1, c:c + 1],
+                              bend)
+    return pick[gt.crosspoint_visible[pick, c, c] & inside[:, 0, 0]]
+
+
+def _crop_targets(spec: PatternSpec, crop: CropSpec, points: np.ndarray, homography: np.ndarray,
+                  projected: np.ndarray, bend: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Crosspoints (N, A, B, 2) image pixels in the crops of markers with five points (N, 5, 2) and crop
+    homographies (N, 3, 3) (bend: through `bent_crop_inverse`): (xy float64 crop pixels, NaN off the
+    fabric or where the inverse has none; inside (N, A, B) bool, xy within [0, S] x [0, S])."""
+    shape = projected.shape
+    flat = projected.astype(np.float64).reshape(len(points), int(np.prod(shape[1:-1])), 2)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        if bend and len(points):
+            xy = bent_crop_inverse(spec, crop, points, flat).reshape(shape)
+        else:
+            xy = apply_homography(homography, flat).reshape(shape)
+        inside = ((xy >= 0) & (xy <= crop.size_px)).all(axis=-1)
+    return xy, inside
 
 
 def crosspoint_markers(gt: ImageGroundTruth, spec: PatternSpec, max_fit_cells: float = MAX_CROP_FIT_CELLS,

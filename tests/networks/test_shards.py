@@ -130,3 +130,24 @@ def test_cli_writes_crosspoint_crops_with_a_wider_margin(tmp_path):
     assert len(stored) > 0 and stored[0]["crop"].shape == stored[0]["reference"].shape == (3, 128, 128)
     assert main(["write", "--out", str(tmp_path / "bad"), "--task", "crosspoints", "--count", "1",
                  "--pattern", str(pattern), "--crosspoint-margin", "1", "--quiet"]) != 0
+
+
+@pytest.mark.parametrize("bend", [False, True])
+def test_crosspoint_shards_cut_only_the_crops_they_keep_and_those_are_the_synthesizer_s(tmp_path, bend):
+    """Crosspoint shards keep a seeded subset of an image's crops, cut alone (bent ones cost about 2 ms
+    a marker): the same rows as all of `synth_crops`' crops with that subset taken, bent or not."""
+    config = CONFIG.replace(image_size=(160, 160), marker_px=(16, 24), crop_jitter_px=1.0, crosspoint_bend=bend)
+    image, gt = PatternSynthesizer(SPEC, config).sample(0)
+    every = synth_crops("crosspoints", image, gt, SPEC, config, 0)
+    assert len(every[0]) > 3
+    keep = np.array([0, 2, len(every[0]) - 1])
+    kept = synth_crops("crosspoints", image, gt, SPEC, config, 0, lambda count: keep)
+    assert all(np.array_equal(a[keep], b, equal_nan=True) for a, b in zip(every, kept))
+    write_shards(tmp_path / "xp", "crosspoints", SPEC, count=1, config=config, workers=1, images_per_part=1,
+                 crops_per_image=3, progress=False)
+    data = ShardDataset(tmp_path / "xp", "crosspoints", spec=SPEC)
+    assert len(data) == 3
+    for k in range(3):  # each stored crop is one of the image's, with its targets
+        crop = data[k]["crop"].permute(1, 2, 0).numpy()
+        match = [j for j in range(len(every[0])) if np.array_equal(every[0][j], crop)]
+        assert match and np.array_equal(every[2][match[0]], data[k]["xy"].numpy(), equal_nan=True)
