@@ -29,9 +29,8 @@ import torch  # noqa: E402
 
 from assets.pattern import crop_crosspoints_px  # noqa: E402
 from networks.checkpoint import checkpoint_spec, load_checkpoint  # noqa: E402
-from networks.evaluate import (crosspoint_predictions, data_batches, model_bend, model_crop,  # noqa: E402
-                               resolve_device)
-from networks.tasks import forward  # noqa: E402
+from networks.evaluate import crosspoint_predictions, data_batches, model_crop, resolve_device  # noqa: E402
+from networks.tasks import forward, model_bend  # noqa: E402
 
 
 def rings(k: int) -> np.ndarray:

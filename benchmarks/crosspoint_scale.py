@@ -41,12 +41,11 @@ from networks.evaluate import (  # noqa: E402
     crosspoint_arrays,
     crosspoint_crop_points,
     crosspoint_predictions,
-    model_bend,
     model_crop,
 )
 from networks.homography import crop_to_image  # noqa: E402
 from networks.metrics import crosspoint_metrics  # noqa: E402
-from networks.tasks import autocast, forward  # noqa: E402
+from networks.tasks import autocast, forward, model_bend  # noqa: E402
 from partial_ids import SIZES, size_bin  # noqa: E402
 from vote_settings import images_and_truth  # noqa: E402
 

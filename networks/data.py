@@ -573,14 +573,18 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     config.recognizer_partial is False, bent if config.recognizer_bend (crosspoints:
     config.crosspoint_bend; config None: the defaults).
     config.crop_jitter_px > 0: cut from jittered points (`ImageGroundTruth.jittered`), drawn from
-    (config.seed, index).  keep (crosspoints): count -> the indices (sorted) of the crops to return,
-    of the count there are; only those are cut (a bent crop and its targets' inverse cost about 2 ms
-    a marker, and a synthetic image shows hundreds)."""
+    (config.seed, index).  keep: count -> the indices (sorted) of the crops to return, of the count
+    there are; crosspoint crops are cut for those only (a bent crop and its targets' inverse cost
+    about 2 ms a marker, and a synthetic image shows hundreds)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
         config = config or SynthConfig()
-        return recognizer_crops(image, gt, spec, partial=config.recognizer_partial, bend=config.recognizer_bend)
+        made = recognizer_crops(image, gt, spec, partial=config.recognizer_partial, bend=config.recognizer_bend)
+        if keep is None:
+            return made
+        kept = keep(len(made[0]))  # drawn once: crops and IDs keep the same rows
+        return tuple(array[kept] for array in made)
     config = config or SynthConfig()
     crop = crosspoint_crop(config.crosspoint_margin_cells)
     chosen = crosspoint_centre_markers(gt, spec, crop, config.crosspoint_bend)

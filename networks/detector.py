@@ -69,6 +69,7 @@ from networks.homography import (
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks.models import CELL, normalize
+from networks.tasks import model_bend
 
 
 @dataclass(frozen=True)
@@ -332,7 +333,7 @@ class Detector:
         if k != spec.crosspoints_per_side:
             raise ValueError(f"Detector: the crosspoint localizer has {k} crosspoints per side, the pattern "
                              f"{spec.crosspoints_per_side}")
-        if config.crosspoint_shift_px is not None and getattr(crosspoints, "bend", False):
+        if config.crosspoint_shift_px is not None and model_bend(crosspoints):
             raise ValueError("Detector: crosspoint_shift_px shifts homography crops, but the crosspoint network's "
                              "crops are bent (it was trained with crosspoint_bend); leave crosspoint_shift_px None")
         self.layout = None
@@ -473,7 +474,7 @@ class Detector:
         visible = np.zeros((len(image_index), k, k), dtype=bool)
         crop = self.crosspoints.crop
         step = self.config.crosspoint_shift_px
-        bend = bool(getattr(self.crosspoints, "bend", False))  # cut and mapped back as it was trained
+        bend = model_bend(self.crosspoints)  # cut and mapped back as it was trained
         shifts = np.zeros((1, 2)) if step is None else step * np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]])
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):

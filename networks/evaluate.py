@@ -55,7 +55,7 @@ from networks.metrics import (
     localizer_metrics,
     recognizer_metrics,
 )
-from networks.tasks import autocast, batch_length, forward
+from networks.tasks import autocast, batch_length, forward, model_bend
 
 #: sample arrays each task reads from `samples/<name>.npz`
 SAMPLE_KEYS = {
@@ -218,12 +218,6 @@ def model_crop(model: nn.Module) -> CropSpec:
     """The crosspoint crop a network takes: a `CrosspointLocalizer`'s `crop`, the reference's for the
     others (which cut none)."""
     return getattr(model, "crop", CROSSPOINT_CROP)
-
-
-def model_bend(model: nn.Module) -> bool:
-    """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a `MarkerRecognizer`'s or
-    `CrosspointLocalizer`'s `bend`; False for the localizer, which cuts none."""
-    return bool(getattr(model, "bend", False))
 
 
 # ---- running a model -------------------------------------------------------------------------------

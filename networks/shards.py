@@ -74,16 +74,10 @@ def _write_part(root: str, number: int) -> tuple[int, int, float]:
             continue
         rng = np.random.default_rng([synth.config.seed, index, _SUBSET])
 
-        def keep(count: int) -> np.ndarray:  # the image's crops kept, drawn from its seed
-            return np.sort(rng.permutation(count)[:_worker["crops_per_image"]])
+        def keep(crops: int) -> np.ndarray:  # the image's crops kept, drawn from its seed (called at once)
+            return np.sort(rng.permutation(crops)[:_worker["crops_per_image"]])
 
-        if task == "crosspoints":  # only the kept crosspoint crops are cut (bent ones are costly)
-            made = synth_crops(task, image, gt, spec, synth.config, index, keep)
-        else:
-            made = synth_crops(task, image, gt, spec, synth.config, index)
-            kept = keep(len(made[0]))
-            made = tuple(array[kept] for array in made)
-        for name, array in zip(SHARD_ARRAYS[task], made):
+        for name, array in zip(SHARD_ARRAYS[task], synth_crops(task, image, gt, spec, synth.config, index, keep)):
             columns[name].append(array)
     final = Path(root) / f"part_{number:05d}"
     tmp = final.with_suffix(".tmp")

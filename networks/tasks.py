@@ -52,6 +52,12 @@ def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrai
     raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
 
 
+def model_bend(model: nn.Module) -> bool:
+    """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a `MarkerRecognizer`'s or
+    `CrosspointLocalizer`'s `bend`; False for the localizer, which cuts none."""
+    return bool(getattr(model, "bend", False))
+
+
 def autocast(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
     """bf16 autocast on CUDA when `enabled`; a no-op elsewhere (CPU runs in float32)."""
     if enabled and device.type == "cuda":
