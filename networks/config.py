@@ -16,6 +16,9 @@ from pathlib import Path
 from assets.fileio import check_json_object, load_json, save_json
 from assets.pattern.crops import crosspoint_crop
 
+#: the reference's weight of the visibility BCE in the crosspoint loss (`TrainConfig.crosspoint_visibility_weight`)
+CROSSPOINT_VISIBILITY_WEIGHT = 100.0
+
 #: The three networks, by the name used in checkpoints, datasets and the CLIs.
 TASKS = ("localizer", "recognizer", "crosspoints")
 
@@ -145,6 +148,10 @@ class TrainConfig:
     the bent map, the targets through its inverse (`assets.pattern.bent_crop_inverse`), and its
     crosspoints mapped to the image through the map (`networks.homography.crop_to_image(bend=True)`);
     shards written with `networks.synth write --crosspoint-bend`.  False: the reference's crops.
+    crosspoint_visibility_weight (crosspoints): the weight of the visibility BCE in the loss, beside
+    the MSE of the visible crosspoints' (x, y) in crop pixels; the reference's 100 is the default.
+    Late in training the weighted BCE (100 x 0.07) is tens of times the MSE (0.1-0.3 px^2), so the
+    shared layers follow visibility: a lower weight is the lever for the positions.
     """
 
     task: str
@@ -175,6 +182,7 @@ class TrainConfig:
     marker_shrink: float = 0.0
     recognizer_bend: bool = False
     crosspoint_bend: bool = False
+    crosspoint_visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -220,6 +228,11 @@ class TrainConfig:
             problems.append(f"crosspoint_bend must be true or false, got {self.crosspoint_bend!r}")
         elif self.crosspoint_bend and self.task != "crosspoints":
             problems.append("crosspoint_bend is for the crosspoint network's crops")
+        weight = self.crosspoint_visibility_weight
+        if not (isinstance(weight, (int, float)) and not isinstance(weight, bool) and 0 < weight <= 1e4):
+            problems.append(f"crosspoint_visibility_weight must be in (0, 10000], got {weight!r}")
+        elif weight != CROSSPOINT_VISIBILITY_WEIGHT and self.task != "crosspoints":
+            problems.append("crosspoint_visibility_weight is for the crosspoint network's loss")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:

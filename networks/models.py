@@ -22,6 +22,7 @@ from torch import nn
 
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, crosspoint_crop
 from networks.backbone import ResNet, load_pretrained, resnet18, resnet50
+from networks.config import CROSSPOINT_VISIBILITY_WEIGHT
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -239,8 +240,8 @@ class CrosspointLocalizer(nn.Module):
         return torch.cat([out[:, :1], out[:, 1:] + self.canonical_px], dim=1)
 
 
-def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor, visibility_weight: float = 100.0,
-                    count_mean=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor,
+                    visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT, count_mean=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """visibility_weight * BCE(visibility) + MSE of (x, y) on visible crosspoints.
 
     output: (B, 3, K, K) `CrosspointLocalizer` output.  xy: (B, K, K, 2) float32 crop pixels, NaN off

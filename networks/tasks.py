@@ -16,7 +16,7 @@ import contextlib
 import torch
 from torch import nn
 
-from networks.config import TASKS
+from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, TASKS
 from networks.models import (
     CrosspointLocalizer,
     MarkerLocalizer,
@@ -70,10 +70,12 @@ def batch_length(batch: dict[str, torch.Tensor]) -> int:
     return len(next(iter(batch.values())))
 
 
-def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device, count_mean=None
+def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device, count_mean=None,
+            visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT
             ) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Run `model` on a batch: (raw output, loss scalar, {loss part: detached scalar}); `count_mean`:
-    under DDP, the mean over the ranks of the losses' target counts (see `localizer_loss`).
+    under DDP, the mean over the ranks of the losses' target counts (see `localizer_loss`);
+    `visibility_weight`: the crosspoint loss's weight of its visibility BCE (the reference's 100).
 
     Images travel to the device as uint8 and are normalised there; the loss is computed in float32
     on the output (which may be bf16 under autocast)."""
@@ -90,5 +92,5 @@ def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device:
         parts = {"cross_entropy": loss.detach()}
     else:
         output = model(normalize(get["crop"]), normalize(get["reference"]))
-        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"], count_mean=count_mean)
+        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"], visibility_weight, count_mean)
     return output, loss, parts

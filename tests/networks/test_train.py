@@ -435,6 +435,27 @@ def test_a_bent_crosspoint_network_trains_evaluates_and_loads_on_bent_crops(data
         _config("recognizer", crosspoint_bend=True)
 
 
+def test_the_crosspoint_loss_weighs_visibility_as_configured_in_training_and_validation(dataset, tmp_path):
+    """--visibility-weight: the checkpoint carries it, and the logged training and validation totals are
+    that weight times the visibility BCE plus the MSE (the reference's 100 by default)."""
+    for weight, flags in ((10.0, ["--visibility-weight", "10"]), (100.0, [])):
+        out = tmp_path / f"vis{weight:g}"
+        assert main(["crosspoints", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
+                     "--num-workers", "0", "--device", "cpu", *flags]) == 0
+        _, config, _ = load_checkpoint(out / "last.pt", expected_task="crosspoints")
+        assert config.crosspoint_visibility_weight == weight
+        rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+        trained = [r for r in rows if "loss" in r]
+        val = [r["val"]["loss"] for r in rows if "val" in r]
+        assert trained and val
+        for r in trained:
+            assert r["loss"] == pytest.approx(weight * r["visibility"] + r["xy"], rel=1e-4)
+        for loss in val:
+            assert loss["total"] == pytest.approx(weight * loss["visibility"] + loss["xy"], rel=1e-4)
+    with pytest.raises(ValueError, match="crosspoint_visibility_weight is for the crosspoint network"):
+        _config("recognizer", crosspoint_visibility_weight=10.0)
+
+
 def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
     saved = _config("recognizer").to_dict()
     del saved["recognizer_partial"]
