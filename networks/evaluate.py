@@ -11,7 +11,10 @@ Reports (see `networks.metrics` for the definitions):
   recognizer   top-1 and top-5 accuracy;
   crosspoints  visibility precision / recall and the median and 95th-percentile error of the
                crosspoints visible in the ground truth, in crop pixels and in image pixels, also by
-               the size of the crop's marker in the image (a crop magnifies a small marker more);
+               the size of the crop's marker in the image (a crop magnifies a small marker more),
+               and ("smoothed") the same errors of the crosspoints as the Detector returns them from
+               these crops, after its default smoothing (`DetectorConfig.smooth_crosspoints_px`,
+               `networks.homography.smooth_crosspoints`);
 and the mean loss of each.  Prints a table and writes the metrics as JSON.  The three chained, as
 `networks.Detector` runs them on whole images: `python -m networks.evaluate_detector`.
 
@@ -41,13 +44,13 @@ from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_code
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
                                        recognizer_crops, recognizer_markers, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
-from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, TASKS
+from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, SMOOTH_CROSSPOINTS_PX, TASKS
 from networks.data import SHARD_META, ShardDataset, shard_bend_problem
 from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
 from networks.data import dataset_spec
 from networks.decode import decode_localizer
-from networks.homography import crop_to_image, marker_side_px
+from networks.homography import crop_to_image, marker_side_px, smooth_crosspoints
 from networks.metrics import (
     MATCH_RADIUS_PX,
     cells_to_markers,
@@ -261,11 +264,13 @@ class _Results:
                       full=batch["full"].numpy() if "full" in batch else None)
         else:
             pred_visible, pred_xy = crosspoint_predictions(output, self.threshold)
-            self._add(pred_visible=pred_visible, pred_xy=pred_xy, gt_visible=batch["visible"].numpy(),
+            smoothed = smooth_crosspoints(pred_xy, pred_visible, SMOOTH_CROSSPOINTS_PX)  # as the Detector returns them
+            self._add(pred_visible=pred_visible, pred_xy=pred_xy, smoothed_xy=smoothed, gt_visible=batch["visible"].numpy(),
                       gt_xy=batch["xy"].numpy())
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
                 self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy, self.bend),
+                          smoothed_image=crop_to_image(self.spec, self.crop, points, smoothed, self.bend),
                           gt_image=np.asarray(batch["gt_xy_image"]), side=marker_side_px(points))
 
     def result(self) -> dict:
@@ -286,12 +291,15 @@ class _Results:
                 full = np.concatenate(s["full"])
                 metrics["fully_visible"] = recognizer_metrics(ranked[full], marker_id[full])
         else:
-            image = {}
+            image, smoothed_image = {}, {}
             if len(s.get("pred_image", [])) == len(s["pred_xy"]):  # every batch had image points
                 image = {"pred_xy_image": np.concatenate(s["pred_image"]),
                          "gt_xy_image": np.concatenate(s["gt_image"]), "marker_side_px": np.concatenate(s["side"])}
-            metrics = crosspoint_metrics(np.concatenate(s["pred_visible"]), np.concatenate(s["pred_xy"]),
-                                         np.concatenate(s["gt_visible"]), np.concatenate(s["gt_xy"]), **image)
+                smoothed_image = {**image, "pred_xy_image": np.concatenate(s["smoothed_image"])}
+            visible, gt_visible, gt_xy = (np.concatenate(s[k]) for k in ("pred_visible", "gt_visible", "gt_xy"))
+            metrics = crosspoint_metrics(visible, np.concatenate(s["pred_xy"]), gt_visible, gt_xy, **image)
+            smoothed = crosspoint_metrics(visible, np.concatenate(s["smoothed_xy"]), gt_visible, gt_xy, **smoothed_image)
+            metrics["smoothed"] = {key: smoothed[key] for key in ("crop_error_px", "image_error_px", "fully_visible")}
         return {"loss": loss, "samples": self.samples, **metrics}
 
 

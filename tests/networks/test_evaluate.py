@@ -12,13 +12,13 @@ import pytest
 import torch
 
 from assets.fileio import save_json, save_npz
-from assets.pattern import CROSSPOINT_CROP, PatternSpec
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, crop_localization_px
 from assets.pattern.observation import ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.decode import duplicate_border_targets
-from networks.evaluate import evaluate, evaluate_at, folder_batches, format_table, main, split_entries
-from networks.homography import crop_to_image
+from networks.evaluate import _Results, evaluate, evaluate_at, folder_batches, format_table, main, split_entries
+from networks.homography import crop_to_image, smooth_crosspoints
 from networks.metrics import (
     cells_to_markers,
     crosspoint_metrics,
@@ -371,3 +371,30 @@ def test_evaluate_on_a_shard_folder_of_synthesized_samples(task, tmp_path):
                                TrainConfig(task, crosspoint_margin_cells=4), SPEC, step=2)
         with pytest.raises(ValueError, match=r"crops of 112 px, but the network's are 128 px.*--crosspoint-margin 4"):
             evaluate(wide, tmp_path / "shards", task=task, device="cpu", progress=False)
+
+
+def test_crosspoint_results_give_the_detectors_smoothed_crosspoints_beside_the_networks():
+    """"smoothed": the errors of the network's crosspoints after the Detector's default smoothing,
+    in the crop and (through each crop's five points) in the image."""
+    rng = np.random.default_rng(3)
+    n, k = 4, SPEC.crosspoints_per_side
+    canonical = crop_crosspoints_px(SPEC, CROSSPOINT_CROP)
+    u = (canonical - 56.0) / 48.0  # a smooth bend of each crop's grid, up to about 2 px
+    truth = np.stack([canonical + rng.normal(0, 1.0, 2) * u ** 2 + rng.normal(0, 1.0, 2) * u[..., ::-1] for _ in range(n)])
+    pred = truth + rng.normal(0, 0.3, truth.shape)  # the network's noise
+    visible = np.ones((n, k, k), dtype=bool)
+    output = torch.cat([torch.full((n, 1, k, k), 20.0), torch.from_numpy(pred).permute(0, 3, 1, 2).float()], dim=1)
+    points = np.broadcast_to(crop_localization_px(SPEC, CROSSPOINT_CROP), (n, 5, 2))  # image = crop
+    batch = {"visible": torch.from_numpy(visible), "xy": torch.from_numpy(truth).float(),
+             "points_px": torch.from_numpy(points.copy()), "gt_xy_image": torch.from_numpy(truth)}
+    results = _Results("crosspoints", SPEC, 2.0, 0.5)
+    results.update(output, torch.tensor(0.0), {}, batch)
+    metrics = results.result()
+    raw, smoothed = metrics["crop_error_px"], metrics["smoothed"]["crop_error_px"]
+    expected = crosspoint_metrics(visible, smooth_crosspoints(output[:, 1:].permute(0, 2, 3, 1).numpy(), visible, 0.5),
+                                  visible, truth.astype(np.float32))["crop_error_px"]
+    assert smoothed == pytest.approx(expected)
+    assert raw["median"] == pytest.approx(0.3 * 1.1774, rel=0.1)  # the noise's: a Rayleigh median
+    assert smoothed["median"] < 0.5 * raw["median"]
+    assert metrics["smoothed"]["image_error_px"]["median"] == pytest.approx(smoothed["median"], abs=1e-4)
+    assert metrics["smoothed"]["fully_visible"]["crops"] == n
