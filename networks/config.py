@@ -150,8 +150,8 @@ class TrainConfig:
     shards written with `networks.synth write --crosspoint-bend`.  False: the reference's crops.
     crosspoint_visibility_weight (crosspoints): the weight of the visibility BCE in the loss, beside
     the MSE of the visible crosspoints' (x, y) in crop pixels; the reference's 100 is the default.
-    Late in training the weighted BCE (100 x 0.07) is tens of times the MSE (0.1-0.3 px^2), so the
-    shared layers follow visibility: a lower weight is the lever for the positions.
+    Late in training the weighted BCE (100 x 0.07) is tens of times the MSE (0.1-0.3 px^2), yet
+    weights of 10 and 1 left the positions worse, not better (the twenty-ninth GPU run, RESULTS.md).
     """
 
     task: str

@@ -265,8 +265,8 @@ class _Results:
         else:
             pred_visible, pred_xy = crosspoint_predictions(output, self.threshold)
             smoothed = smooth_crosspoints(pred_xy, pred_visible, SMOOTH_CROSSPOINTS_PX)  # as the Detector returns them
-            self._add(pred_visible=pred_visible, pred_xy=pred_xy, smoothed_xy=smoothed, gt_visible=batch["visible"].numpy(),
-                      gt_xy=batch["xy"].numpy())
+            self._add(pred_visible=pred_visible, pred_xy=pred_xy, smoothed_xy=smoothed,
+                      gt_visible=batch["visible"].numpy(), gt_xy=batch["xy"].numpy())
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
                 self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy, self.bend),
@@ -298,7 +298,8 @@ class _Results:
                 smoothed_image = {**image, "pred_xy_image": np.concatenate(s["smoothed_image"])}
             visible, gt_visible, gt_xy = (np.concatenate(s[k]) for k in ("pred_visible", "gt_visible", "gt_xy"))
             metrics = crosspoint_metrics(visible, np.concatenate(s["pred_xy"]), gt_visible, gt_xy, **image)
-            smoothed = crosspoint_metrics(visible, np.concatenate(s["smoothed_xy"]), gt_visible, gt_xy, **smoothed_image)
+            smoothed = crosspoint_metrics(visible, np.concatenate(s["smoothed_xy"]), gt_visible, gt_xy,
+                                          **smoothed_image)
             metrics["smoothed"] = {key: smoothed[key] for key in ("crop_error_px", "image_error_px", "fully_visible")}
         return {"loss": loss, "samples": self.samples, **metrics}
 

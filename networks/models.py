@@ -241,7 +241,8 @@ class CrosspointLocalizer(nn.Module):
 
 
 def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor,
-                    visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT, count_mean=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+                    visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT, count_mean=None
+                    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """visibility_weight * BCE(visibility) + MSE of (x, y) on visible crosspoints.
 
     output: (B, 3, K, K) `CrosspointLocalizer` output.  xy: (B, K, K, 2) float32 crop pixels, NaN off

@@ -380,7 +380,8 @@ def test_crosspoint_results_give_the_detectors_smoothed_crosspoints_beside_the_n
     n, k = 4, SPEC.crosspoints_per_side
     canonical = crop_crosspoints_px(SPEC, CROSSPOINT_CROP)
     u = (canonical - 56.0) / 48.0  # a smooth bend of each crop's grid, up to about 2 px
-    truth = np.stack([canonical + rng.normal(0, 1.0, 2) * u ** 2 + rng.normal(0, 1.0, 2) * u[..., ::-1] for _ in range(n)])
+    truth = np.stack([canonical + rng.normal(0, 1.0, 2) * u ** 2 + rng.normal(0, 1.0, 2) * u[..., ::-1]
+                      for _ in range(n)])
     pred = truth + rng.normal(0, 0.3, truth.shape)  # the network's noise
     visible = np.ones((n, k, k), dtype=bool)
     output = torch.cat([torch.full((n, 1, k, k), 20.0), torch.from_numpy(pred).permute(0, 3, 1, 2).float()], dim=1)
