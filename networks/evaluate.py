@@ -295,7 +295,9 @@ class _Results:
             if len(s.get("pred_image", [])) == len(s["pred_xy"]):  # every batch had image points
                 image = {"pred_xy_image": np.concatenate(s["pred_image"]),
                          "gt_xy_image": np.concatenate(s["gt_image"]), "marker_side_px": np.concatenate(s["side"])}
-                smoothed_image = {**image, "pred_xy_image": np.concatenate(s["smoothed_image"])}
+                # no marker sizes: the smoothed block keeps no per-size bins
+                smoothed_image = {"pred_xy_image": np.concatenate(s["smoothed_image"]),
+                                  "gt_xy_image": image["gt_xy_image"]}
             visible, gt_visible, gt_xy = (np.concatenate(s[k]) for k in ("pred_visible", "gt_visible", "gt_xy"))
             metrics = crosspoint_metrics(visible, np.concatenate(s["pred_xy"]), gt_visible, gt_xy, **image)
             smoothed = crosspoint_metrics(visible, np.concatenate(s["smoothed_xy"]), gt_visible, gt_xy,
