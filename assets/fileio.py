@@ -1,17 +1,26 @@
-"""Atomic, deterministic file writing shared by every stage.
+"""Atomic, deterministic file writing and the checks on untrusted names and sizes, shared by every stage.
 
 Every file the project writes goes through `atomic_path`: the data is written to a temporary name in
 the destination folder and renamed over the target only when complete, so an interrupted run never
-leaves a half file and never destroys an earlier good one.  `save_npz` writes byte-identical archives
-for identical arrays (numpy's own `savez` stamps the current time into the zip entries).
+leaves a half file and never destroys an earlier good one; a full disk is reported naming the file.
+A stage that writes several files that belong together writes them through `staged_outputs`, so its
+outputs are replaced together or not at all.  `save_npz` writes byte-identical archives for identical
+arrays (numpy's own `savez` stamps the current time into the zip entries).
+
+Names read from files or arguments that become parts of a path (garments, panels, cameras, images,
+motions, jobs) pass `safe_name`, so no input can make a stage write outside its output folder; sizes
+read from input pass `check_limit` before anything is allocated.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import hashlib
 import io
 import json
 import os
+import shutil
 import tempfile
 import zipfile
 from pathlib import Path
@@ -36,8 +45,79 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         yield tmp
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; finished files get the usual mode
         os.replace(tmp, path)
+    except OSError as exc:
+        raise _named_os_error(exc, path) from exc
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _named_os_error(exc: OSError, path: Path) -> OSError:
+    """`exc` itself, or for a full disk or quota an OSError that names the file being written."""
+    if exc.errno not in (errno.ENOSPC, errno.EDQUOT) or str(path) in str(exc):
+        return exc
+    return OSError(exc.errno, f"{path}: disk full while writing ({exc.strerror or exc})")
+
+
+def copy_file(source: str | os.PathLike, target: str | os.PathLike) -> None:
+    """Copy `source` to `target` atomically (a full disk leaves no half `target`)."""
+    with atomic_path(target) as tmp:
+        shutil.copyfile(source, tmp)
+
+
+@contextlib.contextmanager
+def staged_outputs(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yield a hidden staging folder inside `folder`; on success move every file written there into
+    `folder` (same relative paths), on error delete it and leave `folder` as it was.
+
+    A stage writes all of its outputs into the staging folder, so a failure part way (a bad argument
+    found late, a full disk, an interrupt) never leaves new files beside old ones; files of `folder`
+    that the stage does not write are kept."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".staged.", dir=folder))
+    try:
+        yield stage
+        files = sorted(p for p in stage.rglob("*") if p.is_file())
+        for source in files:
+            os.chmod(source, 0o666 & ~_UMASK)
+            target = folder / source.relative_to(stage)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(source, target)  # renames within one file system: cannot run out of space
+    except OSError as exc:
+        raise _named_os_error(exc, Path(exc.filename) if exc.filename else folder) from exc
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes (hex), what a resumed stage compares its inputs by."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def safe_name(name: object, source: str) -> str:
+    """`name` if it can be one path component: a non-empty string without separators, `..`, `.`,
+    control characters or a leading dot; else a ValueError naming `source` (where the name came from:
+    a file and field, or an argument)."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{source}: a name must be a non-empty string, got {name!r}")
+    bad = ("/" in name or "\\" in name or name in (".", "..") or name.startswith(".")
+           or any(ord(c) < 32 or ord(c) == 127 for c in name) or len(name.encode()) > 200)
+    if bad:
+        raise ValueError(f"{source}: name {name!r} cannot be a file name (one path component without "
+                         "separators, '..', a leading dot or control characters, at most 200 bytes)")
+    return name
+
+
+def check_limit(value: float, limit: float, what: str, source: str, option: str) -> None:
+    """Refuse `value` above `limit` before anything is allocated: a ValueError naming `source`, the
+    quantity and `option`, the setting that raises the bound."""
+    if not value <= limit:
+        raise ValueError(f"{source}: {what} is {value:,.6g}, above the limit of {limit:,.6g}; "
+                         f"raise it with {option} if this is intended")
 
 
 def save_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray]) -> None:
