@@ -10,6 +10,7 @@ import pytest
 from assets.fileio import atomic_path, check_limit, copy_file, file_digest, safe_name, staged_outputs
 
 
+@pytest.mark.hostile("outside")
 @pytest.mark.parametrize("name", ["../x", "a/b", "a\\b", "..", ".", "", ".hidden", "tab\there", "nl\n",
                                   "x" * 201, None, 3])
 def test_safe_name_refuses_what_is_not_one_path_component(name):
@@ -17,11 +18,13 @@ def test_safe_name_refuses_what_is_not_one_path_component(name):
         safe_name(name, "pattern.json: field name")
 
 
+@pytest.mark.hostile("outside")
 @pytest.mark.parametrize("name", ["shirt", "cam_01", "Ärmel links", "front-panel.v2"])
 def test_safe_name_keeps_ordinary_names(name):
     assert safe_name(name, "x") == name
 
 
+@pytest.mark.hostile("half")
 def test_staged_outputs_replace_together_or_not_at_all(tmp_path):
     (tmp_path / "a.txt").write_text("old a")
     (tmp_path / "keep.txt").write_text("mine")
@@ -43,6 +46,7 @@ def test_staged_outputs_replace_together_or_not_at_all(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.hostile("half")
 def test_a_full_disk_names_the_file_and_keeps_the_old_one(tmp_path):
     target = tmp_path / "sequence.npz"
     target.write_bytes(b"good")
@@ -54,6 +58,7 @@ def test_a_full_disk_names_the_file_and_keeps_the_old_one(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["sequence.npz"]
 
 
+@pytest.mark.hostile("stale")
 def test_copy_file_and_digest(tmp_path):
     (tmp_path / "a").write_bytes(b"x" * 3_000_000)
     copy_file(tmp_path / "a", tmp_path / "b")
@@ -62,6 +67,7 @@ def test_copy_file_and_digest(tmp_path):
     assert file_digest(tmp_path / "a") != file_digest(tmp_path / "b")
 
 
+@pytest.mark.hostile("memory")
 def test_check_limit_names_the_option():
     check_limit(10, 10, "frames", "walk.npz", "--max-frames")
     with pytest.raises(ValueError, match=r"walk.npz: frames is 11.*--max-frames"):
