@@ -23,6 +23,7 @@ import os
 import shutil
 import tempfile
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
 
@@ -132,6 +133,32 @@ def save_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray]) -> None:
             zf.writestr(info, buf.getvalue())
 
 
+def npz_headers(path: str | os.PathLike) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """Shape and dtype of every array of a `.npz`, read from the `.npy` headers without decompressing
+    any data: what a reader checks before a small compressed file expands to gigabytes."""
+    path = Path(path)
+    readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    out = {}
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for member in archive.namelist():
+                if not member.endswith(".npy"):
+                    continue
+                with archive.open(member) as file:
+                    version = np.lib.format.read_magic(file)
+                    if version not in readers:
+                        raise ValueError(f"{path}: {member}: .npy format version {version} is not supported")
+                    shape, _, dtype = readers[version](file)
+                out[member[: -len(".npy")]] = (shape, dtype)
+    except FileNotFoundError:
+        raise
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as exc:
+        raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
+    except ValueError as exc:
+        raise exc if str(exc).startswith(str(path)) else ValueError(f"{path}: not a readable .npz file ({exc})")
+    return out
+
+
 def load_npz(path: str | os.PathLike, required: tuple[str, ...] = (),
              only: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
     """Read a `.npz` without pickles; raise naming the file when it is unreadable or lacks a key.
@@ -151,7 +178,7 @@ def load_npz(path: str | os.PathLike, required: tuple[str, ...] = (),
             return {key: data[key] for key in (only if only is not None else data.files)}
     except FileNotFoundError:
         raise
-    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
     except ValueError as exc:
         raise exc if str(exc).startswith(str(path)) else ValueError(f"{path}: not a readable .npz file ({exc})")
