@@ -34,11 +34,13 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from assets.fileio import check_json_object, load_json, save_json
+from assets.fileio import check_json_object, check_limit, load_json, safe_name, save_json
 
 #: Blender's local camera axes expressed in OpenCV's: x stays, y and z flip.
 _CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 _ROTATION_TOLERANCE = 1e-6
+#: the largest image (width x height) a calibration file may declare: 16 times an 8K frame
+MAX_IMAGE_PIXELS = 16 * 7680 * 4320
 
 
 def _frozen(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -302,14 +304,28 @@ def save_cameras(path: str | os.PathLike, cameras: Iterable[Camera]) -> None:
     save_json(path, {"cameras": [camera.to_dict() for camera in cameras]})
 
 
-def load_cameras(path: str | os.PathLike) -> list[Camera]:
-    """Read a `cameras.json`; errors name the file, the camera and the field."""
+def load_cameras(path: str | os.PathLike, max_image_pixels: int = MAX_IMAGE_PIXELS) -> list[Camera]:
+    """Read a `cameras.json`; errors name the file, the camera and the field.  Camera names become
+    folder names, so each must be one safe path component (`safe_name`); an image larger than
+    `max_image_pixels` is refused."""
     data = load_json(path)
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), list):
         raise ValueError(f"{path}: expected an object with a list 'cameras'")
     cameras = [Camera.from_dict(entry, f"{path}: cameras[{i}]") for i, entry in enumerate(data["cameras"])]
+    for i, camera in enumerate(cameras):
+        check_camera_file_fields(camera, f"{path}: cameras[{i}]", max_image_pixels)
     names = [c.name for c in cameras if c.name]
     if len(set(names)) != len(names):
         raise ValueError(f"{path}: duplicate camera names {sorted({n for n in names if names.count(n) > 1})}")
     return cameras
 
+
+
+def check_camera_file_fields(camera: Camera, source: str, max_image_pixels: int = MAX_IMAGE_PIXELS) -> None:
+    """Refuse what a calibration file may not declare, naming `source` and the field: a name that is
+    not one safe path component (names become folders of detections) and an image above
+    `max_image_pixels` (images of that size are allocated later)."""
+    if camera.name:
+        safe_name(camera.name, f"{source}.name")
+    check_limit(camera.width * camera.height, max_image_pixels, f"width x height ({camera.width} x {camera.height})",
+                source, "max_image_pixels (--max-image-pixels of python -m reconstruction)")

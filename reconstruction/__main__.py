@@ -37,6 +37,7 @@ def _levels(text: str | None) -> tuple[int, ...] | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from assets.cameras import MAX_IMAGE_PIXELS
     from networks.config import KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX  # torch-free
 
     parser = argparse.ArgumentParser(prog="python -m reconstruction", description=__doc__,
@@ -48,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "--detections groundtruth a factory capture folder")
         p.add_argument("--cameras", help="cameras.json or OpenCV calibration YAML (default: the capture's)")
         p.add_argument("--template", required=True, help="default garment name, pattern JSON or template .npz")
+        p.add_argument("--max-image-pixels", type=int, default=MAX_IMAGE_PIXELS, metavar="N",
+                       help="refuse cameras whose images are larger than N pixels (width x height; default %(default)s)")
         p.add_argument("--level", type=int, default=12, help="template level (mm) the crosspoints are located on")
         p.add_argument("--detections", choices=("networks", "groundtruth"), default="networks")
         p.add_argument("--checkpoints", nargs=3, metavar=("LOCALIZER", "RECOGNIZER", "CROSSPOINTS"), default=(),
@@ -118,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.cameras:
                 from reconstruction.cameras import read_cameras
 
-                cameras = read_cameras(args.cameras)
+                cameras = read_cameras(args.cameras, max_image_pixels=args.max_image_pixels)
             initial = args.initial_shape
             if initial is None and (Path(args.views) / "sim" / "dressed.npz").is_file():
                 initial = Path(args.views) / "sim" / "dressed.npz"  # a factory capture's dressed garment
@@ -130,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
                                             grow_rounds=args.grow_rounds, **crosspoint_options(args),
                                             **completion_options(args))
             pipeline.start(args.out, settings)
-            frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress)
+            frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress,
+                                     max_image_pixels=args.max_image_pixels)
             print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")
         if args.command in ("run", "triangulate"):
             from reconstruction.triangulate import TriangulationConfig

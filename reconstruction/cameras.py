@@ -36,7 +36,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import cv2
 import numpy as np
 
-from assets.cameras import Camera, load_cameras
+from assets.cameras import MAX_IMAGE_PIXELS, Camera, check_camera_file_fields, load_cameras
 from assets.fileio import atomic_path
 
 _KEYS = {
@@ -53,10 +53,11 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 
 
 def read_cameras(path: str | Path | Sequence[str | Path], translation_scale: float = 1.0,
-                 pixel_centre: float = 0.0) -> list[Camera]:
+                 pixel_centre: float = 0.0, max_image_pixels: int = MAX_IMAGE_PIXELS) -> list[Camera]:
     """Cameras from a ``cameras.json``, an OpenCV YAML / XML file, or a list of OpenCV files (one
     camera each, in that order); validated by `validate_cameras`.  `translation_scale` and
-    `pixel_centre` apply to OpenCV files only (module docstring)."""
+    `pixel_centre` apply to OpenCV files only (module docstring); a camera whose images would be
+    larger than `max_image_pixels` is refused."""
     paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
     if not paths:
         raise ValueError("read_cameras: no calibration file given")
@@ -67,17 +68,19 @@ def read_cameras(path: str | Path | Sequence[str | Path], translation_scale: flo
         if p.suffix.lower() == ".json":
             if len(paths) > 1:
                 raise ValueError(f"{p}: a cameras.json holds every camera; give it alone, not in a list of files")
-            cameras = load_cameras(p)
+            cameras = load_cameras(p, max_image_pixels)
         elif p.suffix.lower() in _YAML_SUFFIXES:
-            cameras += read_opencv(p, translation_scale, pixel_centre)
+            cameras += read_opencv(p, translation_scale, pixel_centre, max_image_pixels)
         else:
             raise ValueError(f"{p}: unknown calibration format (expected .json, .yaml, .yml or .xml)")
     validate_cameras(cameras, source=", ".join(str(p) for p in paths))
     return cameras
 
 
-def read_opencv(path: str | Path, translation_scale: float = 1.0, pixel_centre: float = 0.0) -> list[Camera]:
-    """The camera(s) of one OpenCV calibration YAML / XML file (keys in the module docstring)."""
+def read_opencv(path: str | Path, translation_scale: float = 1.0, pixel_centre: float = 0.0,
+                max_image_pixels: int = MAX_IMAGE_PIXELS) -> list[Camera]:
+    """The camera(s) of one OpenCV calibration YAML / XML file (keys in the module docstring); names
+    must be safe folder names and images at most `max_image_pixels`."""
     path = Path(path)
     if not translation_scale > 0:
         raise ValueError(f"translation_scale must be > 0, got {translation_scale}")
@@ -102,8 +105,9 @@ def read_opencv(path: str | Path, translation_scale: float = 1.0, pixel_centre: 
         for node, where, default_name in entries:
             if not node.isMap():
                 raise ValueError(f"{where}: expected a map of calibration keys")
-            values = {key: _value(node.getNode(key)) for key in node.keys()}
+            values = {key: _value(node.getNode(key), f"{where}: {key}") for key in node.keys()}
             cameras.append(_camera(values, where, default_name, translation_scale, pixel_centre))
+            check_camera_file_fields(cameras[-1], where, max_image_pixels)
         return cameras
     finally:
         storage.release()
@@ -196,17 +200,21 @@ def undistort_pixels(camera: Camera, pixels: np.ndarray) -> np.ndarray:
 
 # ---- OpenCV file values --------------------------------------------------------------------------
 
-def _value(node: Any) -> Any:
-    """A FileNode as a string, a float, an array (OpenCV matrix) or a list (sequence)."""
+def _value(node: Any, where: str) -> Any:
+    """A FileNode as a string, a float, an array (OpenCV matrix) or a list (sequence); `where` names
+    it in errors."""
     if node.isString():
         return node.string()
     if node.isInt() or node.isReal():
         return node.real()
     if node.isSeq():
-        return [_value(node.at(i)) for i in range(node.size())]
+        return [_value(node.at(i), f"{where}[{i}]") for i in range(node.size())]
     if node.isMap():
-        matrix = node.mat()
-        return matrix if matrix is not None else {key: _value(node.getNode(key)) for key in node.keys()}
+        try:
+            matrix = node.mat()
+        except cv2.error as exc:  # an !!opencv-matrix whose rows x cols disagree with its data
+            raise ValueError(f"{where}: not a valid OpenCV matrix ({exc.err})") from None
+        return matrix if matrix is not None else {key: _value(node.getNode(key), f"{where}.{key}") for key in node.keys()}
     return None
 
 

@@ -48,7 +48,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from assets.fileio import atomic_path, load_npz, save_npz
+from assets.fileio import atomic_path, load_npz, save_npz, staged_outputs
 
 #: Vertex colours (RGB, 0-255) of captured and filled vertices in PLY files.
 CAPTURED_RGB = (40, 160, 60)
@@ -226,8 +226,10 @@ def _obj_vertices(positions: np.ndarray) -> str:
     return ("v %.6f %.6f %.6f\n" * len(positions)) % tuple(positions.ravel())
 
 
-def _write_mtl(path: Path, texture: str | os.PathLike) -> None:
-    relative = os.path.relpath(Path(texture).resolve(), path.resolve().parent)
+def _write_mtl(path: Path, texture: str | os.PathLike, read_from: Path | None = None) -> None:
+    """The MTL of material "garment" at `path`; `texture` relative to `read_from` (default: the MTL's
+    folder), the folder the MTL is read from when it is written elsewhere first."""
+    relative = os.path.relpath(Path(texture).resolve(), (read_from or path.parent).resolve())
     with atomic_path(path) as tmp:
         tmp.write_text(f"newmtl garment\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {relative}\n")
 
@@ -264,18 +266,21 @@ def frame_mesh_path(folder: str | os.PathLike, frame: int, fmt: str) -> Path:
 
 
 def write_frame_meshes(folder: str | os.PathLike, sequence: GarmentSequence, fmt: str = "obj",
-                       texture: str | os.PathLike | None = None, progress: bool = True) -> list[Path]:
+                       texture: str | os.PathLike | None = None, progress: bool = True,
+                       read_from: str | os.PathLike | None = None) -> list[Path]:
     """Every frame of `sequence` as `frame_mesh_path(folder, frame, fmt)`, fmt 'obj' or 'ply'.
 
     OBJs carry the UVs and, with `texture`, share ``<folder>/garment.mtl``; PLYs carry the captured
-    flags.  Returns the mesh paths in frame order."""
+    flags.  read_from: the folder the meshes will be read from when `folder` is a staging folder
+    (default `folder`); the MTL's texture path is relative to it.  Returns the mesh paths in frame
+    order."""
     if fmt not in MESH_FORMATS:
         raise ValueError(f"write_frame_meshes: fmt must be one of {', '.join(MESH_FORMATS)}, got {fmt!r}")
     folder = Path(folder)
     topology = _obj_topology(sequence.faces, sequence.corner_uv) if fmt == "obj" else ""
     mtl_name = "garment.mtl" if fmt == "obj" and texture is not None else None
     if mtl_name:
-        _write_mtl(folder / mtl_name, texture)
+        _write_mtl(folder / mtl_name, texture, Path(read_from) if read_from is not None else None)
     paths = []
     for t in tqdm(range(len(sequence)), desc=f"export {fmt}", unit="frame", disable=not progress):
         frame = int(sequence.frames[t])
@@ -340,23 +345,32 @@ def export_sequence(folder: str | os.PathLike, sequence: GarmentSequence, format
     npz -> ``sequence.npz``; obj -> ``obj/f<frame>.obj`` (+ ``obj/garment.mtl`` with a texture);
     ply -> ``ply/f<frame>.ply``; pc2 -> ``garment.pc2`` (evenly spaced frames only);
     blend -> ``review.blend`` (`reconstruction.review.write_review_blend`, needs bpy; with
-    `cameras`, a list of `assets.cameras.Camera`).  Returns {format: written paths}."""
+    `cameras`, a list of `assets.cameras.Camera`).  Returns {format: written paths}.
+
+    The files are replaced together or not at all (`assets.fileio.staged_outputs`): a failure part way
+    leaves the previous export as it was, never new meshes beside an old point cache."""
     unknown = sorted(set(formats) - set(EXPORT_FORMATS))
     if unknown:
         raise ValueError(f"export_sequence: unknown format(s) {', '.join(unknown)} (use {', '.join(EXPORT_FORMATS)})")
     folder = Path(folder)
-    written: dict[str, list[Path]] = {}
-    if "npz" in formats:
-        save_sequence_npz(folder / "sequence.npz", sequence)
-        written["npz"] = [folder / "sequence.npz"]
-    for fmt in MESH_FORMATS:
-        if fmt in formats:
-            written[fmt] = write_frame_meshes(folder / fmt, sequence, fmt, texture if fmt == "obj" else None, progress)
-    if "pc2" in formats:
-        write_pc2(folder / "garment.pc2", sequence.positions, float(sequence.frames[0]), float(sequence.frame_step))
-        written["pc2"] = [folder / "garment.pc2"]
-    if "blend" in formats:
-        from reconstruction.review import write_review_blend
+    staged: dict[str, list[Path]] = {}
+    with staged_outputs(folder) as stage:
+        if "npz" in formats:
+            save_sequence_npz(stage / "sequence.npz", sequence)
+            staged["npz"] = [stage / "sequence.npz"]
+        for fmt in MESH_FORMATS:
+            if fmt in formats:
+                staged[fmt] = write_frame_meshes(stage / fmt, sequence, fmt, texture if fmt == "obj" else None,
+                                                 progress, read_from=folder / fmt)
+        if "pc2" in formats:
+            write_pc2(stage / "garment.pc2", sequence.positions, float(sequence.frames[0]),
+                      float(sequence.frame_step))
+            staged["pc2"] = [stage / "garment.pc2"]
+        written = {fmt: [folder / p.relative_to(stage) for p in paths] for fmt, paths in staged.items()}
+        if "blend" in formats:
+            from reconstruction.review import write_review_blend
 
-        written["blend"] = write_review_blend(folder / "review.blend", sequence, cameras=cameras, texture=texture)
+            # saved in place, last: Blender makes the texture's path relative to where the file is
+            # saved, and only an error here (which discards the staged files) can still stop the export
+            written["blend"] = write_review_blend(folder / "review.blend", sequence, cameras=cameras, texture=texture)
     return written

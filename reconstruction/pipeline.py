@@ -25,6 +25,7 @@ file and in the sequence.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 from typing import Sequence
@@ -32,8 +33,8 @@ from typing import Sequence
 import numpy as np
 from tqdm import tqdm
 
-from assets.cameras import Camera
-from assets.fileio import load_json, save_json
+from assets.cameras import MAX_IMAGE_PIXELS, Camera
+from assets.fileio import load_json, safe_name, save_json
 from assets.garments import Template, load_template
 from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX,
                              crop_px_problem, keep_own_problem, neighbour_fit_problem)
@@ -160,18 +161,19 @@ def settings_of(out: str | Path) -> RunSettings:
 
 
 def _detection_path(out: Path, camera: Camera, frame: int) -> Path:
-    return out / "detections" / camera.name / f"f{frame:06d}.npz"
+    return out / "detections" / safe_name(camera.name, f"camera {camera.name!r}") / f"f{frame:06d}.npz"
 
 
 # ---- stages ------------------------------------------------------------------------------------
 
 def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None = None,
-           frames: Sequence[int] | None = None, device: str | None = None, progress: bool = True) -> list[int]:
+           frames: Sequence[int] | None = None, device: str | None = None, progress: bool = True,
+           max_image_pixels: int = MAX_IMAGE_PIXELS) -> list[int]:
     """Detections of every camera at every frame (or `frames`) into ``detections/``; returns the frames.
 
     views: one folder (or video) per camera (networks mode) or the factory capture folder
     (ground-truth mode); when `cameras` is None, the views folder's cameras.json is used (a factory
-    capture's, in either mode)."""
+    capture's, in either mode), its cameras' images at most `max_image_pixels`."""
     out = Path(out)
     settings = settings_of(out)
     if settings.detections == "groundtruth":
@@ -193,7 +195,7 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
         if cameras is None and (Path(views) / "cameras.json").is_file():  # a folder laid out as a capture
             from reconstruction.cameras import read_cameras
 
-            cameras = read_cameras(Path(views) / "cameras.json")
+            cameras = read_cameras(Path(views) / "cameras.json", max_image_pixels=max_image_pixels)
         if cameras is None:
             raise ValueError(f"the networks mode needs the cameras: give --cameras, or put cameras.json in {views}")
         opened = Views.open(views, cameras)
@@ -229,7 +231,8 @@ def _frames(available: Sequence[int], wanted: Sequence[int] | None, where: str |
 
 def detected_frames(out: Path, cameras: Sequence[Camera]) -> list[int]:
     """The frames every camera has detections for."""
-    per_camera = [{int(p.stem[1:]) for p in (out / "detections" / c.name).glob("f*.npz")} for c in cameras]
+    per_camera = [{int(p.stem[1:]) for p in (out / "detections" / c.name).glob("f*.npz") if p.stem[1:].isdigit()}
+                  for c in cameras]
     return sorted(set.intersection(*per_camera)) if per_camera else []
 
 
@@ -240,7 +243,7 @@ def stage_cameras(out: Path) -> list[Camera]:
     path = out / "detections" / "cameras.json"
     if not path.is_file():
         raise ValueError(f"{out}: no detections yet (run the detect stage first)")
-    return load_cameras(path)
+    return load_cameras(path, max_image_pixels=math.inf)  # written by the detect stage, which bounded them
 
 
 def triangulate(out: str | Path, template: Template | None = None, config=None, progress: bool = True) -> list[Path]:

@@ -104,6 +104,11 @@ class CapturedPoints:
     def load(cls, path: str | Path) -> "CapturedPoints":
         """Read a file written by `save`; shapes and dtypes are checked, naming the file."""
         data = load_npz(path, required=_ARRAYS + ("level_mm", "frame", "source"))
+        for name, kinds, what in (("level_mm", "iu", "an integer"), ("frame", "iu", "an integer"),
+                                  ("source", "U", "a string")):
+            if data[name].shape != () or data[name].dtype.kind not in kinds:
+                raise ValueError(f"{path}: {name}: expected {what}, got {data[name].dtype} of shape "
+                                 f"{data[name].shape}")
         try:
             return cls(level_mm=int(data["level_mm"]), frame=int(data["frame"]), source=str(data["source"]),
                        **{name: data[name] for name in _ARRAYS})

@@ -13,8 +13,10 @@ mapping camera name -> folder or video file.
   frame, from 0.
 
 Every camera must have the same frame numbers (the error lists what each camera misses) and images
-of its calibrated size (checked on the first frame when opening, and on every image read).
-Images are returned as (H, W, 3) uint8 RGB.
+of its calibrated size (checked on the first frame when opening, and on every image read, from the
+file's header before it is decoded, so a file claiming a huge image allocates nothing).  A JPEG
+without its end marker (a truncated file, which OpenCV would decode with a grey lower part) is
+refused.  Images are returned as (H, W, 3) uint8 RGB.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import Iterator, Mapping, Sequence
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from assets.cameras import Camera
 from reconstruction.cameras import validate_cameras
@@ -183,9 +186,7 @@ class Views:
             raise ValueError(f"frame {frame} is not among the views' frames {_ranges(self.frames)}")
         source, calibrated = self.sources[c], self.cameras[c]
         if isinstance(source, ImageFolder):
-            bgr = cv2.imread(str(source.files[frame]), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise ValueError(f"{source.files[frame]}: not a readable image")
+            bgr = _read_image(source.files[frame], calibrated)
         else:
             bgr = self._video_frame(c, source, frame)
         if bgr.shape[:2] != (calibrated.height, calibrated.width):
@@ -259,10 +260,39 @@ def _find(root: Path, name: str, index: int) -> Path:
 
 
 def _size_of(path: Path) -> tuple[int, int]:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
+    """(width, height) of an image file from its header, without decoding it."""
+    try:
+        with Image.open(path) as image:
+            return image.size
+    except Image.DecompressionBombError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    except (OSError, SyntaxError) as exc:  # Pillow reports some malformed headers as SyntaxError
+        raise ValueError(f"{path}: not a readable image ({exc})") from None
+
+
+def _read_image(path: Path, camera: Camera) -> np.ndarray:
+    """The (H, W, 3) uint8 BGR image at `path`, refused unless its header says `camera`'s size and,
+    for a JPEG, the file is complete."""
+    width, height = _size_of(path)
+    if (width, height) != (camera.width, camera.height):
+        raise ValueError(f"{path}: image is {width} x {height} pixels, camera {camera.name!r} is calibrated for "
+                         f"{camera.width} x {camera.height}")
+    if path.suffix.lower() in (".jpg", ".jpeg"):
+        _check_jpeg_complete(path)
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
         raise ValueError(f"{path}: not a readable image")
-    return image.shape[1], image.shape[0]
+    return bgr
+
+
+def _check_jpeg_complete(path: Path, tail: int = 4096) -> None:
+    """Raise unless the JPEG at `path` ends with its end-of-image marker (FF D9), ignoring the zero
+    padding some cameras append: libjpeg only warns about a truncated file and fills the rest grey."""
+    with open(path, "rb") as file:
+        file.seek(max(0, path.stat().st_size - tail))
+        end = file.read().rstrip(b"\0")
+    if not end.endswith(b"\xff\xd9"):
+        raise ValueError(f"{path}: truncated JPEG (no end-of-image marker FF D9 at the end of the file)")
 
 
 def _ranges(values: Sequence[int], limit: int = 8) -> str:
