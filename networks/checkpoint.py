@@ -13,6 +13,11 @@ float32}, one scale per output channel of each weight stored as int8 (all but `F
 task, which stay float32); `read_checkpoint` returns its weights dequantized to float32, so everything
 else reads it as any other.
 
+Everything read is checked before it is used, naming the file and the key: the record's entries
+must be of their kinds, every floating-point weight finite, every int8 weight paired with its scales,
+and the weights must fit the network the record describes, compared on torch's "meta" device before
+any of it is allocated (a record claiming a billion IDs costs nothing).
+
 The pattern record ties a checkpoint to the codebook its recognizer learned: loading with another
 pattern (another codebook, or other marker appearance) is refused.  The fabric's extent (rows, cols,
 origin) is not part of a marker's appearance and is not compared.
@@ -33,7 +38,7 @@ from torch import nn
 
 from assets.fileio import atomic_path
 from assets.pattern import PatternSpec, generate_codebook
-from networks.config import TrainConfig
+from networks.config import TASKS, TrainConfig
 from networks.tasks import build_model
 
 FORMAT = "clothcapture-networks"
@@ -190,9 +195,38 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
                if k not in data]
     if missing:
         raise ValueError(f"{path}: checkpoint lacks {', '.join(missing)}")
+    _check_record(data, path)
     if data.get("int8_scales"):
         data["model"] = dequantize_weights(data["model"], data["int8_scales"], source=str(path))
+    for key, value in data["model"].items():
+        if value.is_floating_point() and not torch.isfinite(value).all():
+            raise ValueError(f"{path}: model[{key!r}] holds non-finite values (NaN or inf)")
+        if value.dtype == torch.int8:
+            raise ValueError(f"{path}: model[{key!r}] is int8 without its scale in int8_scales")
     return data
+
+
+def _check_record(data: dict, path: Path) -> None:
+    """Raise ValueError naming `path` and the key for a checkpoint entry of the wrong kind."""
+    if data["task"] not in TASKS:
+        raise ValueError(f"{path}: task must be one of {', '.join(TASKS)}, got {data['task']!r}")
+    pattern = data["pattern"]
+    if not (isinstance(pattern, dict) and isinstance(pattern.get("spec"), dict)
+            and isinstance(pattern.get("codebook_hash"), str)):
+        raise ValueError(f"{path}: pattern must be {{'spec': a PatternSpec dict, 'codebook_hash': a string}}, "
+                         f"got {_describe(pattern) if isinstance(pattern, dict) else repr(pattern)[:80]}")
+    for key, least in (("num_ids", 1), ("crosspoints_per_side", 1), ("step", 0)):
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < least:
+            raise ValueError(f"{path}: {key} must be an integer >= {least}, got {value!r}")
+    for key in ("model", "int8_scales"):
+        tensors = data.get(key) or {}
+        if not isinstance(tensors, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
+                                                    for k, v in tensors.items()):
+            raise ValueError(f"{path}: {key} must map names to tensors, got {_describe(tensors)}")
+    for key, scale in (data.get("int8_scales") or {}).items():
+        if not scale.is_floating_point() or not (torch.isfinite(scale).all() and (scale > 0).all()):
+            raise ValueError(f"{path}: int8_scales[{key!r}] must hold finite scales > 0")
 
 
 def check_pattern(checkpoint: dict, spec: PatternSpec, source: str = "checkpoint") -> None:
@@ -226,14 +260,31 @@ def load_checkpoint(
         raise ValueError(f"{path}: task {data['task']!r} but config.task {config.task!r}")
     if spec is not None:
         check_pattern(data, spec, source=str(path))
-    model = build_model(data["task"], int(data["num_ids"]), int(data["crosspoints_per_side"]),
-                        crosspoint_margin_cells=config.crosspoint_margin_cells, recognizer_bend=config.recognizer_bend,
-                        crosspoint_bend=config.crosspoint_bend)
-    try:
-        model.load_state_dict(data["model"])
-    except RuntimeError as exc:
-        raise ValueError(f"{path}: the weights do not fit the {data['task']} network ({exc})") from exc
+    def build() -> nn.Module:
+        return build_model(data["task"], data["num_ids"], data["crosspoints_per_side"],
+                           crosspoint_margin_cells=config.crosspoint_margin_cells,
+                           recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend)
+
+    with torch.device("meta"):  # the network's shapes, nothing allocated
+        _check_fit(build().state_dict(), data["model"], f"{path}: the weights do not fit the {data['task']} network")
+    model = build()
+    model.load_state_dict(data["model"])
     return model.to(device).eval(), config, data
+
+
+def _check_fit(expected: dict[str, torch.Tensor], given: dict[str, torch.Tensor], where: str) -> None:
+    """Raise ValueError (`where`: ...) unless `given` has exactly `expected`'s keys and shapes, with a
+    floating-point tensor wherever `expected` has one."""
+    missing, unexpected = sorted(set(expected) - set(given)), sorted(set(given) - set(expected))
+    if missing or unexpected:
+        raise ValueError(f"{where}: missing {missing[:5]} ({len(missing)}), unexpected {unexpected[:5]} "
+                         f"({len(unexpected)})")
+    for key, value in expected.items():
+        if given[key].shape != value.shape:
+            raise ValueError(f"{where}: model[{key!r}] has shape {tuple(given[key].shape)}, the network's is "
+                             f"{tuple(value.shape)}")
+        if value.is_floating_point() and not given[key].is_floating_point():
+            raise ValueError(f"{where}: model[{key!r}] is {given[key].dtype}, the network expects floating point")
 
 
 def slim_checkpoint(source: str | Path, target: str | Path, dtype: torch.dtype | None = torch.bfloat16) -> Path:

@@ -616,8 +616,7 @@ class ShardDataset(_Items, Dataset):
         if not self.parts:
             raise ValueError(f"{self.root}: no finished part_NNNNN folders; write some with "
                              "`python -m networks.synth write`")
-        key = SHARD_ARRAYS[task][0]
-        counts = [len(np.load(part / f"{key}.npy", mmap_mode="r")) for part in self.parts]
+        counts = [len(next(iter(open_shard_part(part, task).values()))) for part in self.parts]
         self._starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self.codebook = generate_codebook(self.spec) if task == "crosspoints" else None
         self.crosspoint_crop = crosspoint_crop(shard_margin_cells(self.meta))
@@ -632,8 +631,7 @@ class ShardDataset(_Items, Dataset):
 
     def _part(self, number: int) -> dict[str, np.ndarray]:
         if number not in self._open:
-            self._open[number] = {name: np.load(self.parts[number] / f"{name}.npy", mmap_mode="r")
-                                  for name in SHARD_ARRAYS[self.task]}
+            self._open[number] = open_shard_part(self.parts[number], self.task)
         return self._open[number]
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
@@ -645,6 +643,27 @@ class ShardDataset(_Items, Dataset):
             return self._item(index, image=row["image"], cells=row["cells"])
         return self._item(index, crop=row["crop"], marker_id=row["marker_id"], xy=row.get("xy"),
                           visible=row.get("visible"))
+
+
+def open_shard_part(part: Path, task: str) -> dict[str, np.ndarray]:
+    """The arrays `SHARD_ARRAYS[task]` of one shard part, memory-mapped (only their headers are read);
+    ValueError naming the file when one is missing, unreadable or of another length than the first."""
+    arrays: dict[str, np.ndarray] = {}
+    for name in SHARD_ARRAYS[task]:
+        path = part / f"{name}.npy"
+        try:
+            array = np.load(path, mmap_mode="r", allow_pickle=False)
+        except FileNotFoundError:
+            raise ValueError(f"{path}: missing (a {task} part holds {', '.join(SHARD_ARRAYS[task])})") from None
+        except (OSError, EOFError, ValueError) as exc:
+            raise ValueError(f"{path}: not a readable .npy array ({exc})") from None
+        if array.ndim == 0:
+            raise ValueError(f"{path}: a single value, expected one row per item")
+        first = next(iter(arrays.values()), array)
+        if len(array) != len(first):
+            raise ValueError(f"{path}: {len(array)} items, the part's {SHARD_ARRAYS[task][0]}.npy has {len(first)}")
+        arrays[name] = array
+    return arrays
 
 
 def shard_margin_cells(meta: dict) -> int:
