@@ -37,8 +37,8 @@ def load_body(spec: str) -> BodyModel:
     """A body from a CLI-style spec: 'default' or the path of a body file (SMPL-family or saved model)."""
     if spec == "default":
         return default_body()
-    from assets.body.smpl import read_model_file
+    from assets.fileio import npz_headers
 
-    if str(spec).endswith(".npz") and "joint_shape_dirs" in read_model_file(spec):
+    if str(spec).endswith(".npz") and "joint_shape_dirs" in npz_headers(spec):
         return BodyModel.load(spec)  # written by BodyModel.save
     return load_smpl(spec)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from assets.fileio import load_npz, save_npz
+from assets.fileio import check_limit, load_npz, npz_headers, save_npz
 from assets.rotations import rotvec_to_matrix
 
 SMPL_JOINT_NAMES = (
@@ -42,6 +42,11 @@ NUM_SMPL_JOINTS = 24
 #: SMPL+H and SMPL-X share SMPL's first 22 joints (the body without the two hand joints).
 NUM_BODY_JOINTS = 22
 
+#: Default bounds on what a body file may declare, checked before its arrays are decompressed (vertices:
+#: ten times SMPL-X's 10,475; faces: four per vertex).
+MAX_VERTICES = 100_000
+MAX_JOINTS = 200
+MAX_SHAPE_DIRS = 1024
 _FRAMES_PER_CHUNK = 64  # bounds the (frames, V, 12) skinning buffer to tens of MB
 
 
@@ -261,9 +266,11 @@ class BodyModel:
         save_npz(path, arrays)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "BodyModel":
-        """Read a model written by `save`; errors name the file."""
+    def load(cls, path: str | os.PathLike, max_vertices: int = MAX_VERTICES) -> "BodyModel":
+        """Read a model written by `save`; errors name the file.  The arrays' shapes are checked from
+        the file's headers (at most `max_vertices` vertices) before anything is decompressed."""
         path = Path(path)
+        _check_saved_shapes(npz_headers(path), path, max_vertices)
         arrays = load_npz(path, required=("meta", "faces", "parents", "weights", "template", "shape_dirs",
                                           "joint_template", "joint_shape_dirs", "default_betas"))
         try:
@@ -293,3 +300,26 @@ class BodyModel:
 
     def replace(self, **changes) -> "BodyModel":
         return dataclasses.replace(self, **changes)
+
+
+def _check_saved_shapes(headers: dict[str, tuple[tuple[int, ...], np.dtype]], path: Path, max_vertices: int) -> None:
+    """Refuse the shapes of a saved model's arrays (.npy headers) unless they fit together and stay within
+    the vertex, joint and shape-direction bounds; missing arrays are `load_npz`'s to report."""
+    shapes = {k: shape for k, (shape, _) in headers.items()}
+    if not all(len(shapes.get(k, (0,) * n)) == n for k, n in (("template", 2), ("parents", 1), ("shape_dirs", 3))):
+        raise ValueError(f"{path}: template, parents and shape_dirs must be 2-, 1- and 3-D arrays")
+    v = shapes.get("template", (0,))[0]
+    j = shapes.get("parents", (0,))[0]
+    s = shapes.get("shape_dirs", (0,))[0]
+    check_limit(v, max_vertices, "the vertex count (template)", str(path), "max_vertices")
+    check_limit(j, MAX_JOINTS, "the joint count (parents)", str(path), f"MAX_JOINTS ({__name__})")
+    check_limit(s, MAX_SHAPE_DIRS, "the shape direction count (shape_dirs)", str(path), f"MAX_SHAPE_DIRS ({__name__})")
+    expect = {"faces": (None, 3), "weights": (v, j), "shape_dirs": (s, v, 3), "joint_template": (j, 3),
+              "joint_shape_dirs": (s, j, 3), "default_betas": (None,), "pose_dirs": ((j - 1) * 9, v, 3), "meta": ()}
+    for key, want in expect.items():
+        got = shapes.get(key)
+        if got is not None and (len(got) != len(want) or any(w is not None and w != g for w, g in zip(want, got))):
+            raise ValueError(f"{path}: {key} has shape {got}, expected {tuple('*' if w is None else w for w in want)}")
+    check_limit(shapes.get("faces", (0,))[0], 4 * max_vertices, "the face count (faces)", str(path), "max_vertices")
+    check_limit(shapes.get("default_betas", (0,))[0], MAX_SHAPE_DIRS, "the beta count (default_betas)", str(path),
+                f"MAX_SHAPE_DIRS ({__name__})")
