@@ -61,13 +61,16 @@ from assets.fileio import load_json
 from assets.garments.sewing import (
     Curve,
     Edge,
+    MAX_PANEL_M,
     Panel,
     PatternError,
     Placement,
     Seam,
     SeamSide,
     SewingPattern,
+    edge_hull,
     parse_floats,
+    pattern_name,
     polygon_area,
     validate,
 )
@@ -80,6 +83,9 @@ GC_EULER = "xyz"  # GarmentCode `rotation`: R = Rz Ry Rx (extrinsic x, then y, t
 WORLD_EULER = "xyz"  # our Placement.rotation_deg: XYZ Euler about the world axes (Blender's XYZ mode)
 _FLIP_Y = np.diag([-1.0, 1.0, -1.0])  # 180 degrees about the panel's local Y axis
 _SPACING = 0.005  # metres between outline samples for normals and centres
+#: (min, max) metres a whole garment may span: the default bodies stand 1.3 to 1.9 m tall, so a garment
+#: outside this range was converted with the wrong `units_in_meter`
+GARMENT_EXTENT_M = (0.1, 2.5)
 
 #: (keywords, body part or None if it depends on side/facing); the first matching row wins
 _BODY_PART_RULES = (
@@ -112,17 +118,22 @@ class _Draft:
         return points @ self.rotation[:, :2].T + self.translation
 
 
-def load_garmentcode(path: str | Path) -> SewingPattern:
+def load_garmentcode(path: str | Path, extent_m: tuple[float, float] = GARMENT_EXTENT_M,
+                     max_panel_m: float = MAX_PANEL_M) -> SewingPattern:
     """Read a GarmentCode specification JSON file as a validated SewingPattern (metres, Z up)."""
     try:
         data = load_json(path)
     except ValueError as exc:
         raise PatternError(str(exc)) from None
-    return garmentcode_from_dict(data, source=str(path))
+    return garmentcode_from_dict(data, str(path), extent_m, max_panel_m)
 
 
-def garmentcode_from_dict(data: Any, source: str = "garmentcode") -> SewingPattern:
-    """Convert a parsed GarmentCode specification; errors name `source`, the panel and the edge."""
+def garmentcode_from_dict(data: Any, source: str = "garmentcode", extent_m: tuple[float, float] = GARMENT_EXTENT_M,
+                          max_panel_m: float = MAX_PANEL_M) -> SewingPattern:
+    """Convert a parsed GarmentCode specification; errors name `source`, the panel and the edge.
+
+    extent_m: (min, max) metres the converted garment may span (`GARMENT_EXTENT_M`: a wrong
+    `units_in_meter` is refused, not converted 100 times too large); max_panel_m: `validate`'s."""
     if not isinstance(data, dict) or not isinstance(data.get("pattern"), dict):
         raise PatternError(f"{source}: not a GarmentCode specification (no 'pattern' object)")
     raw_panels = data["pattern"].get("panels")
@@ -140,9 +151,15 @@ def garmentcode_from_dict(data: Any, source: str = "garmentcode") -> SewingPatte
     if coords not in ("relative", "absolute"):
         raise PatternError(f"{source}: properties.curvature_coords must be 'relative' or 'absolute', got {coords!r}")
 
-    order = [n for n in data["pattern"].get("panel_order") or [] if n in raw_panels]
+    panel_order = data["pattern"].get("panel_order") or []
+    if not isinstance(panel_order, list):
+        raise PatternError(f"{source}: 'pattern.panel_order' must be a list of panel names")
+    order = [n for n in panel_order if isinstance(n, str) and n in raw_panels]
     order += [n for n in raw_panels if n not in order]
+    for n in order:
+        pattern_name(n, f"{source}: pattern.panels name")
     drafts = {n: _read_panel(raw_panels[n], float(units), coords, f"{source}: panel '{n}'", n) for n in order}
+    _check_extent(drafts, units, extent_m, source)
 
     outlines = {n: d.to_world(d.panel().outline(_SPACING)) for n, d in drafts.items()}
     everything = np.concatenate(list(outlines.values()))
@@ -162,10 +179,25 @@ def garmentcode_from_dict(data: Any, source: str = "garmentcode") -> SewingPatte
     if not isinstance(raw_stitches, list):
         raise PatternError(f"{source}: 'pattern.stitches' must be a list")
     seams = tuple(_read_stitch(s, drafts, f"{source}: stitch #{i}") for i, s in enumerate(raw_stitches))
-    name = Path(source).stem.removesuffix("_specification")
+    name = pattern_name(Path(source).stem.removesuffix("_specification"), f"{source}: file name")
     pattern = SewingPattern(name=name, panels=tuple(panels), seams=seams)
-    validate(pattern, source)
+    validate(pattern, source, max_panel_m)
     return pattern
+
+
+def _check_extent(drafts: dict[str, _Draft], units: float, extent_m: tuple[float, float], source: str) -> None:
+    """Refuse a garment whose placed panels span less or more than `extent_m` (metres), before its
+    outlines are sampled: the bounding box of every edge's hull (`edge_hull`) in world space."""
+    hulls = [d.to_world(np.concatenate([edge_hull(d.panel(), k) for k in range(len(d.edges))]))
+             for d in drafts.values()]
+    size = float(np.ptp(np.concatenate(hulls), axis=0).max())
+    low, high = extent_m
+    if not low <= size <= high:
+        verdict = "too small" if size < low else "too large"
+        raise PatternError(
+            f"{source}: properties.units_in_meter={units:g} makes the garment {size:,.4g} m across, {verdict} "
+            f"for a body 1.3 to 1.9 m tall (expected {low:g} to {high:g} m; GarmentCode writes centimetres, "
+            "units_in_meter 100); pass extent_m if this is intended")
 
 
 # ---- panels ------------------------------------------------------------------------------------
@@ -315,7 +347,7 @@ def _read_stitch(raw: Any, drafts: dict[str, _Draft], where: str) -> Seam:
     reverse = not (len(raw) == 3 and raw[2] == "right_wrong")  # GarmentCode's Seam.swap
     for side in raw[:2]:
         panel, k = side.get("panel"), side.get("edge")
-        if panel not in drafts:
+        if not isinstance(panel, str) or panel not in drafts:
             raise PatternError(f"{where}: no panel {panel!r}")
         draft = drafts[panel]
         if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k < len(draft.edges):

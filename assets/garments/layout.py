@@ -121,7 +121,9 @@ class SheetLayout:
             )
             return cls(PatternSpec.from_dict(data["spec"], source), float(data["dpi"]),
                        tuple(int(v) for v in data["size_px"]), panels)
-        except (KeyError, TypeError) as exc:
+        except (KeyError, TypeError, ValueError) as exc:
+            if str(exc).startswith(source):  # a PatternSpec's own error names the source already
+                raise
             raise ValueError(f"{source}: malformed layout ({exc!r})") from exc
 
 

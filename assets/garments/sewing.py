@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from assets.fileio import load_json, save_json
+from assets.fileio import load_json, safe_name, save_json
+from assets.polylines import first_crossing
 
 log = logging.getLogger(__name__)
 
@@ -58,8 +59,10 @@ BODY_PARTS = (
 #: seams whose two edges differ in length by more than this fraction are rejected (ease is a few %)
 SEAM_LENGTH_TOLERANCE = 0.25
 _SAMPLES_PER_CURVE = 256
-#: outline points closer than this fraction of the panel's size to a segment's line are on it
-_ON_LINE = 1e-9
+#: no panel reaches further across than this (metres) unless the loader is told `max_panel_m`
+MAX_PANEL_M = 3.0
+#: the self-crossing check samples an outline with at most about this many points (plus one per edge)
+_CHECK_POINTS = 20_000
 
 
 class PatternError(ValueError):
@@ -155,17 +158,22 @@ class SewingPattern:
 
     # ---- JSON ----------------------------------------------------------------------------------
     @classmethod
-    def from_dict(cls, data: Any, source: str = "pattern") -> "SewingPattern":
+    def from_dict(cls, data: Any, source: str = "pattern", max_panel_m: float = MAX_PANEL_M) -> "SewingPattern":
+        """The pattern of a parsed JSON object; PatternError naming `source` and the field of any
+        problem.  max_panel_m: the largest extent a panel may reach (`check_panel_size`)."""
         if not isinstance(data, dict):
             raise PatternError(f"{source}: expected a JSON object")
-        name = str(data.get("name", Path(source).stem))
+        name = pattern_name(data.get("name", Path(source).stem), f"{source}: name")
         raw_panels = data.get("panels")
         if not isinstance(raw_panels, list) or not raw_panels:
             raise PatternError(f"{source}: 'panels' must be a non-empty list")
+        raw_seams = data.get("seams", [])
+        if not isinstance(raw_seams, list):
+            raise PatternError(f"{source}: 'seams' must be a list, got {type(raw_seams).__name__}")
         panels = tuple(_panel_from_dict(p, f"{source}: panel #{i}") for i, p in enumerate(raw_panels))
-        seams = tuple(_seam_from_dict(s, f"{source}: seam #{i}") for i, s in enumerate(data.get("seams", [])))
+        seams = tuple(_seam_from_dict(s, f"{source}: seam #{i}") for i, s in enumerate(raw_seams))
         pattern = cls(name=name, panels=panels, seams=seams)
-        validate(pattern, source)
+        validate(pattern, source, max_panel_m)
         return pattern
 
     def to_dict(self) -> dict[str, Any]:
@@ -180,8 +188,8 @@ class SewingPattern:
         }
 
     @classmethod
-    def load(cls, path: str | Path) -> "SewingPattern":
-        return cls.from_dict(load_json(path), source=str(path))
+    def load(cls, path: str | Path, max_panel_m: float = MAX_PANEL_M) -> "SewingPattern":
+        return cls.from_dict(load_json(path), str(path), max_panel_m)
 
     def save(self, path: str | Path) -> None:
         save_json(path, self.to_dict())
@@ -251,43 +259,42 @@ def _bezier(p0: np.ndarray, p3: np.ndarray, control: np.ndarray, t: np.ndarray) 
     return (1 - t) ** 3 * p0 + 3 * (1 - t) ** 2 * t * c1 + 3 * (1 - t) * t**2 * c2 + t**3 * p3
 
 
-def _segments_cross(points: np.ndarray) -> tuple[int, int] | None:
-    """First pair (i, j), i < j, of non-adjacent segments of the closed polyline (P, 2) that cross or
-    touch, or None; segment i runs points[i] -> points[i + 1].  A point within `_ON_LINE` of the
-    polyline's size from a segment's line counts as on it: the orientation of exactly collinear samples
-    (two pieces of one straight edge) is float rounding, about 1e-17 m to either side of the line, and
-    no evidence of a crossing."""
-    n = len(points)
-    a, b = points, np.roll(points, -1, axis=0)
-    tolerance = _ON_LINE * float(np.ptp(points, axis=0).max())
-    # only segments whose bounding boxes overlap can meet: a few per segment instead of all n^2 pairs
-    low, high = np.minimum(a, b) - tolerance, np.maximum(a, b) + tolerance
-    (low_x, low_y), (high_x, high_y) = low.T, high.T
-    overlap = ((low_x[:, None] <= high_x) & (low_x <= high_x[:, None])
-               & (low_y[:, None] <= high_y) & (low_y <= high_y[:, None]))
-    i, j = np.nonzero(np.triu(overlap, k=2))  # j >= i + 2: neither the segment itself nor the next one
-    keep = ~((i == 0) & (j == n - 1))  # the last segment is adjacent to the first
-    i, j = i[keep], j[keep]
+def edge_hull(panel: Panel, k: int) -> np.ndarray:
+    """(m, 2) points whose bounding box holds edge k, without sampling it: a Bezier lies in the hull of
+    its control points; every point of an arc is within sqrt((chord / 2)^2 + sagitta^2) of the chord's
+    midpoint (minor arcs stay in the chord-by-sagitta rectangle, major ones in their circle)."""
+    start, end = panel.vertices[k], panel.vertices[(k + 1) % len(panel.vertices)]
+    curve = panel.edges[k].curve
+    if curve.type == "arc":
+        reach = math.hypot(float(np.linalg.norm(end - start)) / 2, curve.sagitta)
+        return (start + end) / 2 + reach * np.array([[-1.0, -1.0], [1.0, 1.0]])
+    return np.concatenate([[start, end], np.reshape(curve.control, (-1, 2))])
 
-    def side_and_on(k: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Side of segment k's line each point p is on (-1, 0 on the line, 1), and whether p is on the
-        segment itself; k (m,), p (m, 2)."""
-        direction, offset = b[k] - a[k], p - a[k]
-        length = np.linalg.norm(direction, axis=1)
-        distance = (direction[:, 0] * offset[:, 1] - direction[:, 1] * offset[:, 0]) / length
-        along = np.einsum("md,md->m", direction, offset) / length
-        side = np.where(np.abs(distance) <= tolerance, 0.0, np.sign(distance))
-        return side, (side == 0) & (along >= -tolerance) & (along <= length + tolerance)
 
-    (side_ja, on_ja), (side_jb, on_jb) = side_and_on(i, a[j]), side_and_on(i, b[j])
-    (side_ia, on_ia), (side_ib, on_ib) = side_and_on(j, a[i]), side_and_on(j, b[i])
-    hit = ((side_ja * side_jb < 0) & (side_ia * side_ib < 0)) | on_ja | on_jb | on_ia | on_ib
-    first = np.flatnonzero(hit)
-    return (int(i[first[0]]), int(j[first[0]])) if len(first) else None
+def check_panel_size(panel: Panel, where: str, max_panel_m: float = MAX_PANEL_M) -> None:
+    """Refuse a panel whose outline may reach more than `max_panel_m` across (an arc of a huge
+    sagitta, a control point far away, vertices in the wrong unit) before anything samples it; the
+    error names the edge reaching furthest."""
+    hulls = [edge_hull(panel, k) for k in range(len(panel.edges))]
+    size = float(np.ptp(np.concatenate(hulls), axis=0).max())
+    if size <= max_panel_m:
+        return
+    widest = max(range(len(hulls)), key=lambda k: float(np.ptp(hulls[k], axis=0).max()))
+    raise PatternError(f"{where}, edge '{panel.edges[widest].name}': the panel reaches up to {size:,.4g} m across, "
+                       f"above the limit of {max_panel_m:g} m (check the edge's sagitta or control points and the "
+                       "units); raise max_panel_m if this is intended")
+
+
+def pattern_name(name: Any, source: str) -> str:
+    """`name` if it can be part of a file name (`safe_name`), else PatternError naming `source`."""
+    try:
+        return safe_name(name, source)
+    except ValueError as exc:
+        raise PatternError(str(exc)) from None
 
 
 # ---- validation --------------------------------------------------------------------------------
-def validate(pattern: SewingPattern, source: str = "pattern") -> None:
+def validate(pattern: SewingPattern, source: str = "pattern", max_panel_m: float = MAX_PANEL_M) -> None:
     """Raise PatternError naming the panel and edge of the first problem found."""
     names = [p.name for p in pattern.panels]
     if len(set(names)) != len(names):
@@ -305,8 +312,11 @@ def validate(pattern: SewingPattern, source: str = "pattern") -> None:
             curve = edge.curve
             if curve.type == "arc" and not abs(curve.sagitta) > 1e-9:
                 raise PatternError(f"{where}, edge '{edge.name}': arc needs a non-zero sagitta")
-        outline = panel.outline(max(1e-3, math.sqrt(abs(polygon_area(panel.vertices)) + 1e-12) / 200))
-        crossing = _segments_cross(outline)
+        check_panel_size(panel, where, max_panel_m)
+        length = sum(panel.edge_length(k) for k in range(len(panel.edges)))
+        outline = panel.outline(max(1e-3, math.sqrt(abs(polygon_area(panel.vertices)) + 1e-12) / 200,
+                                    length / _CHECK_POINTS))
+        crossing = first_crossing(outline)
         if crossing is not None:
             raise PatternError(f"{where}: outline crosses or touches itself (near {outline[crossing[0]].round(4).tolist()})")
         if polygon_area(outline) <= 0:
@@ -345,16 +355,26 @@ def validate(pattern: SewingPattern, source: str = "pattern") -> None:
 
 # ---- dict conversion ---------------------------------------------------------------------------
 def parse_floats(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
-    """`value` as a finite float64 array of `shape` (-1: any length), or PatternError naming `where`."""
+    """`value` as read from JSON, nested lists of JSON numbers (not strings, booleans or null), as a
+    finite float64 array of `shape` (-1: any length); else PatternError naming `where`."""
+    raw = np.asarray(value, dtype=object)  # ragged lists stay lists: refused by the shape test
+    if raw.ndim != len(shape) or any(s != -1 and s != a for s, a in zip(shape, raw.shape)):
+        raise PatternError(f"{where}: expected numbers of shape {shape}, got {_short(value)}")
+    kinds = np.asarray(np.frompyfunc(type, 1, 1)(raw))
+    if not ((kinds == int) | (kinds == float)).all():  # type(True) is bool, not int
+        raise PatternError(f"{where}: expected numbers, got {_short(value)}")
     try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise PatternError(f"{where}: expected numbers, got {value!r}") from None
-    if array.ndim != len(shape) or any(s != -1 and s != a for s, a in zip(shape, array.shape)):
-        raise PatternError(f"{where}: expected shape {shape}, got {array.shape}")
+        array = raw.astype(np.float64)
+    except OverflowError:
+        raise PatternError(f"{where}: number too large in {_short(value)}") from None
     if not np.isfinite(array).all():
         raise PatternError(f"{where}: not finite")
     return array
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _curve_from_dict(data: Any, where: str) -> Curve:
@@ -373,6 +393,7 @@ def _curve_from_dict(data: Any, where: str) -> Curve:
 def _panel_from_dict(data: Any, where: str) -> Panel:
     if not isinstance(data, dict) or not isinstance(data.get("name"), str):
         raise PatternError(f"{where}: needs a string 'name'")
+    pattern_name(data["name"], f"{where}: name")
     where = where.split(": panel #")[0] + f": panel '{data['name']}'"
     vertices = parse_floats(data.get("vertices"), (-1, 2), f"{where}: vertices")
     raw_edges = data.get("edges")
@@ -417,9 +438,17 @@ def _panel_to_dict(panel: Panel) -> dict[str, Any]:
 
 
 def _seam_from_dict(data: Any, where: str) -> Seam:
-    try:
-        a, b = data["a"], data["b"]
-        return Seam(SeamSide(str(a["panel"]), str(a["edge"])), SeamSide(str(b["panel"]), str(b["edge"])),
-                    bool(data.get("reverse", True)))
-    except (KeyError, TypeError):
-        raise PatternError(f'{where}: expected {{"a": {{"panel", "edge"}}, "b": {{"panel", "edge"}}, "reverse"}}') from None
+    expected = '{"a": {"panel": name, "edge": name}, "b": {"panel": name, "edge": name}, "reverse": true or false}'
+    if not isinstance(data, dict):
+        raise PatternError(f"{where}: expected {expected}")
+    sides = []
+    for key in ("a", "b"):
+        side = data.get(key)
+        if not (isinstance(side, dict) and isinstance(side.get("panel"), str) and isinstance(side.get("edge"), str)):
+            raise PatternError(f"{where}: '{key}' must be {{\"panel\": name, \"edge\": name}} (strings), got "
+                               f"{_short(side)}; expected {expected}")
+        sides.append(SeamSide(side["panel"], side["edge"]))
+    reverse = data.get("reverse", True)
+    if not isinstance(reverse, bool):  # "false" and 0 would read as true or be guessed at
+        raise PatternError(f"{where}: 'reverse' must be true or false (a JSON boolean), got {reverse!r}")
+    return Seam(sides[0], sides[1], reverse)

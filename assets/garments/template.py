@@ -37,6 +37,17 @@ from assets.pattern.spec import PatternSpec
 
 LEVELS_MM = (12, 4, 2, 1)
 _LEVEL_KEYS = ("pattern_xy", "panel", "faces", "flags", "uv", "crosspoint", "seam_pairs", "seam")
+#: a level array's shape (V vertices, F faces, S seam pairs, -1 any) and numpy dtype kinds
+_LEVEL_LAYOUT = {
+    "pattern_xy": (("V", 2), "f"),
+    "panel": (("V",), "iu"),
+    "faces": ((-1, 3), "iu"),
+    "flags": (("V",), "iu"),
+    "uv": (("V", 2), "f"),
+    "crosspoint": (("V",), "iu"),
+    "seam_pairs": ((-1, 2), "iu"),
+    "seam": (("S",), "iu"),
+}
 
 
 @dataclass(frozen=True)
@@ -211,18 +222,62 @@ class Template:
 
     @classmethod
     def load(cls, path: str | Path) -> "Template":
+        """A saved template; its pattern and layout are checked now, each level's arrays when it is
+        first read (`_read_level`).  Errors name the file and the array."""
         path = Path(path)
         data = load_npz(path, only=("pattern_json", "layout_json", "levels_mm"))
-        pattern = SewingPattern.from_dict(json.loads(data["pattern_json"].tobytes()), f"{path}:pattern_json")
-        layout = SheetLayout.from_dict(json.loads(data["layout_json"].tobytes()), f"{path}:layout_json")
-        return cls(pattern, layout, source=path, stored=tuple(int(v) for v in data["levels_mm"]))
+        pattern = SewingPattern.from_dict(_json(data["pattern_json"], f"{path}: pattern_json"), f"{path}: pattern_json")
+        layout = SheetLayout.from_dict(_json(data["layout_json"], f"{path}: layout_json"), f"{path}: layout_json")
+        if [p.name for p in layout.panels] != [p.name for p in pattern.panels]:
+            raise ValueError(f"{path}: layout_json lays out panels {[p.name for p in layout.panels]}, "
+                             f"pattern_json has {[p.name for p in pattern.panels]}")
+        levels = data["levels_mm"]
+        if levels.ndim != 1 or levels.dtype.kind not in "iu" or (levels <= 0).any():
+            raise ValueError(f"{path}: levels_mm must be a list of positive whole millimetres, got {levels!r}")
+        return cls(pattern, layout, source=path, stored=tuple(int(v) for v in levels))
 
     def _read_level(self, spacing_mm: int) -> Level | None:
         if spacing_mm not in self._stored:
             return None
         keys = tuple(f"L{spacing_mm}/{k}" for k in _LEVEL_KEYS)
         data = load_npz(self._source, only=keys)
-        return Level(spacing_mm, *(data[k] for k in keys))
+        arrays = {k: data[f"L{spacing_mm}/{k}"] for k in _LEVEL_KEYS}
+        _check_level(arrays, len(self.pattern.panels), len(self.pattern.seams), f"{self._source}: L{spacing_mm}")
+        return Level(spacing_mm, **arrays)
+
+
+def _check_level(arrays: dict[str, np.ndarray], num_panels: int, num_seams: int, source: str) -> None:
+    """Refuse level arrays of the wrong shape or dtype, or whose indices point past what they index
+    (a face past the vertices would fail deep inside every consumer); errors name `source`/array."""
+    xy = arrays["pattern_xy"]
+    sizes = {"V": len(xy) if xy.ndim else -1, "S": len(arrays["seam_pairs"]) if arrays["seam_pairs"].ndim else -1}
+    for key, (shape, kinds) in _LEVEL_LAYOUT.items():
+        array = arrays[key]
+        wanted = tuple(sizes.get(s, s) for s in shape)
+        if (array.dtype.kind not in kinds or array.ndim != len(wanted)
+                or any(w != -1 and w != a for w, a in zip(wanted, array.shape))):
+            named = "x".join(str(s) for s in shape).replace("-1", "any")
+            raise ValueError(f"{source}/{key}: expected {named} of dtype kind {kinds} (V = {sizes['V']} vertices, "
+                             f"S = {sizes['S']} seam pairs), got {array.shape} {array.dtype}")
+    for key in ("pattern_xy", "uv"):
+        if not np.isfinite(arrays[key]).all():
+            raise ValueError(f"{source}/{key}: not finite")
+    bounds = {"faces": (0, sizes["V"]), "seam_pairs": (0, sizes["V"]), "panel": (0, num_panels),
+              "seam": (0, num_seams), "crosspoint": (-1, np.iinfo(np.int64).max)}
+    for key, (low, high) in bounds.items():
+        array = arrays[key]
+        if array.size and not (low <= array.min() and array.max() < high):
+            raise ValueError(f"{source}/{key}: values must be in [{low}, {high}), found {array.min()} .. {array.max()}")
+
+
+def _json(array: np.ndarray, source: str) -> object:
+    """JSON text stored as a uint8 array, parsed; ValueError naming `source` if it is not."""
+    if array.ndim != 1 or array.dtype != np.uint8:
+        raise ValueError(f"{source}: expected JSON text as bytes (uint8), got {array.shape} {array.dtype}")
+    try:
+        return json.loads(array.tobytes())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{source}: not valid JSON ({exc})") from None
 
 
 def _text(s: str) -> np.ndarray:
