@@ -25,7 +25,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from assets.fileio import atomic_path
+from assets.fileio import atomic_path, safe_name
 
 FORMAT = "clothcapture-weights"
 VERSION = 1
@@ -70,11 +70,16 @@ def read_manifest(root: Path) -> dict:
         raise ValueError(f"{path}: not JSON ({exc})") from exc
     if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("version") != VERSION:
         raise ValueError(f"{path}: not a {FORMAT} manifest of version {VERSION}")
-    for task, entry in data.get("weights", {}).items():
-        missing = [k for k in ("file", "commit", "sha256", "bytes") if k not in entry]
+    weights = data.get("weights", {})
+    if not isinstance(weights, dict):
+        raise ValueError(f"{path}: weights must be an object of task: entry")
+    for task, entry in weights.items():
+        missing = [k for k in ("file", "commit", "sha256", "bytes") if k not in entry] if isinstance(entry, dict) \
+            else ["file", "commit", "sha256", "bytes"]
         if task not in TASKS or missing:
             raise ValueError(f"{path}: weights[{task!r}] " + (f"lacks {', '.join(missing)}" if missing
                                                              else f"is not one of {', '.join(TASKS)}"))
+        safe_name(entry["file"], f"{path}: weights[{task!r}].file")  # `fetch` writes it into its --out
     return data
 
 

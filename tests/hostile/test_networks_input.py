@@ -119,3 +119,18 @@ def test_a_damaged_shard_part_is_refused_when_the_folder_is_opened(shard_folder,
         np.save(cells, np.load(cells)[:1])
     with pytest.raises(ValueError, match=words):
         ShardDataset(root, "localizer")
+
+
+@pytest.mark.hostile("outside")
+@pytest.mark.parametrize("file", ["../../escaped.pt", "/tmp/escaped.pt", ".git"])
+def test_a_weights_manifest_naming_a_file_outside_the_fetch_folder_is_refused(tmp_path, file):
+    import json
+
+    from networks.weights import FORMAT, MANIFEST, VERSION, read_manifest
+
+    (tmp_path / MANIFEST).parent.mkdir(parents=True)
+    entry = {"file": file, "commit": "0" * 40, "sha256": "0" * 64, "bytes": 1}
+    (tmp_path / MANIFEST).write_text(json.dumps({"format": FORMAT, "version": VERSION,
+                                                 "weights": {"localizer": entry}}))
+    with pytest.raises(ValueError, match=r"weights.json: weights\['localizer'\].file: name .* cannot be a file name"):
+        read_manifest(tmp_path)
