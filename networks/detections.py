@@ -14,7 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from assets.arrays import check_fields
-from assets.fileio import load_npz, save_npz
+from assets.fileio import check_limit, load_npz, npz_headers, save_npz
+
+#: the most bytes one image's detections may expand to (a real one is a few MB: about 5 kB a marker)
+MAX_BYTES = 2**30
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,9 +97,12 @@ class Detections:
         save_npz(path, self.to_dict())
 
     @classmethod
-    def load(cls, path: str | Path) -> "Detections":
+    def load(cls, path: str | Path, max_bytes: int = MAX_BYTES) -> "Detections":
         """Read detections written by `save`; shapes and dtypes are checked, naming the file.  A file
-        without id_support (written before it existed) reads as not voted (-1)."""
+        without id_support (written before it existed) reads as not voted (-1).  A file whose arrays
+        would expand to more than `max_bytes` is refused before any is decompressed."""
+        size = sum(int(np.prod(shape, dtype=np.float64)) * dtype.itemsize for shape, dtype in npz_headers(path).values())
+        check_limit(size, max_bytes, "the arrays' size in bytes", str(path), "Detections.load(max_bytes=...)")
         names = tuple(f.name for f in fields(cls))
         data = load_npz(path, required=tuple(n for n in names if n != "id_support"))
         try:

@@ -155,3 +155,24 @@ def test_an_export_that_fails_part_way_leaves_the_previous_export_whole(tmp_path
     with pytest.raises(OSError, match="No space left"):
         export.export_sequence(folder, changed, formats=formats, progress=False)
     assert files_under(folder) == before  # no new npz, OBJ or PLY beside the old point cache, no staging left
+
+
+@pytest.mark.hostile("memory")
+def test_detections_that_would_expand_to_gigabytes_are_refused_before_decompressing(tmp_path):
+    import io
+    import zipfile
+
+    from networks.detections import Detections
+
+    path = tmp_path / "f000000.npz"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, array in Detections.empty(5).to_dict().items():
+            buffer = io.BytesIO()
+            if name == "crosspoints_px":  # 10^8 markers' crosspoints: 20 GB, claimed by a header of 128 bytes
+                np.lib.format.write_array_header_1_0(buffer, {"descr": "<f4", "fortran_order": False,
+                                                              "shape": (10**8, 5, 5, 2)})
+            else:
+                np.save(buffer, array)
+            archive.writestr(f"{name}.npy", buffer.getvalue())
+    with pytest.raises(ValueError, match="f000000.npz: the arrays' size in bytes .*max_bytes"):
+        Detections.load(path)
