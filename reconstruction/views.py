@@ -287,7 +287,8 @@ def _read_image(path: Path, camera: Camera) -> np.ndarray:
 
 def _check_jpeg_complete(path: Path, tail: int = 4096) -> None:
     """Raise unless the JPEG at `path` ends with its end-of-image marker (FF D9), ignoring the zero
-    padding some cameras append: libjpeg only warns about a truncated file and fills the rest grey."""
+    padding (within the last `tail` bytes) some cameras append: libjpeg only warns about a truncated
+    file and fills the rest grey."""
     with open(path, "rb") as file:
         file.seek(max(0, path.stat().st_size - tail))
         end = file.read().rstrip(b"\0")
