@@ -4,8 +4,9 @@
     python -m assets.pattern --out out/small --rows 4 --cols 6 --dpi 150
     python -m assets.pattern --out out/shirt --panels panels.json     # print only inside panel outlines
 
-The folder gets pattern.png, preview.png, marker_table.npz/.json (and reference_textures.npz), then
-spec.json last: a folder is finished when its spec.json exists (a rerun removes it first).
+The folder gets pattern.png, preview.png, marker_table.npz/.json (and reference_textures.npz) and
+spec.json, all replaced together: a run that fails (a bad argument, a full disk) leaves the folder as
+it was.
 """
 
 from __future__ import annotations
@@ -21,9 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from assets.cli import run_cli
-from assets.fileio import load_json, save_npz
+from assets.fileio import check_limit, load_json, save_npz, staged_outputs
+from assets.pattern.codebook import MAX_NUM_IDS, generate_codebook
 from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures
-from assets.pattern.raster import panel_bounds, render_region, validate_polygons, write_png
+from assets.pattern.raster import MAX_PIXELS, panel_bounds, region_shape, render_region, validate_polygons, write_png
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import MarkerTable
 
@@ -63,6 +65,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--margin-mm", type=float, default=10.0, help="border around the panels' bounding box")
     parser.add_argument("--preview-px", type=int, default=2048, help="longest side of preview.png")
+    parser.add_argument("--max-pixels", type=float, default=MAX_PIXELS,
+                        help="refuse a pattern.png of more pixels than this (its memory: 3 bytes a pixel, twice)")
+    parser.add_argument("--max-ids", type=int, default=MAX_NUM_IDS,
+                        help="refuse a spec of more codebook IDs (num_ids) than this (the search costs num_ids squared)")
     parser.add_argument(
         "--reference-textures",
         action="store_true",
@@ -72,6 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def spec_from_args(args: argparse.Namespace) -> PatternSpec:
+    """The spec of --spec and the flags that override it; a ValueError names the file or flag."""
     spec = PatternSpec.load(args.spec) if args.spec else PatternSpec()
     overrides = {
         "pitch_mm": args.pitch_mm,
@@ -80,35 +87,70 @@ def spec_from_args(args: argparse.Namespace) -> PatternSpec:
         "seed": args.seed,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
-    if args.fabric_m is not None:
-        if args.rows is not None or args.cols is not None:
-            raise ValueError("give either --fabric-m or --rows/--cols, not both")
-        return PatternSpec.covering(*args.fabric_m, **{**spec.to_dict(), **overrides})
-    return dataclasses.replace(spec, **overrides) if overrides else spec
+    flags = "/".join(f"--{k.replace('_', '-')}" for k in overrides) or "--spec"
+    try:
+        if args.fabric_m is not None:
+            if args.rows is not None or args.cols is not None:
+                raise ValueError("give either --fabric-m or --rows/--cols, not both")
+            spec = PatternSpec.covering(*args.fabric_m, **{**spec.to_dict(), **overrides})
+        elif overrides:
+            spec = dataclasses.replace(spec, **overrides)
+    except ValueError as exc:
+        raise ValueError(f"{flags}{'/--fabric-m' if args.fabric_m is not None else ''}: {exc}") from None
+    check_limit(spec.num_ids, args.max_ids, "num_ids (codebook size; its search costs num_ids squared)",
+                str(args.spec or "PatternSpec"), "--max-ids")
+    return spec
 
 
 def load_panels(path: Path) -> list[np.ndarray]:
+    """The polygons of a --panels file, each (K, 2) float64 from JSON numbers (not strings)."""
     data = load_json(path)
     polygons = data.get("polygons") if isinstance(data, dict) else data
     if not isinstance(polygons, list) or not polygons:
         raise ValueError(f'{path}: expected {{"polygons": [[[x, y], ...], ...]}} with at least one polygon')
-    try:
-        return [np.asarray(p, dtype=np.float64) for p in polygons]
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: polygons must be lists of [x, y] numbers ({exc})") from exc
+    arrays = []
+    for i, polygon in enumerate(polygons):
+        try:
+            array = np.asarray(polygon)
+        except ValueError:  # ragged
+            array = np.zeros(0)
+        if array.dtype.kind not in "iuf" or array.ndim != 2 or array.shape[1:] != (2,):
+            raise ValueError(f"{path}: polygons[{i}] must be a list of [x, y] numbers, got {str(polygon)[:80]}")
+        arrays.append(array.astype(np.float64))
+    return arrays
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Refuse bad numbers among the arguments before anything is computed or written."""
+    if not (math.isfinite(args.dpi) and args.dpi > 0):
+        raise ValueError(f"--dpi must be a positive number, got {args.dpi}")
+    if args.preview_px < 16:
+        raise ValueError(f"--preview-px must be >= 16, got {args.preview_px}")
+    if not (math.isfinite(args.margin_mm) and args.margin_mm >= 0):
+        raise ValueError(f"--margin-mm must be a number >= 0, got {args.margin_mm}")
 
 
 def run(args: argparse.Namespace) -> dict[str, Path]:
-    """Do the work of the CLI; returns the files written."""
+    """Do the work of the CLI; returns the files written.  Every argument is checked first, and the
+    files are replaced together (`staged_outputs`)."""
+    check_arguments(args)
     spec = spec_from_args(args)
     polygons = validate_polygons(spec, load_panels(args.panels), str(args.panels)) if args.panels else []
-    if args.dpi <= 0 or args.preview_px < 16:
-        raise ValueError("--dpi must be > 0 and --preview-px >= 16")
-    out: Path = args.out
-    t0 = time.perf_counter()
-    table = MarkerTable.build(spec)
-    log.info("codebook and marker table: %d markers in %.1f s", table.num_markers, time.perf_counter() - t0)
     bounds = panel_bounds(polygons, args.margin_mm * 1e-3) if polygons else spec.fabric_bounds
+    height, width = region_shape(bounds, args.dpi)
+    check_limit(width * height, args.max_pixels, f"pattern.png ({width:,} x {height:,} px at {args.dpi:g} DPI) in "
+                "pixels", "--dpi", "--max-pixels")
+    with staged_outputs(args.out) as out:
+        files = write_outputs(args, spec, polygons, bounds, out)
+    return {name: args.out / path.name for name, path in files.items()}
+
+
+def write_outputs(args: argparse.Namespace, spec: PatternSpec, polygons: list[np.ndarray],
+                  bounds: tuple[float, float, float, float], out: Path) -> dict[str, Path]:
+    """Render and write every file of the folder into `out`; returns them by role."""
+    t0 = time.perf_counter()
+    table = MarkerTable.build(spec, generate_codebook(spec, args.max_ids))
+    log.info("codebook and marker table: %d markers in %.1f s", table.num_markers, time.perf_counter() - t0)
     files = {
         "spec": out / "spec.json",
         "pattern": out / "pattern.png",
@@ -116,9 +158,6 @@ def run(args: argparse.Namespace) -> dict[str, Path]:
         "summary": out / "marker_table.json",
         "preview": out / "preview.png",
     }
-    # spec.json marks a finished folder: removed before anything is written and written last, so a run
-    # stopped midway (cancelled, failed) leaves no spec that does not describe the files beside it
-    files["spec"].unlink(missing_ok=True)
     image = render_region(table, bounds, args.dpi, polygons, progress=True)
     log.info("pattern %d x %d px at %g DPI", image.shape[1], image.shape[0], args.dpi)
     write_png(files["pattern"], image, args.dpi)

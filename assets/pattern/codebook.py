@@ -18,11 +18,15 @@ import logging
 
 import numpy as np
 
+from assets.fileio import check_limit
 from assets.pattern.spec import PatternSpec, fixed_modules
 
 log = logging.getLogger(__name__)
 
 _BATCH = 2048
+#: codebook size generated unless told otherwise: the search compares each candidate batch with every
+#: accepted code, so its time grows with num_ids^2 (4,096 IDs take about 1.4 s)
+MAX_NUM_IDS = 16_384
 #: free-module fill fraction allowed, so no marker is nearly blank or nearly solid
 _BALANCE = (0.3, 0.7)
 
@@ -55,11 +59,13 @@ def self_rotation_distance(grids: np.ndarray) -> np.ndarray:
     return (rot[:, 1:] != grids[:, None]).sum(axis=(2, 3)).min(axis=1).astype(np.int32)
 
 
-def generate_codebook(spec: PatternSpec) -> np.ndarray:
+def generate_codebook(spec: PatternSpec, max_ids: int = MAX_NUM_IDS) -> np.ndarray:
     """(spec.num_ids, n, n) uint8 module grids; row k is marker ID k.  Deterministic in `spec.seed`.
 
     Generated once per spec in a process (about 1.4 s for 4,096 IDs) and cached; each call returns
-    its own copy."""
+    its own copy.  A spec of more than `max_ids` IDs is refused before the search starts."""
+    check_limit(spec.num_ids, max_ids, "num_ids (codebook size; its search costs num_ids squared)", "PatternSpec",
+                "max_ids= (--max-ids of python -m assets.pattern)")
     return _cached_codebook(spec).copy()
 
 

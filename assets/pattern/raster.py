@@ -27,10 +27,15 @@ from PIL import Image
 from tqdm import tqdm
 
 from assets.fileio import atomic_path
+from assets.polylines import first_crossing
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import MarkerTable
 
 _METRES_PER_INCH = 0.0254
+#: the largest image a CLI renders unless told otherwise (`--max-pixels`): the default 32 x 32 marker
+#: fabric at 300 DPI is 18,142 px square (329 Mpx) and a garment sheet at 300 DPI under 300 Mpx; an
+#: image costs 3 bytes a pixel, about twice over while it is written
+MAX_PIXELS = 600_000_000
 _STRIP_ROWS = 256
 _SUBPIXEL_BITS = 8  # OpenCV polygon coordinates are fixed point with this many fractional bits
 
@@ -196,7 +201,8 @@ def render_region(
 
 
 def validate_polygons(spec: PatternSpec, polygons_xy: Sequence[np.ndarray], source: str = "polygons") -> list[np.ndarray]:
-    """Check panel outlines: each (K >= 3, 2) finite metres inside the fabric; return float64 copies."""
+    """Check panel outlines: each (K >= 3, 2) finite metres inside the fabric, not crossing itself;
+    return float64 copies."""
     xmin, ymin, xmax, ymax = spec.fabric_bounds
     out = []
     for i, polygon in enumerate(polygons_xy):
@@ -209,6 +215,10 @@ def validate_polygons(spec: PatternSpec, polygons_xy: Sequence[np.ndarray], sour
                 f"{source}[{i}]: extends outside the fabric's marker grid "
                 f"[{xmin:.4f}, {xmax:.4f}] x [{ymin:.4f}, {ymax:.4f}] m; enlarge rows/cols or move origin_xy"
             )
+        crossing = first_crossing(p)
+        if crossing is not None:
+            raise ValueError(f"{source}[{i}]: the outline crosses or touches itself (segments from points "
+                             f"{crossing[0]} and {crossing[1]}); a panel is one simple polygon")
         out.append(p)
     return out
 

@@ -28,6 +28,11 @@ RGB = tuple[int, int, int]
 
 #: Edge length of the orientation finder and of each centre-checker quadrant, in cells.
 FEATURE_CELLS = 4
+#: crosspoint pitches (mm) that are printable cloth: finer lines blur into the weave, and a coarser
+#: marker is wider than the fabric
+PITCH_RANGE_MM = (0.5, 50.0)
+#: the largest marker: a codebook search compares every pair of module grids
+MAX_CROSSPOINTS_PER_SIDE = 97
 
 
 @dataclass(frozen=True)
@@ -59,13 +64,15 @@ class PatternSpec:
     def __post_init__(self) -> None:
         cells = self.crosspoints_per_side - 1
         problems = []
-        if not self.pitch_mm > 0:
-            problems.append(f"pitch_mm must be > 0, got {self.pitch_mm}")
-        if cells < 4 * FEATURE_CELLS or cells % 2:
+        if not PITCH_RANGE_MM[0] <= self.pitch_mm <= PITCH_RANGE_MM[1]:
+            problems.append(f"pitch_mm must be in [{PITCH_RANGE_MM[0]:g}, {PITCH_RANGE_MM[1]:g}] mm, got {self.pitch_mm}")
+        if cells < 4 * FEATURE_CELLS or cells % 2 or self.crosspoints_per_side > MAX_CROSSPOINTS_PER_SIDE:
             problems.append(
-                f"crosspoints_per_side must be odd and >= {4 * FEATURE_CELLS + 1}, "
+                f"crosspoints_per_side must be odd and in [{4 * FEATURE_CELLS + 1}, {MAX_CROSSPOINTS_PER_SIDE}], "
                 f"got {self.crosspoints_per_side}"
             )
+        if self.seed < 0:
+            problems.append(f"seed must be >= 0, got {self.seed}")
         if self.cells_per_module not in (1, 2, 4) or cells % self.cells_per_module:
             problems.append(
                 f"cells_per_module must be 1, 2 or 4 and divide {cells}, got {self.cells_per_module}"
@@ -162,11 +169,15 @@ class PatternSpec:
         for name, value in data.items():
             default = getattr(cls, name)
             if isinstance(default, tuple):
-                if not isinstance(value, (list, tuple)) or len(value) != len(default):
-                    raise ValueError(f"{source}: field {name} must be a list of {len(default)} numbers")
+                kind = type(default[0])  # colours are whole numbers, origin_xy any numbers
+                if (not isinstance(value, (list, tuple)) or len(value) != len(default)
+                        or not all(_is_number(v, kind) for v in value)):
+                    raise ValueError(f"{source}: field {name} must be a list of {len(default)} "
+                                     f"{'whole ' if kind is int else ''}numbers, got {value!r}")
                 value = tuple(value)
-            elif isinstance(default, (int, float)) and not isinstance(value, (int, float)):
-                raise ValueError(f"{source}: field {name} must be a number, got {value!r}")
+            elif not _is_number(value, type(default)):
+                raise ValueError(f"{source}: field {name} must be a {'whole ' if type(default) is int else ''}"
+                                 f"number, got {value!r}")
             kwargs[name] = value
         try:
             return cls(**kwargs)
@@ -179,6 +190,14 @@ class PatternSpec:
     @classmethod
     def load(cls, path: str | Path) -> "PatternSpec":
         return cls.from_dict(load_json(path), source=str(path))
+
+
+def _is_number(value: object, kind: type) -> bool:
+    """`value` is a JSON number of `kind`: int for whole-number fields, else any finite number;
+    booleans are not numbers here."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return isinstance(value, int) if kind is int else math.isfinite(value)
 
 
 def fixed_modules(spec: PatternSpec) -> tuple[np.ndarray, np.ndarray]:

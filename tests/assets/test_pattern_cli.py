@@ -1,3 +1,4 @@
+import errno
 import json
 import math
 
@@ -63,15 +64,18 @@ def test_bad_input_is_reported_and_keeps_earlier_output(tmp_path, capsys):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
-def test_a_run_stopped_midway_leaves_no_spec_beside_other_files(tmp_path, capsys):
+def test_a_run_stopped_midway_leaves_the_earlier_folder_whole(tmp_path, capsys, monkeypatch):
     out = tmp_path / "out"
     assert main(["--out", str(out), *ARGS]) == 0
-    (out / "preview.png").unlink()
-    (out / "preview.png").mkdir()  # the preview cannot be written: the run fails after the new pattern.png
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    def full_disk(*args):  # written after the new pattern.png
+        raise OSError(errno.ENOSPC, "marker_table.npz: disk full while writing")
+
+    monkeypatch.setattr(MarkerTable, "save", full_disk)
     assert main(["--out", str(out), *ARGS, "--seed", "5"]) == 2
-    assert "preview.png" in capsys.readouterr().err
-    assert not (out / "spec.json").exists()  # the old spec does not describe the new pattern.png
-    (out / "preview.png").rmdir()
+    assert "marker_table.npz" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    monkeypatch.undo()
     assert main(["--out", str(out), *ARGS, "--seed", "5"]) == 0
     assert json.loads((out / "spec.json").read_text())["seed"] == 5
     assert MarkerTable.load(out / "marker_table.npz").spec.seed == 5
