@@ -148,6 +148,8 @@ class BodyModel:
         A linear space takes the first B betas given (missing ones are 0, as SMPL does); a grid needs
         every beta inside its anchors' range."""
         betas = self.default_betas if betas is None else np.asarray(betas, dtype=np.float64).ravel()
+        if not np.isfinite(betas).all():
+            raise ValueError(f"body model {self.name!r}: betas must be finite numbers, got {betas}")
         if self.shape_anchors is None:
             coef = np.zeros(self.num_betas)
             n = min(len(betas), self.num_betas)

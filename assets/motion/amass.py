@@ -16,18 +16,15 @@ within about 2 cm for adult shapes).
 
 from __future__ import annotations
 
-import logging
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from assets.body.model import NUM_BODY_JOINTS, BodyModel
-from assets.motion.motion import NUM_HAND_JOINTS, Motion
+from assets.fileio import load_npz, npz_headers
+from assets.motion.motion import MAX_BETAS, MAX_FRAMES, NUM_HAND_JOINTS, Motion, check_finite, check_fps, check_frames
 from assets.rotations import Y_UP_TO_Z_UP, conjugate_rotvec, matrix_to_rotvec, rotvec_to_matrix
-
-log = logging.getLogger(__name__)
 
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate", "fps")
 #: Width of AMASS's per-frame pose vector -> the model family it was fitted with.
@@ -37,36 +34,41 @@ SMPL_PELVIS_OFFSET = np.array([-0.0018, -0.2233, 0.0282])
 _HAND_START = {"smplh": 66, "smplx": 75}
 
 
-def _read(path: Path) -> dict[str, np.ndarray]:
+def _read(path: Path, max_frames: int) -> dict[str, np.ndarray]:
+    """The numeric arrays of an AMASS file, the frame count and the shape size checked from the
+    headers before anything is decompressed."""
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such AMASS file")
-    out = {}
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            for key in data.files:
-                try:
-                    out[key] = data[key]
-                except ValueError:  # an object array: needs pickle, which untrusted files do not get
-                    log.warning("%s: ignoring %r (a pickled object array)", path, key)
-    except (OSError, zipfile.BadZipFile, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
-    return out
+    headers = npz_headers(path)
+    for key in ("poses", "trans"):
+        if key in headers and headers[key][0]:
+            check_frames(headers[key][0][0], f"{path}: {key}", max_frames)
+    for key in ("poses", "trans"):
+        if key in headers and int(np.prod(headers[key][0][1:])) > max(POSE_WIDTHS):
+            raise ValueError(f"{path}: {key} has shape {headers[key][0]}; AMASS frames hold at most {max(POSE_WIDTHS)} values")
+    for key, most in [("betas", MAX_BETAS), ("gender", 64)] + [(k, 1) for k in FPS_KEYS]:
+        if key in headers and int(np.prod(headers[key][0])) > most:
+            raise ValueError(f"{path}: {key} has shape {headers[key][0]}, expected at most {most} values")
+    wanted = ("poses", "trans", "betas", "gender") + FPS_KEYS
+    readable = tuple(k for k in wanted if k in headers and headers[k][1].kind in "biufSU")
+    return load_npz(path, only=readable)
 
 
 def _gender(value: np.ndarray | None) -> str:
-    if value is None:
+    if value is None or value.size == 0:
         return "neutral"
     text = value.item() if value.ndim == 0 else value.ravel()[0]
     text = text.decode("latin1") if isinstance(text, bytes) else str(text)
     return text.strip().lower() or "neutral"
 
 
-def read_amass(path: str | os.PathLike, body: BodyModel | None = None) -> Motion:
+def read_amass(path: str | os.PathLike, body: BodyModel | None = None, max_frames: int = MAX_FRAMES) -> Motion:
     """Read an AMASS `.npz` as a `Motion` (Z up, trans = pelvis position); see the module docstring.
 
-    `body`: the capture model (from `load_smpl`) for the exact pelvis offset of the file's betas."""
+    `body`: the capture model (from `load_smpl`) for the exact pelvis offset of the file's betas;
+    `max_frames`: the most frames the file may hold (checked before decompression)."""
     path = Path(path)
-    data = _read(path)
+    data = _read(path, max_frames)
     missing = [k for k in ("poses", "trans") if k not in data]
     fps_key = next((k for k in FPS_KEYS if k in data), None)
     if fps_key is None:
@@ -74,16 +76,23 @@ def read_amass(path: str | os.PathLike, body: BodyModel | None = None) -> Motion
     if missing:
         raise ValueError(f"{path}: not an AMASS motion, missing {', '.join(missing)}")
     poses, trans = data["poses"], data["trans"]
-    if poses.ndim != 2 or poses.shape[1] not in POSE_WIDTHS:
-        raise ValueError(f"{path}: poses must be (T, 72), (T, 156) or (T, 165), got {poses.shape}")
+    if poses.ndim != 2 or poses.shape[1] not in POSE_WIDTHS or poses.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: poses must be (T, 72), (T, 156) or (T, 165) numbers, got {poses.shape} {poses.dtype}")
     frames = len(poses)
-    if trans.shape != (frames, 3):
-        raise ValueError(f"{path}: trans must be ({frames}, 3) to match poses, got {trans.shape}")
-    fps = float(np.asarray(data[fps_key]).ravel()[0]) if np.asarray(data[fps_key]).size else 0.0
-    if not fps > 0:
-        raise ValueError(f"{path}: {fps_key} must be a positive frame rate, got {data[fps_key]!r}")
+    if frames == 0:
+        raise ValueError(f"{path}: poses has no frames")
+    if trans.shape != (frames, 3) or trans.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: trans must be ({frames}, 3) numbers to match poses, got {trans.shape} {trans.dtype}")
+    rate = data[fps_key]
+    if rate.size != 1 or rate.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: {fps_key} must be one number, got {rate.shape} {rate.dtype}")
+    fps = check_fps(float(rate.ravel()[0]), f"{path}: {fps_key}")
     family = POSE_WIDTHS[poses.shape[1]]
-    betas = np.asarray(data.get("betas", np.zeros(0)), dtype=np.float64).ravel()
+    betas = data.get("betas", np.zeros(0))
+    if betas.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: betas must be numbers, got {betas.dtype}")
+    betas = betas.astype(np.float64).ravel()
+    check_finite({"poses": poses, "trans": trans, "betas": betas}, str(path))
     gender = _gender(data.get("gender"))
 
     c = Y_UP_TO_Z_UP

@@ -34,7 +34,7 @@ import numpy as np
 from assets.body.default import default_body
 from assets.body.model import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, BodyModel
 from assets.motion.ground import grounded_trans
-from assets.motion.motion import SIMULATION_FPS, Motion
+from assets.motion.motion import MAX_FRAMES, SIMULATION_FPS, Motion, check_fps, check_frames
 from assets.rotations import matrix_to_rotvec, rotvec_to_matrix
 
 X, Y, Z = 0, 1, 2
@@ -461,10 +461,12 @@ def builtin_motion(
     speed: float = 1.0,
     amplitude: float = 1.0,
     body: BodyModel | None = None,
+    max_frames: int = MAX_FRAMES,
 ) -> Motion:
     """The built-in motion `name` (see `BUILTIN_MOTIONS`) over `seconds` (None: its default) at `fps`,
     with cycles `speed` times as fast and excursions scaled by `amplitude` (>= 0).  The root path is
-    grounded on `body` (None: the default body); frames ``round(seconds * fps) + 1``."""
+    grounded on `body` (None: the default body); frames ``round(seconds * fps) + 1``, at most
+    `max_frames`."""
     if name not in BUILTIN_MOTIONS:
         raise ValueError(f"unknown built-in motion {name!r}; known: {', '.join(list_builtin_motions())}")
     entry = BUILTIN_MOTIONS[name]
@@ -472,6 +474,8 @@ def builtin_motion(
     for label, value in (("seconds", seconds), ("fps", fps), ("speed", speed)):
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"built-in motion {name!r}: {label} must be positive, got {value}")
+    fps = check_fps(fps, f"built-in motion {name!r}")
+    check_frames(round(seconds * fps) + 1, f"built-in motion {name!r} over {seconds:g} s at {fps:g} Hz", max_frames)
     frames = int(round(seconds * fps)) + 1
     if frames < 2:
         raise ValueError(f"built-in motion {name!r}: {seconds} s at {fps} Hz is less than one frame interval")

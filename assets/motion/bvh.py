@@ -47,9 +47,11 @@ from scipy.spatial.transform import Rotation
 
 from assets.body.default import default_body
 from assets.body.model import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, SMPL_PARENTS, BodyModel
-from assets.motion.motion import Motion
+from assets.motion.motion import MAX_FRAMES, Motion, check_finite, check_fps, check_frames
 from assets.rotations import Y_UP_TO_Z_UP, align_vectors, matrix_to_rotvec
 
+#: The most joints (End Sites included) a BVH skeleton may have; CMU's has 38.
+MAX_BVH_JOINTS = 500
 CHANNEL_NAMES = tuple(f"{axis}{kind}" for kind in ("position", "rotation") for axis in "XYZ")
 
 #: SMPL joint -> (source joint, source joint at the far end of the SMPL joint's bone, or None), for the
@@ -184,6 +186,8 @@ class _Hierarchy:
     def joint(self, name: str, line: int, parent: int, end_site: bool = False) -> None:
         if name in self.names:
             raise self.error(line, f"joint name {name!r} used twice")
+        if len(self.names) == MAX_BVH_JOINTS:  # also bounds the recursion depth
+            raise self.error(line, f"more than {MAX_BVH_JOINTS} joints and end sites")
         index = len(self.names)
         self.names.append(name)
         self.parents.append(parent)
@@ -231,8 +235,9 @@ def _header_value(path: Path, lines: list[str], index: int, pattern: str, what: 
         raise ValueError(f"{path}: line {index + 1}: expected {what!r}") from None
 
 
-def parse_bvh(path: str | os.PathLike) -> BvhData:
-    """Read a BVH file (see the module docstring); ValueError naming the file and line on bad input."""
+def parse_bvh(path: str | os.PathLike, max_frames: int = MAX_FRAMES) -> BvhData:
+    """Read a BVH file (see the module docstring); ValueError naming the file and line on bad input,
+    or when it declares more than `max_frames` frames or a frame rate outside `check_fps`'s range."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such BVH file")
@@ -247,6 +252,8 @@ def parse_bvh(path: str | os.PathLike) -> BvhData:
     frame_time = _header_value(path, lines, motion_at + 2, r"Frame\s+Time:\s*(\S+)", "Frame Time: <seconds>", float)
     if not (frames > 0 and frame_time > 0):
         raise ValueError(f"{path}: needs a positive Frames count and Frame Time, got {frames} and {frame_time:g}")
+    check_frames(frames, f"{path}: Frames", max_frames)
+    check_fps(1.0 / frame_time, f"{path}: Frame Time {frame_time:g} s")
     width = sum(len(c) for c in hierarchy.channels)
     rows = [(n, line.split()) for n, line in enumerate(lines[motion_at + 3 :], motion_at + 4) if line.strip()]
     bad = next(((n, len(row)) for n, row in rows if len(row) != width), None)
@@ -260,6 +267,7 @@ def parse_bvh(path: str | os.PathLike) -> BvhData:
         raise ValueError(f"{path}: motion data: {exc}") from None
 
     offsets = np.array(hierarchy.offsets, dtype=np.float64)
+    check_finite({"OFFSET": offsets, "motion data": values}, str(path))
     translations = np.repeat(offsets[None], frames, axis=0)
     rotations = np.repeat(np.eye(3)[None, None], frames, axis=0).repeat(len(offsets), axis=1)
     column = 0
@@ -435,7 +443,8 @@ def retarget_to_smpl(
     )
 
 
-def read_bvh(path: str | os.PathLike, body: BodyModel | None = None, **options) -> Motion:
-    """Parse a BVH file and retarget it onto `body`; `options` go to `retarget_to_smpl` (up, scale,
-    mapping).  The CMU skeleton (Y up) is the default."""
-    return retarget_to_smpl(parse_bvh(path), body, **options)
+def read_bvh(path: str | os.PathLike, body: BodyModel | None = None, max_frames: int = MAX_FRAMES,
+             **options) -> Motion:
+    """Parse a BVH file (at most `max_frames` frames) and retarget it onto `body`; `options` go to
+    `retarget_to_smpl` (up, scale, mapping).  The CMU skeleton (Y up) is the default."""
+    return retarget_to_smpl(parse_bvh(path, max_frames), body, **options)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from assets.body.model import NUM_BODY_JOINTS, NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, BodyModel, PosedBody
-from assets.fileio import load_npz, save_npz
+from assets.fileio import check_limit, load_npz, npz_headers, save_npz
 from assets.rotations import quat_to_rotvec, rotvec_to_quat, slerp
 
 #: The reference simulates at the motion-capture rate: timestep 1/120 s.
@@ -30,6 +30,31 @@ TRANSITION_SECONDS = 1.0
 #: The A-pose lowers each arm from the T-pose by this angle (degrees).
 A_POSE_ARM_DEG = 45.0
 NUM_HAND_JOINTS = 30
+#: Frame rates a motion may have (Hz): below or above is a broken file, not a capture.
+MIN_FPS, MAX_FPS = 1.0, 1000.0
+#: Default bound on a motion's frame count, ten minutes at the simulation rate (`max_frames` raises it).
+MAX_FRAMES = int(SIMULATION_FPS * 600)
+#: The most shape values a motion carries (SMPL-X's 300 shape and 100 expression components).
+MAX_BETAS = 400
+
+
+def check_fps(fps: float, source: str) -> float:
+    """`fps` as a float if it lies in [MIN_FPS, MAX_FPS], else a ValueError naming `source`."""
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise ValueError(f"{source}: frame rate {fps:g} Hz is outside {MIN_FPS:g} to {MAX_FPS:g} Hz")
+    return float(fps)
+
+
+def check_frames(count: int, source: str, max_frames: int = MAX_FRAMES) -> None:
+    """Refuse a frame count above `max_frames` before the frames are allocated."""
+    check_limit(count, max_frames, "the frame count", source, "--max-frames (max_frames=)")
+
+
+def check_finite(arrays: dict[str, np.ndarray], source: str) -> None:
+    """Refuse NaN or infinite values, naming `source` and the field."""
+    for field, array in arrays.items():
+        if array is not None and not np.isfinite(array).all():
+            raise ValueError(f"{source}: {field} holds NaN or infinite values")
 
 
 def dressing_pose(name: str = "T") -> np.ndarray:
@@ -76,15 +101,12 @@ class Motion:
             raise ValueError(f"{label}: trans must be ({len(poses)}, 3), got {trans.shape}")
         if len(poses) == 0:
             raise ValueError(f"{label}: has no frames")
-        if not np.isfinite(poses).all() or not np.isfinite(trans).all():
-            raise ValueError(f"{label}: poses or trans contain NaN or infinity")
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"{label}: fps must be positive, got {self.fps}")
-        if self.hand_poses is not None:
-            hands = np.asarray(self.hand_poses, dtype=np.float64)
-            if hands.shape != (len(poses), NUM_HAND_JOINTS, 3):
-                raise ValueError(f"{label}: hand_poses must be ({len(poses)}, {NUM_HAND_JOINTS}, 3), got {hands.shape}")
-            object.__setattr__(self, "hand_poses", hands)
+        check_fps(self.fps, label)
+        hands = None if self.hand_poses is None else np.asarray(self.hand_poses, dtype=np.float64)
+        if hands is not None and hands.shape != (len(poses), NUM_HAND_JOINTS, 3):
+            raise ValueError(f"{label}: hand_poses must be ({len(poses)}, {NUM_HAND_JOINTS}, 3), got {hands.shape}")
+        object.__setattr__(self, "hand_poses", hands)
+        check_finite({"poses": poses, "trans": trans, "betas": self.betas, "hand_poses": hands}, label)
 
     @property
     def num_frames(self) -> int:
@@ -121,10 +143,19 @@ class Motion:
         save_npz(path, arrays)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Motion":
-        """Read a motion written by `save`; errors name the file."""
+    def load(cls, path: str | os.PathLike, max_frames: int = MAX_FRAMES) -> "Motion":
+        """Read a motion written by `save`; errors name the file.  The frame count is checked against
+        `max_frames` from the file's headers, before anything is decompressed."""
         path = Path(path)
-        arrays = load_npz(path, required=("poses", "trans", "fps"))
+        headers = npz_headers(path)
+        for key in ("poses", "trans", "hand_poses"):
+            if key in headers and headers[key][0]:
+                check_frames(headers[key][0][0], f"{path}: {key}", max_frames)
+        for key, most in (("betas", MAX_BETAS), ("fps", 1), ("meta", 1)):
+            if key in headers and int(np.prod(headers[key][0])) > most:
+                raise ValueError(f"{path}: {key} has shape {headers[key][0]}, expected at most {most} values")
+        known = tuple(k for k in ("poses", "trans", "fps", "betas", "meta", "hand_poses") if k in headers)
+        arrays = load_npz(path, required=("poses", "trans", "fps"), only=known)
         try:
             meta = json.loads(str(arrays["meta"])) if "meta" in arrays else {}
             return cls(
@@ -138,21 +169,22 @@ class Motion:
                 name=meta.get("name", path.stem),
                 source=meta.get("source", str(path)),
             )
-        except (ValueError, TypeError, json.JSONDecodeError) as exc:
+        except (ValueError, TypeError, AttributeError, json.JSONDecodeError) as exc:
             raise ValueError(f"{path}: {exc}") from exc
 
 
-def resample(motion: Motion, fps: float = SIMULATION_FPS) -> Motion:
+def resample(motion: Motion, fps: float = SIMULATION_FPS, max_frames: int = MAX_FRAMES) -> Motion:
     """The motion at `fps` over the same time span (to the nearest frame): joint rotations by
     quaternion slerp between the two nearest source frames, root positions linearly.  The first
-    frame is kept exactly."""
-    if fps <= 0:
-        raise ValueError(f"fps must be positive, got {fps}")
+    frame is kept exactly; more than `max_frames` frames are refused before they are allocated."""
+    source = f"resampling motion {motion.name!r}"
+    fps = check_fps(fps, source)
     if motion.num_frames == 1 or fps == motion.fps:
-        return motion.replace(fps=float(fps))
+        return motion.replace(fps=fps)
     # Round (not floor) the span so a 1/120.0048 s BVH frame time does not lose the last frame; the
     # last sample may then land up to half a frame past the end and holds the last pose.
     count = int(np.round(motion.duration * fps)) + 1
+    check_frames(count, f"{source} from {motion.fps:g} to {fps:g} Hz", max_frames)
     position = np.minimum(np.arange(count) * (motion.fps / fps), motion.num_frames - 1)  # in source frames
     lo = np.minimum(np.floor(position).astype(int), motion.num_frames - 2)
     frac = position - lo
@@ -172,17 +204,21 @@ def with_transition(
     pose: str | np.ndarray = "T",
     seconds: float = TRANSITION_SECONDS,
     start_trans: np.ndarray | None = None,
+    max_frames: int = MAX_FRAMES,
 ) -> Motion:
     """Prepend a transition from the dressing `pose` ('T', 'A' or poses (24, 3)) into the first frame.
 
     The body starts in the dressing pose with no root rotation at `start_trans` (default: the first
     frame's root position) and eases (smoothstep, so velocity is zero at both ends of the transition)
     into the first frame over `seconds`; the motion follows unchanged.  The result has
-    ``round(seconds * fps)`` extra frames at the motion's rate."""
+    ``round(seconds * fps)`` extra frames at the motion's rate (with the motion's, at most `max_frames`)."""
     start = dressing_pose(pose) if isinstance(pose, str) else np.asarray(pose, dtype=np.float64)
     if start.shape != (NUM_SMPL_JOINTS, 3):
         raise ValueError(f"dressing pose must be (24, 3), got {start.shape}")
+    if not (np.isfinite(seconds) and seconds >= 0):
+        raise ValueError(f"transition seconds must be a finite number >= 0, got {seconds}")
     extra = int(round(seconds * motion.fps))
+    check_frames(motion.num_frames + extra, f"motion {motion.name!r} with a {seconds:g} s transition", max_frames)
     if extra <= 0:
         return motion
     start_trans = motion.trans[0] if start_trans is None else np.asarray(start_trans, dtype=np.float64)

@@ -6,20 +6,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numpy as np
-
 from assets.body.model import BodyModel
+from assets.fileio import npz_headers
 from assets.motion.amass import FPS_KEYS, read_amass
-from assets.motion.motion import Motion
+from assets.motion.motion import MAX_FRAMES, Motion
 
 
 def _is_amass(path: Path) -> bool:
     """An AMASS file has 2-D poses and a frame-rate key; a saved `Motion` has (T, 24, 3) poses."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            files = set(data.files)
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
+    files = npz_headers(path)
     return "meta" not in files and any(k in files for k in FPS_KEYS)
 
 
@@ -30,24 +25,27 @@ def load_motion(
     speed: float = 1.0,
     amplitude: float = 1.0,
     fps: float | None = None,
+    max_frames: int = MAX_FRAMES,
 ) -> Motion:
     """Resolve `spec` to a Motion.  `body` places built-in motions on its proportions and retargets BVH
     files onto it; `seconds`, `speed` and `amplitude` apply to built-in motions; `fps` is the rate a
-    built-in motion is generated at (files keep their own rate)."""
+    built-in motion is generated at (files keep their own rate); `max_frames` bounds the frames a file
+    or a built-in motion may have."""
     from assets.motion.builtin import BUILTIN_MOTIONS, builtin_motion
 
     path = Path(spec)
     if path.suffix.lower() == ".bvh":
         from assets.motion.bvh import read_bvh
 
-        return read_bvh(path, body=body)
+        return read_bvh(path, body=body, max_frames=max_frames)
     if path.suffix.lower() == ".npz":
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such motion file")
-        return read_amass(path) if _is_amass(path) else Motion.load(path)
+        return read_amass(path, max_frames=max_frames) if _is_amass(path) else Motion.load(path, max_frames)
     if str(spec) in BUILTIN_MOTIONS:
         kwargs = {} if fps is None else {"fps": fps}
-        return builtin_motion(str(spec), seconds=seconds, speed=speed, amplitude=amplitude, body=body, **kwargs)
+        return builtin_motion(str(spec), seconds=seconds, speed=speed, amplitude=amplitude, body=body,
+                              max_frames=max_frames, **kwargs)
     raise ValueError(
         f"unknown motion {str(spec)!r}: give a built-in motion ({', '.join(sorted(BUILTIN_MOTIONS))}) "
         "or a .npz (AMASS or saved motion) or .bvh file"

@@ -74,7 +74,7 @@ def test_missing_keys_and_wrong_shapes(tmp_path):
     with pytest.raises(ValueError, match=r"short\.npz: trans must be \(4, 3\)"):
         read_amass(tmp_path / "short.npz")
     amass_file(tmp_path / "zero.npz", mocap_framerate=np.array(0.0))
-    with pytest.raises(ValueError, match=r"zero\.npz: mocap_framerate must be a positive frame rate"):
+    with pytest.raises(ValueError, match=r"zero\.npz: mocap_framerate: frame rate 0 Hz is outside 1 to 1000 Hz"):
         read_amass(tmp_path / "zero.npz")
     (tmp_path / "junk.npz").write_bytes(b"junk")
     with pytest.raises(ValueError, match=r"junk\.npz: not a readable"):

@@ -23,7 +23,7 @@ def test_validation_names_the_problem():
         Motion(poses=np.zeros((5, 23, 3)), trans=np.zeros((5, 3)), fps=30, name="x")
     with pytest.raises(ValueError, match=r"trans must be \(5, 3\)"):
         Motion(poses=np.zeros((5, 24, 3)), trans=np.zeros((4, 3)), fps=30)
-    with pytest.raises(ValueError, match="fps must be positive"):
+    with pytest.raises(ValueError, match="frame rate 0 Hz is outside 1 to 1000 Hz"):
         Motion(poses=np.zeros((5, 24, 3)), trans=np.zeros((5, 3)), fps=0)
     with pytest.raises(ValueError, match="NaN"):
         Motion(poses=np.full((5, 24, 3), np.nan), trans=np.zeros((5, 3)), fps=30)
