@@ -81,8 +81,11 @@ def motion_spec(settings) -> str:
 
 
 def motion_name(settings) -> str:
+    """The motion's name, which names its folders (``motions/<motion>``): one plain path component."""
+    from assets.fileio import safe_name  # the project's packages load when first needed
+
     m = settings.motion
-    return Path(bpy.path.abspath(m.file)).stem if m.source == FILE else m.builtin
+    return safe_name(Path(bpy.path.abspath(m.file)).stem if m.source == FILE else m.builtin, "motion file")
 
 
 def motion_command(settings) -> tuple[list[str], Path]:
@@ -95,11 +98,14 @@ def motion_command(settings) -> tuple[list[str], Path]:
 
 # ---- garment ---------------------------------------------------------------------------------------
 def garment_name(settings) -> str:
+    """The garment's name, which names its folders (``garments/<garment>``): one plain path component."""
+    from assets.fileio import safe_name  # the project's packages load when first needed
+
     g = settings.garment
     if g.source != FILE:
         return g.source
     path = Path(bpy.path.abspath(g.file))
-    return path.parent.name if path.name == "template.npz" else path.stem
+    return safe_name(path.parent.name if path.name == "template.npz" else path.stem, "garment file")
 
 
 def garment_source(settings) -> str:
