@@ -38,13 +38,13 @@ from tqdm import tqdm
 
 from assets.body import load_body
 from assets.cameras import Camera
-from assets.fileio import load_json, load_npz, save_json, save_npz
+from assets.fileio import load_json, load_npz, safe_name, save_json, save_npz
 from assets.garments.loading import load_template
 from assets.garments.markers import MarkerSurface
 from factory.dataset import (SPLITS, DatasetConfig, corner_uv, environments, fixed_camera, ground_truth_for, preview,
                              render_job_spec, render_template, reuse_simulation, run_render_job, simulation_config,
                              split_of_frames, variation, write_scene)
-from factory.simulate import SimulationConfig, simulate
+from factory.simulate import SimulationConfig, input_digests, simulate
 
 log = logging.getLogger(__name__)
 
@@ -59,13 +59,31 @@ def _frames_of(config: DatasetConfig, transition_frames: int) -> list[int]:
     return [transition_frames + k * config.frame_step for k in range(1, config.frames + 1)]
 
 
+def _input_files(config: DatasetConfig) -> dict[str, str]:
+    """{what: SHA-256} of the dataset's inputs given as files ("garment", "body", "motion <spec>")."""
+    return input_digests(garment=config.garment, body=config.body,
+                         **{f"motion {motion}": motion for motion in config.motions})
+
+
 def _check_config(out: Path, config: DatasetConfig) -> None:
+    """Record the settings and the input files' digests in ``config.json``, or refuse a folder that
+    holds a dataset of other settings or of input files changed since (its images would be stale)."""
     path = out / "config.json"
-    current = json.loads(json.dumps(asdict(config)))
+    inputs = _input_files(config)
+    current = json.loads(json.dumps({**asdict(config), **({"inputs": inputs} if inputs else {})}))
     if path.exists():
-        # a setting added since the folder was made has its default there
-        defaults = json.loads(json.dumps(asdict(DatasetConfig(garment="", motions=()))))
-        saved = {**defaults, **load_json(path)}
+        # a setting added since the folder was made has its default there; a folder made before the
+        # inputs' digests were recorded is taken as made from the files as they are
+        defaults = json.loads(json.dumps({**asdict(DatasetConfig(garment="", motions=())),
+                                          **({"inputs": inputs} if inputs else {})}))
+        saved = load_json(path)
+        if not isinstance(saved, dict):
+            raise ValueError(f"{path}: expected a JSON object of dataset settings, got {type(saved).__name__}")
+        saved = {**defaults, **saved}
+        changed = [what for what, digest in inputs.items() if saved.get("inputs", {}).get(what, digest) != digest]
+        if changed:
+            raise ValueError(f"{path}: this dataset was built from other contents of {', '.join(changed)}; its "
+                             "images would not match them: use a new --out")
         if saved != current:
             raise ValueError(f"{path}: this folder holds a dataset built with other settings; use a new --out "
                              f"(differences: {sorted(k for k in current if saved.get(k) != current[k])})")
@@ -98,6 +116,13 @@ def prepare(config: DatasetConfig, out: Path, shard: tuple[int, int],
         raise ValueError(f"variations must be >= 1, got {config.variations}")
     if not 0 < config.fill <= 1 or not 5 <= config.fov_deg <= 120:
         raise ValueError(f"fill must be in (0, 1] and fov_deg in [5, 120], got {config.fill} and {config.fov_deg}")
+    for motion in config.motions:
+        safe_name(motion, f"motion {motion!r} (--motions; a motion's name becomes its folder, sim/<motion>: a "
+                  "motion file must be given by its file name, from its folder)")
+    for motion in simulations or {}:
+        if motion not in config.motions:
+            raise ValueError(f"--reuse-simulation {motion!r}=DIR: {motion!r} is not one of --motions "
+                             f"({', '.join(config.motions)})")
     out.mkdir(parents=True, exist_ok=True)
     _check_config(out, config)
     for motion, folder in (simulations or {}).items():

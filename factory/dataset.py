@@ -64,13 +64,14 @@ from tqdm import tqdm
 
 from assets.body import load_body
 from assets.cameras import Camera, save_cameras
-from assets.fileio import load_json, load_npz, save_json, save_npz
+from assets.fileio import copy_file, load_json, load_npz, save_json, save_npz
 from assets.garments import Template
 from assets.pattern.observation import ImageGroundTruth, training_samples
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 from assets.garments.loading import load_template
 from factory.dressing import DressingParams
+from factory.limits import Limits, add_limit_option, limits_from_args
 from factory.simulate import SimulationConfig, simulate
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -288,10 +289,9 @@ def reuse_simulation(source: str | Path, target: Path, config: SimulationConfig)
         raise ValueError(f"{source / 'sequence.npz'}: another simulation than this one's (recorded there, not here: "
                          f"{'; '.join(differ)}); give the options it was made with (--garment, --motion, --body, "
                          "--seed, --level, --speed) or leave out --reuse-simulation")
-    target.mkdir(parents=True, exist_ok=True)
     for name in ("sequence.npz", "dressed.npz"):
         if (source / name).is_file() and not (target / name).exists():
-            shutil.copyfile(source / name, target / name)
+            copy_file(source / name, target / name)
 
 
 # ---- multi-view capture ------------------------------------------------------------------------
@@ -497,6 +497,21 @@ def _add_simulation_args(p: argparse.ArgumentParser) -> None:
                    help="built-in motions: speed multiplier (factory.simulate --speed)")
 
 
+def _check_sizes(args: argparse.Namespace, limits: Limits, last_frame: int, images_per_frame: tuple[str, int]) -> None:
+    """The sizes a build or capture asks for within `limits`, before anything is made: image pixels,
+    samples, the last simulation frame and (option, value) images per frame (variations or cameras)."""
+    width, height = args.resolution
+    limits.check("pixels", width * height, f"an image of {width} x {height} pixels", "--resolution")
+    if args.samples < 1:
+        raise ValueError(f"--samples: expected >= 1, got {args.samples}")
+    limits.check("samples", args.samples, "the render samples", "--samples")
+    limits.check("frames", last_frame, "the last simulation frame", "--frames")
+    option, count = images_per_frame
+    if count < 1:
+        raise ValueError(f"{option}: expected >= 1, got {count}")
+    limits.check(option.lstrip("-"), count, f"the number of {option.lstrip('-')}", option)
+
+
 def _render_settings(args: argparse.Namespace) -> RenderSettings:
     return RenderSettings(resolution=tuple(args.resolution), engine=args.engine, samples=args.samples,
                           denoise=not args.no_denoise, device=args.device, texture_dpi=args.texture_dpi)
@@ -539,6 +554,7 @@ def main(argv: list[str] | None = None) -> int:
                    "--garment, --body, --seed, --level and --speed")
     b.add_argument("--out", type=Path, required=True)
     _add_render_args(b, "512")
+    add_limit_option(b)
     c = sub.add_parser("capture", help="render a sequence from a calibrated ring of cameras")
     c.add_argument("--garment", required=True)
     c.add_argument("--motion", required=True)
@@ -554,6 +570,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="a finished `factory.simulate` folder made with the same options")
     c.add_argument("--out", type=Path, required=True)
     _add_render_args(c, "1920x1080")
+    add_limit_option(c)
     m = sub.add_parser("merge", help="merge dataset folders into one (more training images beside a held-out split)",
                        description=factory.merge.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     m.add_argument("out", type=Path, help="the merged dataset folder")
@@ -568,7 +585,16 @@ def main(argv: list[str] | None = None) -> int:
 
     def action() -> None:
         if args.command == "build":
-            frame_list = tuple(int(f) for f in args.frame_list.split(",")) if args.frame_list else None
+            try:
+                frame_list = tuple(int(f) for f in args.frame_list.split(",")) if args.frame_list else None
+            except ValueError:
+                raise ValueError(f"--frame-list: expected comma-separated frame numbers, got {args.frame_list!r}") \
+                    from None
+            if args.frames < 1 or args.frame_step < 1 or min(frame_list or [0]) < 0:
+                raise ValueError("--frames and --frame-step must be >= 1 and --frame-list's frames >= 0")
+            transition = int(round(SimulationConfig(args.garment, "").transition_seconds * 120))
+            last = max(frame_list) if frame_list else transition + args.frames * args.frame_step
+            _check_sizes(args, limits_from_args(args), last, ("--variations", args.variations))
             config = DatasetConfig(garment=args.garment, motions=tuple(m for m in args.motions.split(",") if m),
                                    body=args.body, frames=args.frames, frame_step=args.frame_step,
                                    frame_list=frame_list, variations=args.variations, seed=args.seed,
@@ -587,6 +613,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"task attempts retried, {time.perf_counter() - started:.0f} s); "
                   f"contact sheet {args.out / 'contact_sheet.png'}")
         elif args.command == "capture":
+            if args.frames < 1 or (args.first_frame or 0) < 0:
+                raise ValueError("--frames must be >= 1 and --first-frame >= 0")
+            first = int(round(SimulationConfig(args.garment, "").transition_seconds * 120)) \
+                if args.first_frame is None else args.first_frame
+            _check_sizes(args, limits_from_args(args), first + args.frames, ("--cameras", args.cameras))
             folder = capture(args.garment, args.motion, args.out, frames=args.frames, first_frame=args.first_frame,
                              cameras=args.cameras, resolution=tuple(args.resolution),
                              render=_render_settings(args), body=args.body, radius=args.radius,

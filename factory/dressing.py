@@ -126,11 +126,23 @@ class DressedGarment:
 
     @classmethod
     def load(cls, path: str | Path) -> "DressedGarment":
+        """Read a dressed garment written by `save`; a ValueError names the file and the field it lacks."""
         arrays = load_npz(path, required=("faces", "rest_corners", "positions", "body_betas", "body_trans", "meta"))
-        meta = json.loads(str(arrays["meta"]))
-        return cls(meta["garment"], int(meta["level_mm"]), arrays["faces"], arrays["rest_corners"],
-                   arrays["positions"], arrays["body_betas"], arrays["body_trans"], meta["dressing_pose"],
-                   meta.get("report", {}))
+        try:
+            meta = json.loads(str(arrays["meta"]))
+            fields = (str(meta["garment"]), int(meta["level_mm"]), str(meta["dressing_pose"]),
+                      dict(meta.get("report", {})))
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: meta is not a dressed garment's record (garment, level_mm, dressing_pose, "
+                             f"report): {type(exc).__name__} {exc}") from exc
+        faces, rest, positions = arrays["faces"], arrays["rest_corners"], arrays["positions"]
+        if faces.ndim != 2 or faces.shape[1:] != (3,) or not np.issubdtype(faces.dtype, np.integer) \
+                or rest.shape != (len(faces), 3, 2) or positions.ndim != 2 or positions.shape[1:] != (3,) \
+                or len(faces) and not 0 <= faces.min() <= faces.max() < len(positions):
+            raise ValueError(f"{path}: faces {faces.shape}, rest_corners {rest.shape} and positions {positions.shape} "
+                             "are not a mesh (expected (F, 3) indices into (V, 3) positions and (F, 3, 2) corners)")
+        garment, level_mm, pose, report = fields
+        return cls(garment, level_mm, faces, rest, positions, arrays["body_betas"], arrays["body_trans"], pose, report)
 
 
 @dataclass(frozen=True)

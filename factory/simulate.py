@@ -10,11 +10,13 @@ dressed garment at the transition's start.
 Output folder:
   sequence.npz     positions (T, V, 3) float32, faces (F, 3) int32 (the sewn mesh of the template
                    level), body_poses (T, 24, 3), body_trans (T, 3), body_betas, fps, the last
-                   frame's velocities (so a longer rerun continues it), and `meta`
+                   frame's state as the run keeps it (state_positions, velocities (V, 3) float64: a
+                   longer rerun continues it bitwise as an uninterrupted run), and `meta`
                    (JSON: garment, level, motion, body, shape, cloth and dressing parameters, seed,
-                   transition frames, timing and health per run)
-  checkpoint.npz   while running: the frames so far and the last velocities, written atomically every
-                   `checkpoint_every` frames; a rerun with the same settings resumes from it
+                   the SHA-256 of every input given as a file, transition frames, timing and health)
+  checkpoint.npz   while running: the frames so far and the last frame's state, written atomically every
+                   `checkpoint_every` frames; a rerun of the same simulation (same options, same input
+                   files' content) resumes from it, another one starts over
   dressed.npz      the dressed garment (reused by reruns with the same garment, body and dressing,
                    and through a shared `dressings` folder by the other motions of a dataset)
   preview.png      a few frames of body and garment
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -44,13 +47,14 @@ from tqdm import tqdm
 from assets.body import load_body
 from assets.body.model import BodyModel
 from assets.cli import run_cli
-from assets.fileio import load_npz, save_npz
+from assets.fileio import file_digest, load_npz, save_npz
 from assets.garments import Template
 from assets.garments.loading import load_template
 from assets.motion.motion import Motion, body_poses, motion_betas, resample, with_transition
 from assets.motion.sources import load_motion
 from factory.cloth import ClothModel, ClothParams, ClothState, MeshCollider, ProjectiveDynamics
 from factory.dressing import DressedGarment, DressingError, DressingParams, dress
+from factory.limits import add_limit_option, limits_from_args
 
 log = logging.getLogger(__name__)
 
@@ -83,12 +87,24 @@ class SimulationConfig:
     checkpoint_every: int = 24
 
     def key(self) -> str:
-        """What makes two runs the same simulation (resume only continues an identical one); length,
-        checkpointing and health limits do not change the frames."""
+        """What makes two runs the same simulation (resume only continues an identical one): the
+        options and the content of the input files; length, checkpointing and health limits do not
+        change the frames."""
         return _digest(self._keyed())
 
+    def inputs(self) -> dict[str, str]:
+        """The SHA-256 of each input given as a file (garment pattern or template, motion, body), by
+        option; a built-in garment or motion and the default body have none: the config is their
+        content."""
+        return input_digests(garment=self.garment, motion=self.motion, body=self.body)
+
+    def record(self) -> dict:
+        """The config as JSON for ``meta["config"]``, with `inputs` when any input is a file."""
+        inputs = self.inputs()
+        return json.loads(json.dumps({**asdict(self), **({"inputs": inputs} if inputs else {})}, default=str))
+
     def _keyed(self) -> dict:
-        data = asdict(self)
+        data = self.record()
         for name in _NOT_KEYED:
             data.pop(name)
         return data
@@ -97,8 +113,7 @@ class SimulationConfig:
         """The options in which a simulation recorded with config `recorded` (its ``meta["config"]``) is
         another simulation than this one's, as "name: recorded value, not this value" (nested options
         dotted: "dressing.level_mm")."""
-        mine = json.loads(json.dumps(self._keyed(), default=str))
-        return _differences({k: v for k, v in recorded.items() if k not in _NOT_KEYED}, mine)
+        return _differences({k: v for k, v in recorded.items() if k not in _NOT_KEYED}, self._keyed())
 
 
 #: the options of a `SimulationConfig` that do not change its frames (not in its key)
@@ -114,6 +129,24 @@ def _differences(recorded: dict, wanted: dict, prefix: str = "") -> list[str]:
         elif a != b:
             found.append(f"{prefix}{name}: {a!r}, not {b!r}")
     return found
+
+
+def input_digests(**specs: str) -> dict[str, str]:
+    """{name: SHA-256} of the `specs` (garment, motion, body...) that name a file; names of built-ins
+    have no entry.  A resumed stage compares these, so an input replaced under the same path is seen."""
+    found = {}
+    for name, spec in specs.items():
+        path = Path(spec)
+        if path.is_file():
+            stat = path.stat()
+            found[name] = _cached_digest(str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    return found
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_digest(path: str, size: int, mtime_ns: int) -> str:
+    # size and modification time in the cache key: a file rewritten in place is hashed again
+    return file_digest(path)
 
 
 def _digest(value: object) -> str:
@@ -157,7 +190,9 @@ def _dressed(config: SimulationConfig, template: Template, body: BodyModel, beta
     """The garment dressed on the body: ``out/dressed.npz`` when it holds this dressing, else
     ``dressings/<key>.npz`` (copied to `out`), else dressed anew and saved to both."""
     path = out / "dressed.npz"
-    key = _digest([config.garment, config.body, list(np.asarray(betas, float)), asdict(config.dressing)])
+    inputs = input_digests(garment=config.garment, body=config.body)
+    key = _digest([config.garment, config.body, list(np.asarray(betas, float)), asdict(config.dressing)]
+                  + ([inputs] if inputs else []))  # (built-in inputs keep the keys of earlier dressings)
     shared = None if dressings is None else Path(dressings) / f"{key}.npz"
     for source in (path, shared):
         if source is not None and source.exists():
@@ -197,7 +232,8 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True,
     key = config.key()
     if sequence_path.exists():
         done = load_npz(sequence_path, required=("positions", "meta"))
-        if json.loads(str(done["meta"])).get("key") == key and len(done["positions"]) >= config.frames:
+        if read_meta(sequence_path, done).get("key") == key \
+                and len(_checked_positions(sequence_path, done)) >= config.frames:
             log.info("%s already holds %d frames of this simulation", sequence_path, len(done["positions"]))
             return sequence_path
     try:
@@ -205,7 +241,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True,
     except DressingError as exc:
         raise SimulationError(str(exc)) from exc
     motion = with_dressing_transition(config, motion, dressed)
-    posed = body.pose(body_poses(body, motion), motion.trans, betas)
+    poses = body_poses(body, motion)
     offset = motion.trans[0] - dressed.body_trans
 
     model = ClothModel.build(dressed.faces, dressed.rest_corners, config.cloth)
@@ -216,34 +252,46 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True,
     start, health = 1, []
     resume_from = checkpoint_path if checkpoint_path.exists() else sequence_path  # a shorter finished run
     if resume_from.exists():
-        saved = load_npz(resume_from, required=("positions", "velocities", "meta"))
-        saved_meta = json.loads(str(saved["meta"]))
-        if saved_meta.get("key") == key and saved["positions"].shape[1:] == positions.shape[1:]:
-            start = min(len(saved["positions"]), config.frames)
-            positions[:start] = saved["positions"][:start]
-            state = ClothState(saved["positions"][start - 1].astype(np.float64), saved["velocities"].astype(np.float64))
+        saved = load_npz(resume_from, required=("positions", "meta"))
+        saved_meta = read_meta(resume_from, saved)
+        if saved_meta.get("key") != key:
+            differ = config.differences(saved_meta.get("config", {})) if isinstance(saved_meta.get("config"), dict) \
+                else []
+            log.warning("%s is from a different simulation (%s); starting over", resume_from,
+                        "; ".join(differ) or "another version of the simulator")
+        elif "state_positions" not in saved or len(_checked_positions(resume_from, saved)) > config.frames:
+            # the exact state is kept for the last frame only (and not by earlier versions)
+            log.warning("%s holds no exact state of frame %d to continue from; starting over", resume_from,
+                        config.frames)
+        else:
+            _check_state(resume_from, saved, positions.shape[1:])
+            start = len(saved["positions"])
+            positions[:start] = saved["positions"]
+            state = ClothState(saved["state_positions"], saved["velocities"])
             health = saved_meta.get("health", [])[:start]
             log.info("resuming %s from frame %d", out, start)
-        else:
-            log.warning("%s is from a different simulation; starting over", resume_from)
 
     meta = {
         "key": key, "garment": template.name, "garment_spec": config.garment, "level_mm": dressed.level_mm,
         "motion": config.motion, "motion_name": motion.name, "body": config.body, "body_betas": list(map(float, betas)),
         "fps": 1.0 / config.cloth.timestep, "transition_frames": int(round(config.transition_seconds / config.cloth.timestep)),
-        "seed": config.seed, "config": json.loads(json.dumps(asdict(config), default=str)),
+        "seed": config.seed, "config": config.record(),
         "dressing": dressed.report, "health_limits": asdict(config.health),
     }
 
     def save_checkpoint(frames: int) -> None:
-        save_npz(checkpoint_path, {"positions": positions[:frames], "velocities": state.velocities.astype(np.float32),
+        # the state as the run keeps it (float64), so a resumed run is bitwise the uninterrupted one
+        save_npz(checkpoint_path, {"positions": positions[:frames], "state_positions": state.positions,
+                                   "velocities": state.velocities,
                                    "meta": np.array(json.dumps({**meta, "health": health}))})
 
     started = time.perf_counter()
     bar = tqdm(total=config.frames, initial=start, desc=f"simulating {template.name}", unit="frame",
                disable=not progress)
     for frame in range(start, config.frames):
-        collider = MeshCollider(posed.vertices[frame], body.faces)
+        # posed one frame at a time: a batched pose rounds differently with the batch's length, and a
+        # resumed run must meet the body an uninterrupted one met
+        collider = MeshCollider(body.pose(poses[frame], motion.trans[frame:frame + 1], betas).vertices[0], body.faces)
         stepped = solver.step(state, collider)
         check = _health(model, collider, stepped.positions)
         problem = _problem(check, config.health)
@@ -266,7 +314,7 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True,
     meta["max_strain"] = max((h[1] for h in health), default=0.0)
     meta["folded_frames"] = sum(1 for h in health if h[2])
     save_npz(sequence_path, {
-        "positions": positions, "velocities": state.velocities.astype(np.float32),
+        "positions": positions, "state_positions": state.positions, "velocities": state.velocities,
         "faces": dressed.faces.astype(np.int32), "body_poses": motion.poses,
         "body_trans": motion.trans, "body_betas": np.asarray(betas, np.float64), "fps": np.array(meta["fps"]),
         "meta": np.array(json.dumps({**meta, "health": health})),
@@ -275,6 +323,43 @@ def simulate(config: SimulationConfig, out: str | Path, progress: bool = True,
     log.info("%s: %d frames, %.3f s per frame, max penetration %.2f mm, max strain %.3f", sequence_path,
              config.frames, meta["seconds_per_frame"] or 0.0, meta["max_penetration_mm"], meta["max_strain"])
     return sequence_path
+
+
+def read_meta(path: Path, arrays: dict[str, np.ndarray]) -> dict:
+    """The `meta` JSON object of a simulation file's `arrays` (read from `path`, named in errors)."""
+    try:
+        meta = json.loads(str(arrays["meta"]))
+    except (KeyError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: meta is not a JSON object ({exc})") from exc
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: meta is not a JSON object (got {type(meta).__name__})")
+    return meta
+
+
+def _checked_positions(path: Path, arrays: dict[str, np.ndarray]) -> np.ndarray:
+    """The `positions` of a simulation file's `arrays`: (T, V, 3) finite floats, or a ValueError naming `path`."""
+    positions = arrays["positions"]
+    if positions.ndim != 3 or positions.shape[2] != 3 or not np.issubdtype(positions.dtype, np.floating) \
+            or not np.isfinite(positions).all():
+        raise ValueError(f"{path}: positions has shape {positions.shape} ({positions.dtype}), expected finite "
+                         "floats of shape (T, V, 3)")
+    return positions
+
+
+def _check_state(path: Path, saved: dict[str, np.ndarray], frame_shape: tuple[int, int]) -> None:
+    """A checkpoint or shorter run that `simulate` continues: positions (T, V, 3), state_positions and
+    velocities (V, 3), finite, V that of the garment being simulated."""
+    expected = {"positions": (None, *frame_shape), "state_positions": frame_shape, "velocities": frame_shape}
+    for name, shape in expected.items():
+        array = saved.get(name)
+        if array is None:
+            raise ValueError(f"{path}: missing array {name}")
+        if array.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, array.shape)) \
+                or not np.issubdtype(array.dtype, np.floating) or not np.isfinite(array).all():
+            raise ValueError(f"{path}: {name} has shape {array.shape} ({array.dtype}), expected finite floats of "
+                             f"shape {tuple('T' if n is None else n for n in shape)}")
+    if not len(saved["positions"]):
+        raise ValueError(f"{path}: positions holds no frame")
 
 
 def _health(model: ClothModel, collider: MeshCollider, x: np.ndarray) -> FrameHealth:
@@ -334,6 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-penetration-mm", type=float, default=HealthLimits.max_penetration * 1e3)
     parser.add_argument("--max-strain", type=float, default=HealthLimits.max_strain)
     parser.add_argument("--no-preview", action="store_true")
+    add_limit_option(parser)
     return parser
 
 
@@ -360,6 +446,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def action() -> None:
+        limits_from_args(args).check("frames", args.frames, "the number of frames", "--frames")
         sequence = simulate(config_from_args(args), args.out)
         if not args.no_preview:
             write_preview(sequence, args.out / "preview.png")
