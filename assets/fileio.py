@@ -79,9 +79,14 @@ def staged_outputs(folder: str | os.PathLike) -> Iterator[Path]:
     try:
         yield stage
         files = sorted(p for p in stage.rglob("*") if p.is_file())
-        for source in files:
+        targets = [folder / source.relative_to(stage) for source in files]
+        for target in targets:  # what would stop a rename part way is refused before the first one
+            blocked = next((p for p in (target, *target.parents) if p != folder and p.is_relative_to(folder)
+                            and (p.is_dir() if p == target else p.exists() and not p.is_dir())), None)
+            if blocked is not None:
+                raise OSError(errno.EEXIST, f"{blocked}: in the way of the output {target}")
+        for source, target in zip(files, targets):
             os.chmod(source, 0o666 & ~_UMASK)
-            target = folder / source.relative_to(stage)
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(source, target)  # renames within one file system: cannot run out of space
     except OSError as exc:

@@ -22,6 +22,7 @@ from assets.garments.defaults import DEFAULT_GARMENTS, default_pattern
 from assets.garments.export import FORMATS, export_level, flat_positions, placed_positions
 from assets.garments.loading import load_pattern
 from assets.garments.mesh import triangle_quality
+from assets.garments.sewing import MAX_PANEL_M
 from assets.garments.template import LEVELS_MM, Template
 from assets.pattern.raster import MAX_PIXELS, write_png
 from assets.pattern.spec import PatternSpec
@@ -71,7 +72,7 @@ def build(args: argparse.Namespace) -> dict[str, object]:
     """Build the template and write every output into `args.out` together (`staged_outputs`): a run
     that fails leaves the folder as it was."""
     levels, formats, spec = checked_arguments(args)
-    pattern = load_pattern(args.garment)
+    pattern = load_pattern(args.garment, args.max_panel_m)
     t0 = time.perf_counter()
     template = Template.build(pattern, spec, args.dpi)
     width, height = template.layout.size_px
@@ -136,6 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--dpi", type=float, default=300.0, help="resolution of the pattern texture / print file")
     b.add_argument("--max-pixels", type=float, default=MAX_PIXELS,
                    help="refuse a pattern sheet of more pixels than this (its memory: 3 bytes a pixel, twice)")
+    b.add_argument("--max-panel-m", type=float, default=MAX_PANEL_M,
+                   help="refuse a panel that may reach further across than this, in metres (a wrong sagitta "
+                   "or unit would otherwise be sampled and meshed at any size)")
     b.add_argument("--pitch-mm", type=float, default=PatternSpec.pitch_mm, help="crosspoint pitch")
     b.add_argument("--seed", type=int, default=PatternSpec.seed, help="marker codebook seed")
     b.add_argument("--formats", default="obj,ply", help=f"mesh files per level, from {','.join(FORMATS)}")

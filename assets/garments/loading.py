@@ -8,12 +8,13 @@ from pathlib import Path
 from assets.fileio import load_json
 from assets.garments.defaults import DEFAULT_GARMENTS, default_pattern
 from assets.garments.garmentcode import garmentcode_from_dict
-from assets.garments.sewing import SewingPattern
+from assets.garments.sewing import MAX_PANEL_M, SewingPattern
 from assets.garments.template import Template
 
 
-def load_pattern(name_or_path: str) -> SewingPattern:
-    """A default garment by name, or a JSON file in our format or GarmentCode's."""
+def load_pattern(name_or_path: str, max_panel_m: float = MAX_PANEL_M) -> SewingPattern:
+    """A default garment by name, or a JSON file in our format or GarmentCode's; no panel of a file
+    may reach more than `max_panel_m` across (`assets.garments.sewing.check_panel_size`)."""
     if name_or_path in DEFAULT_GARMENTS:
         return default_pattern(name_or_path)
     path = Path(name_or_path)
@@ -21,8 +22,8 @@ def load_pattern(name_or_path: str) -> SewingPattern:
         raise ValueError(f"'{name_or_path}' is neither a default garment ({', '.join(DEFAULT_GARMENTS)}) nor a file")
     data = load_json(path)
     if isinstance(data, dict) and "pattern" in data:
-        return garmentcode_from_dict(data, str(path))
-    return SewingPattern.from_dict(data, str(path))
+        return garmentcode_from_dict(data, str(path), max_panel_m=max_panel_m)
+    return SewingPattern.from_dict(data, str(path), max_panel_m)
 
 
 def load_template(garment: str | Path, dpi: float | None = None) -> Template:

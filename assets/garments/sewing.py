@@ -282,7 +282,8 @@ def check_panel_size(panel: Panel, where: str, max_panel_m: float = MAX_PANEL_M)
     widest = max(range(len(hulls)), key=lambda k: float(np.ptp(hulls[k], axis=0).max()))
     raise PatternError(f"{where}, edge '{panel.edges[widest].name}': the panel reaches up to {size:,.4g} m across, "
                        f"above the limit of {max_panel_m:g} m (check the edge's sagitta or control points and the "
-                       "units); raise max_panel_m if this is intended")
+                       "units); raise max_panel_m (--max-panel-m of python -m assets.garments build) if "
+                       "this is intended")
 
 
 def pattern_name(name: Any, source: str) -> str:

@@ -74,3 +74,23 @@ def test_check_limit_names_the_option():
         check_limit(11, 10, "frames", "walk.npz", "--max-frames")
     with pytest.raises(ValueError, match="nan"):
         check_limit(float("nan"), 10, "frames", "walk.npz", "--max-frames")
+
+
+@pytest.mark.hostile("half")
+@pytest.mark.parametrize("blocker", ["dir_for_file", "file_for_dir"])
+def test_staged_outputs_refuse_before_moving_when_a_target_is_blocked(tmp_path, blocker):
+    """A folder where an output file goes (or a file where its folder goes) is found before the first
+    file moves, so the old outputs stay whole."""
+    (tmp_path / "a.txt").write_text("old a")
+    if blocker == "dir_for_file":
+        (tmp_path / "b.txt").mkdir()
+    else:
+        (tmp_path / "sub").write_text("a file")
+    with pytest.raises(OSError, match="in the way"):
+        with staged_outputs(tmp_path) as stage:
+            (stage / "a.txt").write_text("new a")
+            (stage / "b.txt").write_text("new b")
+            (stage / "sub").mkdir()
+            (stage / "sub" / "c.txt").write_text("new c")
+    assert (tmp_path / "a.txt").read_text() == "old a"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
