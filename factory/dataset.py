@@ -72,7 +72,7 @@ from factory.groundtruth import image_ground_truth
 from assets.garments.loading import load_template
 from factory.dressing import DressingParams
 from factory.limits import Limits, add_limit_option, limits_from_args
-from factory.simulate import SimulationConfig, simulate
+from factory.simulate import SimulationConfig, read_meta, simulate
 
 PROJECT = Path(__file__).resolve().parents[1]
 #: the reference's train : validation : test ratio, by simulation frame
@@ -283,7 +283,7 @@ def reuse_simulation(source: str | Path, target: Path, config: SimulationConfig)
     source = Path(source)
     if not (source / "sequence.npz").is_file():
         raise ValueError(f"{source}: no sequence.npz (not a finished simulation folder)")
-    meta = json.loads(str(load_npz(source / "sequence.npz", only=("meta",))["meta"]))
+    meta = read_meta(source / "sequence.npz", load_npz(source / "sequence.npz", only=("meta",)))
     if meta.get("key") != config.key():
         differ = config.differences(meta.get("config", {})) or ["the simulator's version"]
         raise ValueError(f"{source / 'sequence.npz'}: another simulation than this one's (recorded there, not here: "

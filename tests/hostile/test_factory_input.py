@@ -261,3 +261,12 @@ def test_a_corrupt_dataset_config_is_named_without_a_traceback(tmp_path, content
     result = run_cli("factory.dataset", "build", "--garment", "pants", "--motions", "walk", "--level", LEVEL_MM,
                      "--texture-dpi", 10, "--out", out, timeout=120)
     assert_refused(result, "config.json")
+
+
+@pytest.mark.hostile("traceback")
+def test_a_reused_simulation_with_a_broken_meta_is_named(pants_run, tmp_path):
+    source = tmp_path / "source"
+    source.mkdir()
+    save_npz(source / "sequence.npz", {**load_npz(pants_run / "sequence.npz"), "meta": np.array("[broken")})
+    with pytest.raises(ValueError, match=r"sequence.npz: meta"):
+        reuse_simulation(source, tmp_path / "target", _config())
