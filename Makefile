@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/simulate.py
 	$(BIN)/python benchmarks/render.py
 	$(BIN)/python benchmarks/reconstruction.py --refine-frames 12:120,4:6,2:3
+	$(BIN)/python benchmarks/hostile.py
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

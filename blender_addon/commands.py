@@ -81,11 +81,12 @@ def motion_spec(settings) -> str:
 
 
 def motion_name(settings) -> str:
-    """The motion's name, which names its folders (``motions/<motion>``): one plain path component."""
-    from assets.fileio import safe_name  # the project's packages load when first needed
+    """The motion's name, which names its folders (``motions/<motion>``): its `motion_label`, one plain
+    path component."""
+    from assets.motion.sources import motion_label  # the project's packages load when first needed
 
     m = settings.motion
-    return safe_name(Path(bpy.path.abspath(m.file)).stem if m.source == FILE else m.builtin, "motion file")
+    return motion_label(bpy.path.abspath(m.file) if m.source == FILE else m.builtin)
 
 
 def motion_command(settings) -> tuple[list[str], Path]:

@@ -7,7 +7,8 @@ backends, resume.
 1. `prepare`: the folder's ``config.json`` (a rerun with other settings is refused), reused
    simulations taken up, the template and its texture.
 2. One simulation task per motion (`simulate_motion`: `factory.simulate`, which takes up or continues
-   what ``sim/<motion>/`` holds).
+   what ``sim/<motion>/`` holds).  A motion goes by its label in every file and folder name: a
+   built-in motion's name, a motion file's stem (`assets.motion.sources.motion_label`).
 3. `plan_shards`: the fixed camera, ``splits.json`` and ``scenes/<motion>.npz``; the images are ordered by
    (motion, frame, variation), shard i of n takes every n-th from the i-th, and those not done yet are
    grouped `shard_frames` frames of one motion per `Shard`.
@@ -38,9 +39,10 @@ from tqdm import tqdm
 
 from assets.body import load_body
 from assets.cameras import Camera
-from assets.fileio import load_json, load_npz, safe_name, save_json, save_npz
+from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments.loading import load_template
 from assets.garments.markers import MarkerSurface
+from assets.motion.sources import motion_label
 from factory.dataset import (SPLITS, DatasetConfig, corner_uv, environments, fixed_camera, ground_truth_for, preview,
                              render_job_spec, render_template, reuse_simulation, run_render_job, simulation_config,
                              split_of_frames, variation, write_scene)
@@ -93,9 +95,9 @@ def _check_config(out: Path, config: DatasetConfig) -> None:
 
 @dataclass(frozen=True)
 class Shard:
-    """One render + ground-truth task: the images of a few frames of one motion, rendered as
-    ``jobs/<name>.json`` from ``scenes/<motion>.npz``.  `images` are render-job image specs
-    (`factory.renderjob`); `splits` and `variations` run along them."""
+    """One render + ground-truth task: the images of a few frames of one motion (its spec; files and
+    folders use its `motion_label`), rendered as ``jobs/<name>.json`` from ``scenes/<label>.npz``.
+    `images` are render-job image specs (`factory.renderjob`); `splits` and `variations` run along them."""
 
     name: str
     motion: str
@@ -116,9 +118,7 @@ def prepare(config: DatasetConfig, out: Path, shard: tuple[int, int],
         raise ValueError(f"variations must be >= 1, got {config.variations}")
     if not 0 < config.fill <= 1 or not 5 <= config.fov_deg <= 120:
         raise ValueError(f"fill must be in (0, 1] and fov_deg in [5, 120], got {config.fill} and {config.fov_deg}")
-    for motion in config.motions:
-        safe_name(motion, f"motion {motion!r} (--motions; a motion's name becomes its folder, sim/<motion>: a "
-                  "motion file must be given by its file name, from its folder)")
+    labels = motion_labels(config.motions)
     for motion in simulations or {}:
         if motion not in config.motions:
             raise ValueError(f"--reuse-simulation {motion!r}=DIR: {motion!r} is not one of --motions "
@@ -126,10 +126,21 @@ def prepare(config: DatasetConfig, out: Path, shard: tuple[int, int],
     out.mkdir(parents=True, exist_ok=True)
     _check_config(out, config)
     for motion, folder in (simulations or {}).items():
-        reuse_simulation(folder, out / "sim" / motion, _simulation_of(config, motion))
+        reuse_simulation(folder, out / "sim" / labels[motion], _simulation_of(config, motion))
     template = render_template(config.garment, config.render.texture_dpi, out)
     if not (out / "template.npz").exists():
         template.save(out / "template.npz", levels=(config.level_mm,))
+
+
+def motion_labels(motions: tuple[str, ...]) -> dict[str, str]:
+    """{motion: its label} (`motion_label`); a ValueError when two motions would share folders."""
+    labels = {motion: motion_label(motion) for motion in motions}
+    seen: dict[str, str] = {}
+    for motion, label in labels.items():
+        if seen.setdefault(label, motion) != motion:
+            raise ValueError(f"--motions: {seen[label]!r} and {motion!r} would share the name {label!r} in "
+                             "the dataset's folders; rename one of the files")
+    return labels
 
 
 def dataset_frames(config: DatasetConfig) -> list[int]:
@@ -140,7 +151,8 @@ def dataset_frames(config: DatasetConfig) -> list[int]:
 def simulate_motion(config: DatasetConfig, out: str | Path, motion: str, progress: bool = False) -> Path:
     """Simulate (or take up) `motion` far enough for the dataset's frames; the ``sequence.npz`` path.
     The motions share one dressing (``sim/dressings``)."""
-    return simulate(_simulation_of(config, motion, max(dataset_frames(config)) + 1), Path(out) / "sim" / motion,
+    return simulate(_simulation_of(config, motion, max(dataset_frames(config)) + 1),
+                    Path(out) / "sim" / motion_label(motion),
                     progress, dressings=Path(out) / "sim" / "dressings")
 
 
@@ -154,6 +166,7 @@ def plan_shards(config: DatasetConfig, out: Path, sequences: dict[str, Path], sh
     index, count = shard
     frames = dataset_frames(config)
     template = load_template(config.garment, config.render.texture_dpi)
+    labels = motion_labels(config.motions)
     plans = [(motion, load_npz(sequences[motion], required=("positions", "faces", "body_poses", "body_trans",
                                                              "body_betas", "meta"))) for motion in config.motions]
     level_mm = int(json.loads(str(plans[0][1]["meta"])).get("level_mm", 12))
@@ -167,23 +180,24 @@ def plan_shards(config: DatasetConfig, out: Path, sequences: dict[str, Path], sh
             x = sequence["positions"][f]
             radius = max(radius, float(np.linalg.norm(x - 0.5 * (x.min(0) + x.max(0)), axis=1).max()))
     camera = fixed_camera(radius + config.max_shift, config.render, config.fov_deg, config.fill).to_dict()
-    splits = split_of_frames([(motion, f) for motion in config.motions for f in frames], config.seed)
+    splits = split_of_frames([(labels[motion], f) for motion in config.motions for f in frames], config.seed)
     save_json(out / "splits.json", {s: [f"{m}/{f}" for (m, f), name in splits.items() if name == s] for s in SPLITS})
 
     from factory.render import bundled_environments
 
     envs = environments(bundled_environments())
     body = load_body(config.body)
-    names = [(motion, f, v) for motion in config.motions for f in frames for v in range(config.variations)]
+    names = [(labels[motion], f, v) for motion in config.motions for f in frames for v in range(config.variations)]
     pending = [n for k, n in enumerate(names)
                if k % count == index and not (out / "meta" / f"{_name(*n)}.json").exists()]
     log.info("shard %d/%d: %d images to do", index, count, len(pending))
     shards = []
     for motion, sequence in plans:
-        mine = [n for n in pending if n[0] == motion]
+        label = labels[motion]
+        mine = [n for n in pending if n[0] == label]
         if not mine:
             continue
-        scene = out / "scenes" / f"{motion}.npz"
+        scene = out / "scenes" / f"{label}.npz"
         if not scene.exists():
             body_vertices = body.pose(sequence["body_poses"][frames], sequence["body_trans"][frames],
                                       sequence["body_betas"]).vertices
@@ -198,7 +212,7 @@ def plan_shards(config: DatasetConfig, out: Path, sequences: dict[str, Path], sh
                 x = sequence["positions"][f]
                 choice = variation(config, m, f, v, 0.5 * (x.min(0) + x.max(0)), envs)
                 images.append({"name": _name(m, f, v), "frame": int(f), "camera": camera, **choice})
-            shards.append(Shard(name=f"{motion}-{index}of{count}-{chunk:04d}", motion=motion, level_mm=level_mm,
+            shards.append(Shard(name=f"{label}-{index}of{count}-{chunk:04d}", motion=motion, level_mm=level_mm,
                                 images=tuple(images), splits=tuple(splits[(m, f)] for m, f, _ in group),
                                 variations=tuple(v for _, _, v in group)))
     return shards
@@ -238,7 +252,8 @@ def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: b
     if not todo:
         return timing
     job = out / "jobs" / f"{shard.name}.json"
-    save_json(job, render_job_spec(config.render, Path("..") / "scenes" / f"{shard.motion}.npz",
+    label = motion_label(shard.motion)
+    save_json(job, render_job_spec(config.render, Path("..") / "scenes" / f"{label}.npz",
                                    Path("..") / "texture.png", [shard.images[k] for k in todo]))
     report = run_render_job(job, out / "images", progress, threads)
     if report is not None:
@@ -246,7 +261,7 @@ def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: b
         timing["render_s"] = report.seconds - report.setup_seconds
     started = time.perf_counter()
     surface = _marker_surface(config.garment, config.render.texture_dpi, shard.level_mm)
-    scene = load_npz(out / "scenes" / f"{shard.motion}.npz", only=("garment_positions", "frames"))
+    scene = load_npz(out / "scenes" / f"{label}.npz", only=("garment_positions", "frames"))
     row = {int(f): k for k, f in enumerate(scene["frames"])}
     records, simulation = [], _simulation_of(config, shard.motion).key()
     for k in todo:
@@ -261,7 +276,7 @@ def make_shard(config: DatasetConfig, out: str | Path, shard: Shard, progress: b
         save_npz(out / "samples" / f"{name}.npz", samples)
         _crash_once()
         records.append({
-            "name": name, "split": shard.splits[k], "motion": shard.motion, "frame": entry["frame"],
+            "name": name, "split": shard.splits[k], "motion": label, "frame": entry["frame"],
             "variation": shard.variations[k], "image": f"images/{name}.png", "depth": f"images/{name}_depth.exr",
             "camera": f"images/{name}_camera.json", "gt": f"gt/{name}.npz", "samples": f"samples/{name}.npz",
             "markers_visible": int((gt.status > 0).sum()), "markers_full": int((gt.status == 2).sum()),

@@ -71,7 +71,7 @@ from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 from assets.garments.loading import load_template
 from factory.dressing import DressingParams
-from factory.limits import Limits, add_limit_option, limits_from_args
+from factory.limits import Limits, add_limit_options, limits_from_args
 from factory.simulate import SimulationConfig, read_meta, simulate
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -554,7 +554,7 @@ def main(argv: list[str] | None = None) -> int:
                    "--garment, --body, --seed, --level and --speed")
     b.add_argument("--out", type=Path, required=True)
     _add_render_args(b, "512")
-    add_limit_option(b)
+    add_limit_options(b, ("pixels", "samples", "frames", "variations"))
     c = sub.add_parser("capture", help="render a sequence from a calibrated ring of cameras")
     c.add_argument("--garment", required=True)
     c.add_argument("--motion", required=True)
@@ -570,7 +570,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="a finished `factory.simulate` folder made with the same options")
     c.add_argument("--out", type=Path, required=True)
     _add_render_args(c, "1920x1080")
-    add_limit_option(c)
+    add_limit_options(c, ("pixels", "samples", "frames", "cameras"))
     m = sub.add_parser("merge", help="merge dataset folders into one (more training images beside a held-out split)",
                        description=factory.merge.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     m.add_argument("out", type=Path, help="the merged dataset folder")

@@ -2,12 +2,14 @@
 
 A mistyped size (``--resolution 100000x100000``, ``--frames 1e9``) would otherwise allocate until the
 machine runs out of memory or render for weeks.  The defaults are far above any dataset the project
-makes; ``--limit NAME=VALUE`` (repeatable) raises one for a run that really needs more.
+makes; ``--max-NAME N`` (``--max-pixels``, ``--max-frames``, ...) raises one for a run that really
+needs more, as the assets CLIs' ``--max-*`` options do.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass, fields, replace
 
 from assets.fileio import check_limit
@@ -28,25 +30,25 @@ class Limits:
 
     def check(self, name: str, value: float, what: str, source: str) -> None:
         """Refuse `value` (of `source`, an argument) above limit `name`, naming the option that raises it."""
-        check_limit(value, getattr(self, name), what, source, f"--limit {name}=N")
+        check_limit(value, getattr(self, name), what, source, f"--max-{name}")
 
 
-def add_limit_option(parser: argparse.ArgumentParser) -> None:
-    names = ", ".join(f"{f.name} ({f.default:,})" for f in fields(Limits))
-    parser.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
-                        help=f"raise a bound on what the command may ask for (repeatable): {names}")
+def add_limit_options(parser: argparse.ArgumentParser, names: tuple[str, ...] | None = None) -> None:
+    """``--max-NAME N`` for the `Limits` named (default: all)."""
+    for f in fields(Limits):
+        if names is None or f.name in names:
+            parser.add_argument(f"--max-{f.name}", type=float, default=f.default, metavar="N",
+                                help=f"refuse a run asking for more {f.name} than this (default %(default)d)")
 
 
 def limits_from_args(args: argparse.Namespace) -> Limits:
-    """The `Limits` of `add_limit_option`'s parsed ``--limit NAME=VALUE`` items."""
-    known = {f.name for f in fields(Limits)}
+    """The `Limits` of `add_limit_options`' parsed arguments (defaults for those not given)."""
     changes = {}
-    for item in args.limit:
-        name, _, value = item.partition("=")
-        if name not in known:
-            raise ValueError(f"--limit {item!r}: expected NAME=VALUE with NAME one of {', '.join(sorted(known))}")
-        try:
-            changes[name] = int(float(value))
-        except (ValueError, OverflowError):
-            raise ValueError(f"--limit {item!r}: {value!r} is not a finite number") from None
+    for f in fields(Limits):
+        value = getattr(args, f"max_{f.name}", None)
+        if value is None:
+            continue
+        if not (math.isfinite(value) and value >= 1):
+            raise ValueError(f"--max-{f.name} must be a finite number >= 1, got {value}")
+        changes[f.name] = int(value)
     return replace(Limits(), **changes)

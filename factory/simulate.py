@@ -54,7 +54,7 @@ from assets.motion.motion import Motion, body_poses, motion_betas, resample, wit
 from assets.motion.sources import load_motion
 from factory.cloth import ClothModel, ClothParams, ClothState, MeshCollider, ProjectiveDynamics
 from factory.dressing import DressedGarment, DressingError, DressingParams, dress
-from factory.limits import add_limit_option, limits_from_args
+from factory.limits import add_limit_options, limits_from_args
 
 log = logging.getLogger(__name__)
 
@@ -419,7 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-penetration-mm", type=float, default=HealthLimits.max_penetration * 1e3)
     parser.add_argument("--max-strain", type=float, default=HealthLimits.max_strain)
     parser.add_argument("--no-preview", action="store_true")
-    add_limit_option(parser)
+    add_limit_options(parser, ("frames",))
     return parser
 
 

@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 from assets.body.model import BodyModel
-from assets.fileio import npz_headers
+from assets.fileio import npz_headers, safe_name
 from assets.motion.amass import FPS_KEYS, read_amass
 from assets.motion.motion import MAX_FRAMES, Motion
 
@@ -16,6 +16,14 @@ def _is_amass(path: Path) -> bool:
     """An AMASS file has 2-D poses and a frame-rate key; a saved `Motion` has (T, 24, 3) poses."""
     files = npz_headers(path)
     return "meta" not in files and any(k in files for k in FPS_KEYS)
+
+
+def motion_label(spec: str | os.PathLike) -> str:
+    """The name motion `spec` goes by in file and folder names: a built-in motion's own name, a motion
+    file's stem; a ValueError unless it is one plain path component (`safe_name`)."""
+    path = Path(spec)
+    label = path.stem if path.suffix.lower() in (".npz", ".bvh") else str(spec)
+    return safe_name(label, f"motion {str(spec)!r}")
 
 
 def load_motion(

@@ -33,9 +33,9 @@ from assets.pattern.table import MarkerTable
 
 _METRES_PER_INCH = 0.0254
 #: the largest image a CLI renders unless told otherwise (`--max-pixels`): the default 32 x 32 marker
-#: fabric at 300 DPI is 18,142 px square (329 Mpx) and a garment sheet at 300 DPI under 300 Mpx; an
-#: image costs 3 bytes a pixel, about twice over while it is written
-MAX_PIXELS = 600_000_000
+#: fabric is 18,142 px square (329 Mpx) at 300 DPI and 1.32 Gpx at a fine print's 600 DPI, a garment
+#: sheet at 300 DPI under 300 Mpx; an image costs 3 bytes a pixel, about twice over while it is written
+MAX_PIXELS = 1_500_000_000
 _STRIP_ROWS = 256
 _SUBPIXEL_BITS = 8  # OpenCV polygon coordinates are fixed point with this many fractional bits
 

@@ -1,7 +1,11 @@
 """A small synthetic model in SMPL's file layout (Y up, 24 joints) and a hand-written reference of
 SMPL's linear blend skinning, loops and all, to check the vectorised `BodyModel.pose` against."""
 
+import sys
+import types
+
 import numpy as np
+import pytest
 
 from assets.body.model import SMPL_PARENTS
 
@@ -61,3 +65,20 @@ def reference_lbs(m, pose, betas, transl):
         blended = sum(m["weights"][v, k] * skinning[k] for k in range(24))
         out[v] = blended[:3, :3] @ v_posed[v] + blended[:3, 3] + transl
     return out, posed_joints
+
+
+@pytest.fixture
+def chumpy_module(monkeypatch):
+    """Pickles of the published .pkl files name chumpy.ch.Ch: make that name exist while the test
+    writes such a file (reading it must not need chumpy)."""
+    package = types.ModuleType("chumpy")
+    module = types.ModuleType("chumpy.ch")
+
+    class Ch:
+        pass
+
+    Ch.__module__, Ch.__qualname__ = "chumpy.ch", "Ch"
+    module.Ch = Ch
+    monkeypatch.setitem(sys.modules, "chumpy", package)
+    monkeypatch.setitem(sys.modules, "chumpy.ch", module)
+    return Ch

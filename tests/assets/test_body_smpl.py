@@ -4,7 +4,6 @@ pickles that try to run code."""
 import os
 import pickle
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -12,6 +11,7 @@ import scipy.sparse as sp
 
 from assets.body import load_smpl
 from assets.body.smpl import read_model_file
+from tests.assets.body_fixtures import chumpy_module  # noqa: F401 (a fixture)
 from assets.rotations import Y_UP_TO_Z_UP, conjugate_rotvec
 from tests.assets.body_fixtures import reference_lbs, smpl_arrays
 
@@ -56,23 +56,6 @@ def test_zero_pose_is_the_rest_mesh(tmp_path, arrays):
     posed = body.pose(body.zero_pose(2), np.tile(rest_j[0], (2, 1)), betas)
     np.testing.assert_allclose(posed.vertices, np.broadcast_to(rest_v, posed.vertices.shape), atol=1e-5)
     np.testing.assert_allclose(rest_v, (arrays["v_template"] + arrays["shapedirs"] @ betas) @ C.T, atol=1e-12)
-
-
-@pytest.fixture
-def chumpy_module(monkeypatch):
-    """Pickles of the published .pkl files name chumpy.ch.Ch: make that name exist while the test
-    writes such a file (reading it must not need chumpy)."""
-    package = types.ModuleType("chumpy")
-    module = types.ModuleType("chumpy.ch")
-
-    class Ch:
-        pass
-
-    Ch.__module__, Ch.__qualname__ = "chumpy.ch", "Ch"
-    module.Ch = Ch
-    monkeypatch.setitem(sys.modules, "chumpy", package)
-    monkeypatch.setitem(sys.modules, "chumpy.ch", module)
-    return Ch
 
 
 def test_pkl_model_with_chumpy_and_sparse_regressor(tmp_path, arrays, chumpy_module):

@@ -11,15 +11,14 @@ import pickle
 import re
 import subprocess
 import sys
-import types
 import zipfile
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from assets.body import load_body, load_smpl
-from tests.assets.body_fixtures import smpl_arrays
+from assets.body import load_smpl
+from tests.assets.body_fixtures import chumpy_module, smpl_arrays  # noqa: F401 (a fixture)
 from tests.hostile.conftest import ROOT
 
 # Loads every file named on the command line with the loader named first; only a ValueError or
@@ -109,21 +108,6 @@ def test_dtype_built_through_copyreg_is_refused(tmp_path, arrays):
         load_smpl(path)
 
 
-@pytest.fixture
-def chumpy_class(monkeypatch):
-    """A class named chumpy.ch.Ch, as the published .pkl files hold (reading needs no chumpy)."""
-    package, module = types.ModuleType("chumpy"), types.ModuleType("chumpy.ch")
-
-    class Ch:
-        pass
-
-    Ch.__module__, Ch.__qualname__ = "chumpy.ch", "Ch"
-    module.Ch = Ch
-    monkeypatch.setitem(sys.modules, "chumpy", package)
-    monkeypatch.setitem(sys.modules, "chumpy.ch", module)
-    return Ch
-
-
 _OPCODES = b"cR(tb}]qhjgpsua.KMJNIFGXTUBC\x80\x8c\x94\x95"
 
 
@@ -151,8 +135,8 @@ def _mutants(seed_files: list[bytes], count: int, seed: int = 45) -> list[bytes]
 
 
 @pytest.mark.hostile("crash")
-def test_mutated_pickles_never_crash_or_leak_other_errors(tmp_path, arrays, chumpy_class):
-    shapedirs = chumpy_class()
+def test_mutated_pickles_never_crash_or_leak_other_errors(tmp_path, arrays, chumpy_module):
+    shapedirs = chumpy_module()
     shapedirs.__dict__.update(x=arrays["shapedirs"], _dirty_vars=set(), label="shapedirs")
     valid = dict(arrays, shapedirs=shapedirs, J_regressor=sp.csc_matrix(arrays["J_regressor"]), bs_style="lbs",
                  f=arrays["f"][:8], posedirs=arrays["posedirs"][:1, :1, :3])

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import errno
-from pathlib import Path
-
 import pytest
 
 from assets.fileio import atomic_path, check_limit, copy_file, file_digest, safe_name, staged_outputs

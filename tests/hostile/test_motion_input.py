@@ -180,3 +180,26 @@ def test_preview_refuses_bad_arguments_before_writing(tmp_path):
     assert _preview(out, "--frames", "0") == 2
     assert _preview(out, "--transition", "A", "--transition-seconds", "nan") == 2
     assert files_under(out) == before
+
+
+@pytest.mark.hostile("outside")
+@pytest.mark.parametrize("spec, label", [("walk", "walk"), ("/data/CMU_01_01_poses.npz", "CMU_01_01_poses"),
+                                         ("clips/dance.BVH", "dance"), ("../../x", None), ("/data/.npz", None),
+                                         ("a/b", None)])
+def test_a_motion_goes_by_a_label_that_is_one_path_component(spec, label):
+    from assets.motion.sources import motion_label
+
+    if label is None:
+        with pytest.raises(ValueError, match="cannot be a file name"):
+            motion_label(spec)
+    else:
+        assert motion_label(spec) == label
+
+
+@pytest.mark.hostile("outside")
+def test_two_motion_files_of_one_name_cannot_share_a_dataset_folder():
+    from factory.build import motion_labels
+
+    assert motion_labels(("walk", "/data/dance.npz")) == {"walk": "walk", "/data/dance.npz": "dance"}
+    with pytest.raises(ValueError, match="share the name 'dance'"):
+        motion_labels(("/a/dance.npz", "/b/dance.bvh"))
