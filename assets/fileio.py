@@ -208,6 +208,24 @@ def load_json(path: str | os.PathLike) -> object:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
 
 
+def record_settings(path: str | os.PathLike, settings: Mapping[str, object]) -> None:
+    """Write a stage's `settings` (JSON data) to `path`, or, where `path` holds the settings of an
+    earlier run, refuse unless they are the same: a ValueError naming the file and the settings that
+    differ, so a rerun never mixes outputs of other settings or inputs with the earlier ones."""
+    path = Path(path)
+    current = json.loads(json.dumps(settings))
+    if not path.exists():
+        save_json(path, current)
+        return
+    saved = load_json(path)
+    if not isinstance(saved, dict):
+        raise ValueError(f"{path}: expected a JSON object of settings, got {type(saved).__name__}")
+    differ = sorted(key for key in {*saved, *current} if saved.get(key) != current.get(key))
+    if differ:
+        raise ValueError(f"{path}: this folder holds a run with other settings or inputs ({', '.join(differ)} "
+                         "differ); use a new output folder, or delete this one to start over")
+
+
 def check_json_object(data: object, fields: Iterable[str], source: str) -> dict:
     """`data` as read from JSON for a record with these `fields`: a ValueError naming `source` unless it
     is an object whose keys are all among them (missing ones are the reader's business)."""

@@ -38,7 +38,8 @@ dataset at once, and `--backend ray` runs the tasks on a Ray cluster (`factory.r
 Capture (`capture`): a calibrated ring of cameras around the subject renders every frame of a
 sequence: `cameras.json` (`assets.cameras`), images per camera (``cam00/f000012.png``...), ground
 truth per image, and `garment.npz` (the ground-truth garment sequence: positions, faces, template):
-the synthetic capture reconstruction is tested and measured on.
+the synthetic capture reconstruction is tested and measured on.  `capture.json` records its settings
+and input files' digests: a rerun renders only what is missing, and only for the same capture.
 
 This module holds the settings (`RenderSettings`, `DatasetConfig`), the plan (splits, per-image
 variations, the fixed camera), what the build and the capture share (the simulation settings, render
@@ -55,7 +56,7 @@ import shutil
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +65,7 @@ from tqdm import tqdm
 
 from assets.body import load_body
 from assets.cameras import Camera, save_cameras
-from assets.fileio import copy_file, load_json, load_npz, save_json, save_npz
+from assets.fileio import copy_file, load_json, load_npz, record_settings, save_json, save_npz
 from assets.garments import Template
 from assets.pattern.observation import ImageGroundTruth, training_samples
 from assets.garments.markers import MarkerSurface
@@ -341,10 +342,14 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
     start = transition if first_frame is None else first_frame
     picked = list(range(start, start + frames))
     sim_config = simulation_config(garment, motion, body, picked[-1] + 1, seed, level_mm, motion_speed)
+    render = replace(render, resolution=tuple(resolution))
+    # the images of a rerun join those already rendered: only a rerun of the same capture may add to them
+    out.mkdir(parents=True, exist_ok=True)
+    record_settings(out / "capture.json", {
+        "simulation": sim_config.key(), "inputs": sim_config.inputs(), "frames": picked, "cameras": cameras,
+        "render": asdict(render), "radius": radius, "camera_height": camera_height, "seed": seed})
     if simulation is not None:
         reuse_simulation(simulation, out / "sim", sim_config)
-    out.mkdir(parents=True, exist_ok=True)
-    render = replace(render, resolution=tuple(resolution))
     body_model = load_body(body)
     template = render_template(garment, render.texture_dpi, out)
     sim = simulate(sim_config, out / "sim", progress=progress)

@@ -21,7 +21,7 @@ from factory import simulate as simulate_module
 from factory.dataset import reuse_simulation
 from factory.dressing import DressingParams
 from factory.simulate import SimulationConfig, simulate
-from tests.hostile.conftest import assert_refused, run_cli
+from tests.hostile.conftest import assert_refused, files_under, run_cli
 
 LEVEL_MM = 30  # the coarsest level every panel of the default trousers fits
 
@@ -258,3 +258,22 @@ def test_a_reused_simulation_with_a_broken_meta_is_named(pants_run, tmp_path):
     save_npz(source / "sequence.npz", {**load_npz(pants_run / "sequence.npz"), "meta": np.array("[broken")})
     with pytest.raises(ValueError, match=r"sequence.npz: meta"):
         reuse_simulation(source, tmp_path / "target", _config())
+
+
+@pytest.mark.hostile("stale")
+def test_a_capture_rerun_after_its_motion_file_changed_is_refused(tmp_path):
+    """Its images would be of the old motion beside ground truth of the new one."""
+    from factory.dataset import RenderSettings, capture
+
+    motion = _motion_file(tmp_path / "motion.npz", "walk")
+    options = dict(frames=1, first_frame=1, cameras=1, resolution=(48, 32), level_mm=LEVEL_MM, progress=False,
+                   render=RenderSettings(engine="WORKBENCH", samples=1, denoise=False, texture_dpi=10.0))
+    out = capture("pants", str(motion), tmp_path / "cap", **options)
+    rendered = files_under(out / "cam00")
+    capture("pants", str(motion), out, **options)  # the same capture: nothing to do
+    _motion_file(motion, "wave")
+    with pytest.raises(ValueError, match=r"capture.json: .*(inputs|simulation)"):
+        capture("pants", str(motion), out, **options)
+    with pytest.raises(ValueError, match=r"capture.json: .*cameras"):
+        capture("pants", "walk", out, **{**options, "cameras": 2})
+    assert files_under(out / "cam00") == rendered
