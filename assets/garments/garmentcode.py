@@ -32,7 +32,9 @@ and the front faces -Y.  A panel's outside is the side its normal takes away fro
 (centre of the bounding box of all placed outlines).  A panel whose traversal runs clockwise seen from
 outside has its loop reversed (vertex order and curve directions); then a panel whose outline is
 clockwise in its own frame is mirrored (x -> -x, arc sagittas negated) and its placement composed with
-180 degrees about the local Y axis.  Every 3D point stays where GarmentCode put it, and edges keep their
+180 degrees about the local Y axis.  Every 3D point stays where GarmentCode put it, except on arm panels
+(`_straighten_arms`): GarmentCode places sleeves on its A-pose body's arms, about 50 degrees down, and
+our hints are for the T-pose, so each arm's panels turn up about the sleeve's cap end.  Edges keep their
 names (the label if unique in the panel, else `e{index}` with GarmentCode's edge index) whatever their
 new position in the loop.  Seam `reverse` follows GarmentCode's stitch meaning exactly: right side to
 right side (one edge's end meets the other's start) unless the stitch is tagged 'right_wrong', then
@@ -160,6 +162,7 @@ def garmentcode_from_dict(data: Any, source: str = "garmentcode", extent_m: tupl
         pattern_name(n, f"{source}: pattern.panels name")
     drafts = {n: _read_panel(raw_panels[n], float(units), coords, f"{source}: panel '{n}'", n) for n in order}
     _check_extent(drafts, units, extent_m, source)
+    _straighten_arms(drafts)
 
     outlines = {n: d.to_world(d.panel().outline(_SPACING)) for n, d in drafts.items()}
     everything = np.concatenate(list(outlines.values()))
@@ -311,6 +314,48 @@ def _euler(rotation: np.ndarray) -> tuple[float, float, float]:
     return tuple(float(a) for a in angles)
 
 
+def _straighten_arms(drafts: dict[str, _Draft]) -> None:
+    """Turn each arm's panels, in place, from GarmentCode's A-pose placement into ours.
+
+    GarmentCode drafts a sleeve with its length along the panel's x axis and turns it about the front
+    axis to the arm of its A-pose body (about 50 degrees down); our hints are for the T-pose (arms along
+    +-X), which dressing then turns into its own pose.  The arm panels of one side (centre x > 0: left)
+    that face front or back are turned together about the world Y axis so that their mean x axis lies
+    along +-X, about the inner end of the sleeve (the cap end on the sleeve's centre line), where the
+    sleeve meets the torso.  Each panel keeps its shape and its place relative to the others."""
+    sides: dict[float, list[tuple[_Draft, np.ndarray]]] = {}
+    for name, draft in drafts.items():
+        if _part_kind(name, draft.label) != "arm" or abs(draft.rotation[1, 2]) < 0.9:
+            continue
+        outline = draft.to_world(draft.panel().outline(_SPACING))
+        sides.setdefault(1.0 if outline[:, 0].mean() >= 0 else -1.0, []).append((draft, outline))
+    for sign, members in sides.items():
+        directions = np.array([d.rotation[[0, 2], 0] for d, _ in members])  # panel x in the world XZ plane
+        directions *= np.where(directions[:, :1] * sign < 0, -1.0, 1.0)  # pointing away from the body
+        tilt = float(np.arctan2(directions[:, 1], directions[:, 0] * sign).mean())
+        if abs(tilt) < 1e-9:
+            continue
+        along = np.array([sign * np.cos(tilt), 0.0, np.sin(tilt)])
+        points = np.concatenate([outline for _, outline in members])
+        centre = points.mean(axis=0)
+        pivot = centre + ((points @ along).min() - centre @ along) * along
+        turn = Rotation.from_euler("y", sign * tilt).as_matrix()
+        for draft, _ in members:
+            draft.rotation = turn @ draft.rotation
+            draft.translation = turn @ (draft.translation - pivot) + pivot
+
+
+def _part_kind(name: str, label: str) -> str:
+    """arm, neck, waist, leg or torso from keywords in the panel name, then its label (`_body_part`)."""
+    for text in (name, label):
+        words = [w for w in re.split(r"[^a-z]+", text.lower()) if w]
+        hits = [part for keys, part in _BODY_PART_RULES if any(w.startswith(k) or w.endswith(k)
+                                                               for w in words for k in keys)]
+        if hits:
+            return hits[0]
+    return "torso"
+
+
 def _body_part(name: str, label: str, offset: np.ndarray, normal: np.ndarray) -> str:
     """Body part from keywords in the panel name (then its label) and the panel's 3D position.
 
@@ -322,14 +367,7 @@ def _body_part(name: str, label: str, offset: np.ndarray, normal: np.ndarray) ->
     -Y (front), or the centre's offset from the garment centre for panels that face sideways.
     `offset`: (3,) panel centre minus garment centre, metres; `normal`: (3,) unit outward normal.
     """
-    kind = "torso"
-    for text in (name, label):
-        words = [w for w in re.split(r"[^a-z]+", text.lower()) if w]
-        hits = [part for keys, part in _BODY_PART_RULES if any(w.startswith(k) or w.endswith(k)
-                                                               for w in words for k in keys)]
-        if hits:
-            kind = hits[0]
-            break
+    kind = _part_kind(name, label)
     if kind == "neck":
         return "neck"
     if kind in ("arm", "leg"):
