@@ -18,7 +18,9 @@ set-in sleeves with a tall cap do not fit a T-pose: the arm pokes through the sl
    moved out along its normal.
 3. Sew: quasi-static projective dynamics (`factory.cloth`; every step starts at rest) with
    zero-length springs between seam pairs, body contact and no gravity.  The springs start soft and stiffen whenever the widest gap stops closing,
-   until every gap is under `gap_tolerance` (1 mm) and no vertex is inside the body.
+   until every gap is under `gap_tolerance` (1 mm) and no vertex is inside the body.  Sewing gives up
+   when the gap stops shrinking at the stiffest seams allowed (`stall_steps`): the `DressingError`
+   names the widest open seams with their gaps and holds where it stuck (`save_stuck`: npz and PNG).
 4. Merge the seam pairs into one mesh (`Level.sew`) and let it settle under gravity for
    `settle_seconds`, so it hangs on the body: the garment at rest, ready for motion.
 """
@@ -65,12 +67,13 @@ _PARTS: dict[str, tuple[str | None, str, str | None, tuple[str, ...]]] = {
 
 
 class DressingError(RuntimeError):
-    """A pattern that cannot be dressed, or sewing that did not close (`positions`: the unsewn
-    vertices where sewing stopped, for a look at what went wrong)."""
+    """A pattern that cannot be dressed, or sewing that did not close.  `stuck`: the garment where
+    dressing stopped (the unsewn panels when sewing failed, the sewn mesh when it slid off while
+    settling), to save and look at (`save_stuck`); None when dressing never started."""
 
-    def __init__(self, message: str, positions: np.ndarray | None = None):
+    def __init__(self, message: str, stuck: "DressedGarment | None" = None):
         super().__init__(message)
-        self.positions = positions
+        self.stuck = stuck
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,11 @@ class DressingParams:
     near_gap: float = 0.01
     gap_tolerance: float = 1.0e-3
     max_sew_steps: int = 1500
+    #: sewing gives up when the widest gap has not shrunk 5 % in this many steps at the stiffest
+    #: seams allowed: stiffer springs cannot close it (a panel caught on the wrong side of a limb)
+    stall_steps: int = 200
+    #: how many of the widest open seams a failure names
+    worst_seams: int = 5
     settle_seconds: float = 0.5
     #: contact weight (N/m^3) while settling, a tenth of the simulation's: at 1e8 the penalty is 70x
     #: stiffer than inertia (k h^2 / m), ten local-global iterations do not converge, and the
@@ -325,7 +333,7 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     weight = params.seam_weight
     solver = ProjectiveDynamics(model, springs=pairs, spring_stiffness=weight * pair_area)
     state = ClothState(positions, np.zeros_like(positions))
-    best, since_best, steps = np.inf, 0, 0
+    best, since_best, steps, stalled = np.inf, 0, 0, 0
     bar = tqdm(total=params.max_sew_steps, desc=f"sewing {template.name}", unit="step", disable=not progress,
                leave=False)
     for steps in range(1, params.max_sew_steps + 1):
@@ -341,23 +349,27 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
         if gap < params.gap_tolerance and depth <= 0.0:
             break
         if gap < 0.95 * best:
-            best, since_best = gap, 0
+            best, since_best, stalled = gap, 0, 0
         else:
             since_best += 1
+            stalled += 1
         ceiling = params.max_seam_weight if gap < params.near_gap else params.far_seam_weight
         if since_best >= 20 and gap >= params.gap_tolerance and weight < ceiling:
             weight = min(weight * params.seam_growth, ceiling)
             solver.set_spring_stiffness(weight * pair_area)
             best, since_best = gap, 0
+        if stalled >= params.stall_steps and weight >= ceiling:
+            break
     bar.close()
     if not (gap < params.gap_tolerance and depth <= 0.0):
-        seams = np.unique(level.seam[solver.spring_lengths(state.positions) >= params.gap_tolerance])
-        names = [f"{template.pattern.seams[i].a.panel}.{template.pattern.seams[i].a.edge}-"
-                 f"{template.pattern.seams[i].b.panel}.{template.pattern.seams[i].b.edge}" for i in seams]
+        stuck = DressedGarment(template.name, params.level_mm, level.faces.copy(), rest_corners, state.positions,
+                               np.asarray(betas, np.float64), dressed.trans, dressed.pose)
+        how = "its widest gap stopped shrinking" if steps < params.max_sew_steps else "it ran out of steps"
         raise DressingError(
-            f"cannot dress '{template.name}': after {steps} steps the widest seam gap is {gap * 1e3:.1f} mm "
-            f"(tolerance {params.gap_tolerance * 1e3:.1f} mm) and the deepest vertex is {max(depth, 0) * 1e3:.1f} mm "
-            f"inside the body; open seams: {', '.join(names) or 'none'}", state.positions)
+            f"cannot dress '{template.name}': sewing stopped after {steps} steps ({how}) with the widest seam gap "
+            f"{gap * 1e3:.1f} mm (tolerance {params.gap_tolerance * 1e3:.1f} mm) and the deepest vertex "
+            f"{max(depth, 0) * 1e3:.1f} mm inside the body; widest open seams: "
+            f"{_worst_seams(template, level.seam, solver.spring_lengths(state.positions), params)}", stuck)
     sew_gap = float(gap)
 
     # 4. merge and settle under gravity
@@ -374,7 +386,8 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
         raise DressingError(
             f"cannot dress '{template.name}': the sewn garment does not hold on the body (it slid "
             f"{drop * 100:.0f} cm down while settling: its panels closed around the wrong side of a body part)",
-            state.positions)
+            DressedGarment(template.name, params.level_mm, level.sewn_faces.copy(), rest_corners, state.positions,
+                           np.asarray(betas, np.float64), dressed.trans, dressed.pose))
     report = {
         "sew_steps": steps, "seam_gap_mm": sew_gap * 1e3, "final_seam_weight": weight,
         "max_penetration_mm": depth * 1e3,
@@ -387,8 +400,32 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
                           np.asarray(betas, np.float64), dressed.trans, dressed.pose, report)
 
 
-def write_preview(garment: DressedGarment, body: BodyModel, png: str | Path) -> None:
-    """Body and dressed garment from four sides, into a PNG."""
+def _worst_seams(template: Template, seam_of_pair: np.ndarray, gaps: np.ndarray, params: DressingParams) -> str:
+    """'panel.edge-panel.edge 89.1 mm, ...' for the `params.worst_seams` seams with the widest gap
+    (metres per seam pair in `gaps`, the seam of each pair in `seam_of_pair`) over the tolerance."""
+    widest = np.zeros(len(template.pattern.seams))
+    np.maximum.at(widest, seam_of_pair, gaps)
+    open_seams = [i for i in np.argsort(-widest, kind="stable") if widest[i] >= params.gap_tolerance]
+    named = [f"{s.a.panel}.{s.a.edge}-{s.b.panel}.{s.b.edge} {widest[i] * 1e3:.1f} mm"
+             for i in open_seams[:params.worst_seams] for s in [template.pattern.seams[i]]]
+    more = len(open_seams) - len(named)
+    return (", ".join(named) or "none") + (f" (and {more} more open)" if more > 0 else "")
+
+
+def save_stuck(error: DressingError, body: BodyModel, out: str | Path) -> list[Path]:
+    """Write where a failed dressing stopped, OUT/NAME_stuck.npz (`DressedGarment.save`) and
+    OUT/NAME_stuck.png (`write_preview`); returns the paths, none when `error` holds no garment."""
+    if error.stuck is None:
+        return []
+    out = Path(out)
+    paths = [out / f"{error.stuck.garment}_stuck.npz", out / f"{error.stuck.garment}_stuck.png"]
+    error.stuck.save(paths[0])
+    write_preview(error.stuck, body, paths[1], title=f"{error.stuck.garment}: dressing stopped here")
+    return paths
+
+
+def write_preview(garment: DressedGarment, body: BodyModel, png: str | Path, title: str | None = None) -> None:
+    """Body and dressed garment from four sides, into a PNG (`title` default: 'NAME dressed (L mm)')."""
     from assets.body.model import PosedBody
     from assets.motion.export import render_preview
     from assets.rotations import rotvec_to_matrix
@@ -399,7 +436,7 @@ def write_preview(garment: DressedGarment, body: BodyModel, png: str | Path) -> 
     posed = PosedBody(vertices=np.stack([body_vertices @ r.T for r in turns]), joints=np.zeros((4, body.num_joints, 3)),
                       faces=body.faces)
     render_preview(png, posed, frames=np.arange(4), labels=["front", "side", "back", "side"],
-                   title=f"{garment.garment} dressed ({garment.level_mm} mm)",
+                   title=title or f"{garment.garment} dressed ({garment.level_mm} mm)",
                    extra=((np.stack([garment.positions @ r.T for r in turns]), garment.faces, (0.25, 0.45, 0.85)),))
 
 
@@ -428,7 +465,12 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for spec in args.garments:
             template = load_template(spec)
-            garment = dress(template, body, betas, DressingParams(level_mm=args.level, pose=args.pose))
+            try:
+                garment = dress(template, body, betas, DressingParams(level_mm=args.level, pose=args.pose))
+            except DressingError as exc:
+                saved = save_stuck(exc, body, args.out)
+                raise DressingError(f"{exc}" + (f"; where it stopped: {', '.join(map(str, saved))}" if saved
+                                                  else "")) from exc
             garment.save(args.out / f"{template.name}_dressed.npz")
             write_preview(garment, body, args.out / f"{template.name}_dressed.png")
             r = garment.report
