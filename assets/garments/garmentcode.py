@@ -89,6 +89,9 @@ _SPACING = 0.005  # metres between outline samples for normals and centres
 #: outside this range was converted with the wrong `units_in_meter`
 GARMENT_EXTENT_M = (0.1, 2.5)
 
+#: a seam whose edges differ in length by more than this fraction of the longer is gathered: dressing
+#: sews it evenly, so the gathers are spread, not pleated where the design puts them
+GATHER_WARNING = 0.10
 #: (keywords, body part or None if it depends on side/facing); the first matching row wins
 _BODY_PART_RULES = (
     (("sleeve", "arm", "cuff"), "arm"),
@@ -185,7 +188,19 @@ def garmentcode_from_dict(data: Any, source: str = "garmentcode", extent_m: tupl
     name = pattern_name(Path(source).stem.removesuffix("_specification"), f"{source}: file name")
     pattern = SewingPattern(name=name, panels=tuple(panels), seams=seams)
     validate(pattern, source, max_panel_m)
+    _warn_gathered(pattern, source)
     return pattern
+
+
+def _warn_gathered(pattern: SewingPattern, source: str) -> None:
+    """Log a warning for each seam gathered by more than `GATHER_WARNING` (edge lengths differ)."""
+    for i, seam in enumerate(pattern.seams):
+        a, b = (pattern.panel(side.panel).edge_length(pattern.panel(side.panel).edge_index(side.edge))
+                for side in (seam.a, seam.b))
+        if abs(a - b) > GATHER_WARNING * max(a, b):
+            log.warning("%s: stitch #%d (%s.%s %.3f m, %s.%s %.3f m) gathers %.0f%%, more than %.0f%%: dressing "
+                        "spreads the gathers evenly along the seam", source, i, seam.a.panel, seam.a.edge, a,
+                        seam.b.panel, seam.b.edge, b, 100 * abs(a - b) / max(a, b), 100 * GATHER_WARNING)
 
 
 def _check_extent(drafts: dict[str, _Draft], units: float, extent_m: tuple[float, float], source: str) -> None:

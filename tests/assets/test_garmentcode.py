@@ -391,3 +391,15 @@ def test_cli_help_runs_as_module():
     result = subprocess.run([sys.executable, "-m", "assets.garments.garmentcode", "--help"], cwd=root,
                             capture_output=True, text=True, check=True)
     assert "GarmentCode" in result.stdout and "OUT.json" in result.stdout
+
+
+@pytest.mark.parametrize("height, warned", [(35.0, True), (31.5, False)])
+def test_seams_gathered_over_ten_percent_are_reported(height, warned, caplog):
+    """The tube's back side edge lengthened from 30 cm: 35 cm gathers its seam 14 %, 31.5 cm 5 %."""
+    spec = tube_spec()
+    spec["pattern"]["panels"]["back"]["vertices"][2] = [20, height]
+    with caplog.at_level("WARNING", logger="assets.garments.garmentcode"):
+        garmentcode_from_dict(spec, source="tube.json")
+    gathered = [r.getMessage() for r in caplog.records if "gathers" in r.getMessage()]
+    assert gathered == (["tube.json: stitch #0 (front.e1 0.300 m, back.e2 0.350 m) gathers 14%, more than 10%: "
+                         "dressing spreads the gathers evenly along the seam"] if warned else [])
