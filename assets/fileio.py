@@ -208,18 +208,18 @@ def load_json(path: str | os.PathLike) -> object:
         raise ValueError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
 
 
-def record_settings(path: str | os.PathLike, settings: Mapping[str, object]) -> None:
-    """Write a stage's `settings` (JSON data) to `path`, or, where `path` holds the settings of an
-    earlier run, refuse unless they are the same: a ValueError naming the file and the settings that
-    differ, so a rerun never mixes outputs of other settings or inputs with the earlier ones."""
+def check_settings(path: str | os.PathLike, settings: Mapping[str, object]) -> None:
+    """Refuse to run a stage whose settings (JSON data; its `save_json` record, written by the stage)
+    differ from those of the earlier run recorded in `path`: a ValueError naming the file and the
+    settings that differ, so a rerun never mixes outputs of other settings or inputs with the earlier
+    ones.  Nothing to check where `path` does not exist."""
     path = Path(path)
-    current = json.loads(json.dumps(settings))
     if not path.exists():
-        save_json(path, current)
         return
     saved = load_json(path)
     if not isinstance(saved, dict):
         raise ValueError(f"{path}: expected a JSON object of settings, got {type(saved).__name__}")
+    current = json.loads(json.dumps(settings))
     differ = sorted(key for key in {*saved, *current} if saved.get(key) != current.get(key))
     if differ:
         raise ValueError(f"{path}: this folder holds a run with other settings or inputs ({', '.join(differ)} "

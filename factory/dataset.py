@@ -65,7 +65,7 @@ from tqdm import tqdm
 
 from assets.body import load_body
 from assets.cameras import Camera, save_cameras
-from assets.fileio import copy_file, load_json, load_npz, record_settings, save_json, save_npz
+from assets.fileio import copy_file, load_json, load_npz, check_settings, save_json, save_npz
 from assets.garments import Template
 from assets.pattern.observation import ImageGroundTruth, training_samples
 from assets.garments.markers import MarkerSurface
@@ -344,12 +344,13 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
     sim_config = simulation_config(garment, motion, body, picked[-1] + 1, seed, level_mm, motion_speed)
     render = replace(render, resolution=tuple(resolution))
     # the images of a rerun join those already rendered: only a rerun of the same capture may add to them
-    out.mkdir(parents=True, exist_ok=True)
-    record_settings(out / "capture.json", {
-        "simulation": sim_config.key(), "inputs": sim_config.inputs(), "frames": picked, "cameras": cameras,
-        "render": asdict(render), "radius": radius, "camera_height": camera_height, "seed": seed})
+    settings = {"simulation": sim_config.key(), "inputs": sim_config.inputs(), "frames": picked, "cameras": cameras,
+                "render": asdict(render), "radius": radius, "camera_height": camera_height, "seed": seed}
+    check_settings(out / "capture.json", settings)
     if simulation is not None:
         reuse_simulation(simulation, out / "sim", sim_config)
+    out.mkdir(parents=True, exist_ok=True)
+    save_json(out / "capture.json", settings)
     body_model = load_body(body)
     template = render_template(garment, render.texture_dpi, out)
     sim = simulate(sim_config, out / "sim", progress=progress)
