@@ -21,6 +21,7 @@ def test_the_add_on_refuses_file_names_that_would_lead_outside_its_folders(addon
         addon.commands.simulation_dir(settings)
 
 
+@pytest.mark.hostile("outside")
 def test_the_add_on_names_a_motion_file_by_its_label(addon, tmp_path):
     import bpy
 
