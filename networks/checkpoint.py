@@ -8,6 +8,9 @@ read with ``torch.load(path, weights_only=True)`` (no code runs on load)::
      "num_ids": int, "crosspoints_per_side": int, "model": state dict, "optimizer": state dict | None,
      "scheduler": state dict | None, "step": int, "metrics": dict, "rng": {"torch", "cuda"}, ...extra}
 
+A recognizer's network follows its config's `recognizer_classes`: one output per codebook ID, or one
+per code module of the pattern's marker ("modules", `networks.models.MarkerModuleReader`).
+
 A compact checkpoint (`slim_checkpoint(..., dtype=torch.int8)`) also holds "int8_scales": {key: (out,)
 float32}, one scale per output channel of each weight stored as int8 (all but `FLOAT_WEIGHTS`' of its
 task, which stay float32); `read_checkpoint` returns its weights dequantized to float32, so everything
@@ -260,10 +263,13 @@ def load_checkpoint(
         raise ValueError(f"{path}: task {data['task']!r} but config.task {config.task!r}")
     if spec is not None:
         check_pattern(data, spec, source=str(path))
+    modules_per_side = checkpoint_spec(data).modules_per_side  # a module reader's outputs
+
     def build() -> nn.Module:
         return build_model(data["task"], data["num_ids"], data["crosspoints_per_side"],
                            crosspoint_margin_cells=config.crosspoint_margin_cells,
-                           recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend)
+                           recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend,
+                           recognizer_classes=config.recognizer_classes, modules_per_side=modules_per_side)
 
     with torch.device("meta"):  # the network's shapes, nothing allocated
         _check_fit(build().state_dict(), data["model"], f"{path}: the weights do not fit the {data['task']} network")

@@ -22,8 +22,9 @@ CROSSPOINT_VISIBILITY_WEIGHT = 100.0
 #: The three networks, by the name used in checkpoints, datasets and the CLIs.
 TASKS = ("localizer", "recognizer", "crosspoints")
 
-#: What the Marker Recognizer classifies among (`TrainConfig.recognizer_classes`).
-RECOGNIZER_CLASSES = ("garment", "codebook")
+#: What the Marker Recognizer outputs (`TrainConfig.recognizer_classes`): a class per marker ID of the
+#: garment or of the codebook, or a logit per code module ("modules", decoded against the codebook).
+RECOGNIZER_CLASSES = ("garment", "codebook", "modules")
 
 #: Defaults that differ between the tasks (fields left None in `TrainConfig` take these).
 TASK_DEFAULTS: dict[str, dict[str, int]] = {
@@ -105,8 +106,12 @@ class TrainConfig:
     recognizer_classes: "garment" (the reference: the Marker Recognizer classifies among the N marker
     IDs printed on the garment, `networks.data.garment_marker_ids`; N = 546 for the factory's shirt)
     or "codebook" (all `num_ids` IDs of the codebook).  The network keeps one output per codebook
-    ID either way (class k is marker ID k); with "garment" the other IDs' outputs are masked off
+    ID in both (class k is marker ID k); with "garment" the other IDs' outputs are masked off
     (`networks.train.restrict_classes`) and the checkpoint lists the classes (`recognizer_ids`).
+    "modules": the network is a `networks.models.MarkerModuleReader` (one logit per code module,
+    trained by a per-module BCE against the ID's grid) and the ID is decoded against the codebook
+    (`networks.codes.CodeDecoder`), so it reads IDs no training garment printed; its synthesized
+    crops are of any codebook ID unless a garment is given.
     val_samples caps the validation set, evaluated every `val_every` steps;
     `last.pt` is written every `checkpoint_every` steps.  pretrained: a torchvision ImageNet ResNet
     state-dict file for the backbone (None: random initialisation).  init: a checkpoint of this task

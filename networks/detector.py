@@ -8,7 +8,10 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        five points and a presence probability per marker.
     2. Each marker's 96 x 96 crop (`RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
        argmax (over the garment's IDs when `tables` are given) and
-       ``confidence = presence probability x softmax probability of that ID``.
+       ``confidence = presence probability x softmax probability of that ID``.  A module reader
+       (`MarkerModuleReader`, trained with ``recognizer_classes="modules"``) gives code-module logits
+       instead, decoded against the codebook's IDs (the garment's when `tables` are given) under all
+       four rotations (`networks.codes.CodeDecoder`); the probability is the decoded ID's posterior.
     3. With the garment's `tables`, each ID is checked against the IDs its detected neighbours imply
        on the layout (`networks.neighbours.vote_ids`) and replaced where they agree on another;
        the confidence of a replaced ID uses the recognizer's probability of that ID.
@@ -54,6 +57,7 @@ from assets.pattern import (
 )
 from assets.pattern.observation import is_convex_layout
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
+from networks.codes import CodeDecoder
 from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX,
                              crop_px_problem, keep_own_problem, marker_px_problem, neighbour_fit_problem)
 from networks.decode import decode_localizer
@@ -69,7 +73,7 @@ from networks.homography import (
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks.models import CELL, normalize
-from networks.tasks import model_bend
+from networks.tasks import model_bend, reads_modules
 
 
 @dataclass(frozen=True)
@@ -326,7 +330,10 @@ class Detector:
         n = spec.modules_per_side
         if self.codebook.shape[1:] != (n, n):
             raise ValueError(f"Detector: codebook has shape {self.codebook.shape}, expected (num_ids, {n}, {n})")
-        num_ids = getattr(recognizer, "num_ids", None)
+        num_ids = getattr(recognizer, "num_ids", None)  # none for a module reader: it reads any ID
+        if reads_modules(recognizer) and recognizer.modules_per_side != n:
+            raise ValueError(f"Detector: the recognizer reads {recognizer.modules_per_side} x "
+                             f"{recognizer.modules_per_side} code modules, the pattern has {n} x {n}")
         if num_ids is not None and num_ids > len(self.codebook):
             raise ValueError(f"Detector: the recognizer has {num_ids} IDs, the codebook only {len(self.codebook)}")
         k = getattr(crosspoints, "crosspoints_per_side", spec.crosspoints_per_side)
@@ -347,6 +354,12 @@ class Detector:
                     raise ValueError(f"Detector: tables[{t}] uses IDs up to {table.marker_ids.max()}, the recognizer "
                                      f"knows {num_ids}")
             self.layout = MarkerLayout.from_tables(tables, len(self.codebook))
+        #: a module reader's decoder: the garment's IDs with `restrict_to_tables`, else the whole codebook
+        self.decoder = None
+        if reads_modules(recognizer):
+            candidates = np.flatnonzero(self.layout.table_of_id >= 0) \
+                if self.layout is not None and config.restrict_to_tables else None
+            self.decoder = CodeDecoder(self.codebook, candidates, self.device)
         # NHWC convolutions: on a GPU's tensor cores (benchmarks/memory_format.py), and on the CPU too
         # (10-21% less time per network, benchmarks/inference_layout.py)
         self.localizer = localizer.to(self.device, memory_format=torch.channels_last).eval()
@@ -430,7 +443,8 @@ class Detector:
     def recognize(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
                   marker_id: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Stage 2: (marker_id (N,) int64, softmax probability of that ID (N,) float32): the most
-        probable ID, or the given `marker_id` (N,) with the probability the recognizer gives it."""
+        probable ID, or the given `marker_id` (N,) with the probability the recognizer gives it (a
+        module reader's: the decoded posterior among `self.decoder`'s candidates)."""
         ids = np.zeros(len(image_index), dtype=np.int64) if marker_id is None else np.asarray(marker_id, np.int64)
         probability = np.zeros(len(image_index), dtype=np.float32)
         allowed = None
@@ -440,7 +454,16 @@ class Detector:
             for part in _batches(len(image_index), self.batch_size):
                 crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP,
                                        self.recognizer_bend)
-                prob = torch.softmax(self.recognizer(self._to_device(crops)).float(), dim=1)
+                output = self.recognizer(self._to_device(crops)).float()
+                if self.decoder is not None:
+                    if marker_id is not None:
+                        probability[part] = self.decoder.probability_of(output, ids[part]).cpu().numpy()
+                    else:
+                        reading = self.decoder.decode(output)
+                        ids[part] = reading.marker_id.cpu().numpy()
+                        probability[part] = reading.probability.cpu().numpy()
+                    continue
+                prob = torch.softmax(output, dim=1)
                 if marker_id is not None:
                     given = torch.as_tensor(ids[part], device=self.device)
                     probability[part] = prob.gather(1, given[:, None])[:, 0].cpu().numpy()

@@ -8,7 +8,8 @@ Reports (see `networks.metrics` for the definitions):
   localizer    marker precision / recall / F1 (a prediction matches a ground-truth marker whose centre
                is within --radius pixels), over all markers of the cell targets and over the fully
                visible ones, and the median and 95th-percentile error of each localization point;
-  recognizer   top-1 and top-5 accuracy;
+  recognizer   top-1 and top-5 accuracy (a module reader's IDs decoded against the whole codebook,
+               `networks.codes.CodeDecoder`);
   crosspoints  visibility precision / recall and the median and 95th-percentile error of the
                crosspoints visible in the ground truth, in crop pixels and in image pixels, also by
                the size of the crop's marker in the image (a crop magnifies a small marker more),
@@ -44,6 +45,7 @@ from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_code
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
                                        recognizer_crops, recognizer_markers, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
+from networks.codes import CodeDecoder, module_targets
 from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, SMOOTH_CROSSPOINTS_PX, TASKS
 from networks.data import SHARD_META, ShardDataset, shard_bend_problem
 from networks.data import _manifest as read_manifest
@@ -58,7 +60,7 @@ from networks.metrics import (
     localizer_metrics,
     recognizer_metrics,
 )
-from networks.tasks import autocast, batch_length, forward, model_bend
+from networks.tasks import autocast, batch_length, forward, model_bend, reads_modules
 
 #: sample arrays each task reads from `samples/<name>.npz`
 SAMPLE_KEYS = {
@@ -236,8 +238,9 @@ class _Results:
     """Accumulates one task's predictions, ground truth and loss over batches."""
 
     def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float,
-                 crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> None:
+                 crop: CropSpec = CROSSPOINT_CROP, bend: bool = False, decoder: CodeDecoder | None = None) -> None:
         self.task, self.spec, self.radius_px, self.threshold, self.crop = task, spec, radius_px, threshold, crop
+        self.decoder = decoder  # a module reader's: its logits ranked as codebook IDs
         self.bend = bend  # crosspoints: the crops are bent, and their points map back through the bent map
         self.samples = 0
         self.loss: dict[str, float] = {}
@@ -259,7 +262,8 @@ class _Results:
                       gt=[cells_to_markers(c) for c in batch["cells"].numpy()], full=batch.get("gt_full"),
                       ignore=batch.get("gt_ignore"))
         elif self.task == "recognizer":
-            ranked = torch.topk(output, min(5, output.shape[1]), dim=1).indices
+            ranked = self.decoder.ranked(output, 5) if self.decoder is not None \
+                else torch.topk(output, min(5, output.shape[1]), dim=1).indices
             self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy(),
                       full=batch["full"].numpy() if "full" in batch else None)
         else:
@@ -325,19 +329,27 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
                       mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX, progress: bool = False,
                       visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT) -> dict[float, dict]:
     """`evaluate_model` at each of `thresholds` (presence or visibility probability) from one pass of the
-    network over `batches`: {threshold: metrics}."""
+    network over `batches`: {threshold: metrics}.  A module reader (`networks.tasks.reads_modules`) needs
+    `spec`: its targets and decoded IDs come from the pattern's codebook."""
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
     if not thresholds or not all(0 < t < 1 for t in thresholds):
         raise ValueError(f"thresholds must be a non-empty list of values in (0, 1), got {list(thresholds)}")
     device = torch.device(device)
+    codes, decoder = None, None
+    if task == "recognizer" and reads_modules(model):
+        if spec is None:
+            raise ValueError("evaluate_model: a module-reading recognizer needs the pattern (spec) to decode IDs")
+        codebook = generate_codebook(spec)
+        codes, decoder = module_targets(codebook).to(device), CodeDecoder(codebook, device=device)
     was_training = model.training
     model.eval()
-    results = {t: _Results(task, spec, radius_px, t, model_crop(model), model_bend(model)) for t in thresholds}
+    results = {t: _Results(task, spec, radius_px, t, model_crop(model), model_bend(model), decoder) for t in thresholds}
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):
-                output, loss, parts = forward(task, model, batch, device, visibility_weight=visibility_weight)
+                output, loss, parts = forward(task, model, batch, device, visibility_weight=visibility_weight,
+                                              codes=codes)
             for result in results.values():
                 result.update(output, loss, parts, batch)
     finally:

@@ -3,6 +3,8 @@
 * `MarkerLocalizer` (ResNet-18, dilated): dense per-8 x 8-cell marker presence and five localization
   points; `localizer_loss`.  Decoding to markers is `networks.decode.decode_localizer`.
 * `MarkerRecognizer` (ResNet-50): marker ID logits from a 96 x 96 unwarped crop; `recognizer_loss`.
+* `MarkerModuleReader` (ResNet-50, not the reference's): one logit per code module of the same crop,
+  decoded against any codebook by `networks.codes.CodeDecoder`; `module_loss`.
 * `CrosspointLocalizer` (ResNet-50, dilated, two inputs): visibility and crop position of the 25 x 25
   crosspoints from a 112 x 112 unwarped crop and the reference texture of its ID; `crosspoint_loss`.
 
@@ -144,6 +146,41 @@ def recognizer_loss(logits: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         raise ValueError(f"recognizer_loss: expected logits (B, num_ids) and ids (B,), got {tuple(logits.shape)} "
                          f"and {tuple(ids.shape)}")
     return F.cross_entropy(logits, ids.long())
+
+
+class MarkerModuleReader(nn.Module):
+    """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> n * n): the
+    Marker Recognizer's network with one output per code module instead of one per marker ID.
+
+    forward: x float (B, 3, 96, 96) normalised crops (`assets.pattern.RECOGNIZER_CROP`) -> logits
+    (B, n * n), module (row r, col c) of the crop's canonical orientation (TL corner top-left) at
+    r * n + c; sigmoid is the probability that the module is filled with the code colour (1 in the
+    codebook's grids).  It knows no IDs: `networks.codes.CodeDecoder` matches its logits against any
+    codebook of the pattern, so IDs no training garment printed are read too.  bend: as for
+    `MarkerRecognizer`.
+    """
+
+    def __init__(self, modules_per_side: int, pretrained: str | Path | None = None, bend: bool = False) -> None:
+        super().__init__()
+        if modules_per_side < 2:
+            raise ValueError(f"MarkerModuleReader: modules_per_side must be >= 2, got {modules_per_side}")
+        self.modules_per_side = modules_per_side
+        self.bend = bool(bend)
+        self.backbone = resnet50(num_classes=modules_per_side * modules_per_side)
+        _load_backbone(self.backbone, pretrained)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        _check_images(x, "MarkerModuleReader input")
+        return self.backbone(x)
+
+
+def module_loss(logits: torch.Tensor, modules: torch.Tensor) -> torch.Tensor:
+    """Mean binary cross-entropy of module logits (B, L) against the IDs' module grids (B, L) in {0, 1}
+    (`networks.codes.module_targets` rows); scalar."""
+    if logits.ndim != 2 or modules.shape != logits.shape:
+        raise ValueError(f"module_loss: expected logits (B, L) and module grids of the same shape, got "
+                         f"{tuple(logits.shape)} and {tuple(modules.shape)}")
+    return F.binary_cross_entropy_with_logits(logits, modules.to(logits.dtype))
 
 
 # ---- Crosspoint Localizer -----------------------------------------------------------------------

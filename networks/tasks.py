@@ -5,7 +5,8 @@ the loops in `networks.train` and `networks.evaluate` are the same for all three
 collated dataset items of `networks.data` (uint8 images and crops, float32 targets):
 
   localizer:   image (B, 3, H, W) uint8, cells (B, H/8, W/8, 11) float32
-  recognizer:  crop (B, 3, 96, 96) uint8, marker_id (B,) int64
+  recognizer:  crop (B, 3, 96, 96) uint8, marker_id (B,) int64 (a module reader's targets are the IDs'
+               module grids, looked up in the codebook's `networks.codes.module_targets`)
   crosspoints: crop, reference (B, 3, 112, 112) uint8, xy (B, 25, 25, 2) float32, visible (B, 25, 25) bool
 """
 
@@ -20,9 +21,11 @@ from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, TASKS
 from networks.models import (
     CrosspointLocalizer,
     MarkerLocalizer,
+    MarkerModuleReader,
     MarkerRecognizer,
     crosspoint_loss,
     localizer_loss,
+    module_loss,
     normalize,
     recognizer_loss,
 )
@@ -37,13 +40,18 @@ BATCH_KEYS = {
 
 def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None,
                 crosspoint_margin_cells: int = 2, recognizer_bend: bool = False,
-                crosspoint_bend: bool = False) -> nn.Module:
+                crosspoint_bend: bool = False, recognizer_classes: str = "garment",
+                modules_per_side: int = 12) -> nn.Module:
     """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file;
     crosspoint_margin_cells: the crosspoint network's crop margin (`TrainConfig.crosspoint_margin_cells`);
     recognizer_bend, crosspoint_bend: the recognizer's or the crosspoint network's crops are bent
-    (`TrainConfig.recognizer_bend`, `crosspoint_bend`)."""
+    (`TrainConfig.recognizer_bend`, `crosspoint_bend`); recognizer_classes "modules"
+    (`TrainConfig.recognizer_classes`): the recognizer is a `MarkerModuleReader` of the pattern's
+    `modules_per_side`, otherwise a `MarkerRecognizer` of `num_ids` classes."""
     if task == "localizer":
         return MarkerLocalizer(pretrained=pretrained)
+    if task == "recognizer" and recognizer_classes == "modules":
+        return MarkerModuleReader(modules_per_side, pretrained=pretrained, bend=recognizer_bend)
     if task == "recognizer":
         return MarkerRecognizer(num_ids, pretrained=pretrained, bend=recognizer_bend)
     if task == "crosspoints":
@@ -56,6 +64,12 @@ def model_bend(model: nn.Module) -> bool:
     """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a `MarkerRecognizer`'s or
     `CrosspointLocalizer`'s `bend`; False for the localizer, which cuts none."""
     return bool(getattr(model, "bend", False))
+
+
+def reads_modules(model: nn.Module) -> bool:
+    """Whether a recognizer outputs code-module logits (`MarkerModuleReader`, or one wrapped by
+    DistributedDataParallel) rather than ID logits."""
+    return isinstance(getattr(model, "module", model), MarkerModuleReader)
 
 
 def autocast(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
@@ -71,11 +85,14 @@ def batch_length(batch: dict[str, torch.Tensor]) -> int:
 
 
 def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device, count_mean=None,
-            visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT
+            visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT, codes: torch.Tensor | None = None
             ) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Run `model` on a batch: (raw output, loss scalar, {loss part: detached scalar}); `count_mean`:
     under DDP, the mean over the ranks of the losses' target counts (see `localizer_loss`);
-    `visibility_weight`: the crosspoint loss's weight of its visibility BCE (the reference's 100).
+    `visibility_weight`: the crosspoint loss's weight of its visibility BCE (the reference's 100);
+    `codes`: for a module-reading recognizer (`reads_modules`), the codebook's module grids
+    (num_ids, n * n) {0, 1} (`networks.codes.module_targets`), whose rows of the batch's IDs are the
+    targets of `module_loss`.
 
     Images travel to the device as uint8 and are normalised there; the loss is computed in float32
     on the output (which may be bf16 under autocast)."""
@@ -86,6 +103,12 @@ def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device:
     if task == "localizer":
         output = model(normalize(get["image"]))
         loss, parts = localizer_loss(output.float(), get["cells"], count_mean=count_mean)
+    elif task == "recognizer" and reads_modules(model):
+        if codes is None:
+            raise ValueError("forward: a module-reading recognizer needs the codebook's module grids (codes)")
+        output = model(normalize(get["crop"]))
+        loss = module_loss(output.float(), codes.to(device)[get["marker_id"].long()])
+        parts = {"module_bce": loss.detach()}
     elif task == "recognizer":
         output = model(normalize(get["crop"]))
         loss = recognizer_loss(output.float(), get["marker_id"])

@@ -13,7 +13,9 @@ the synthesizer alone.  Synthesized training samples come from the synthesizer o
 shard folder written before (`--shards`, `python -m networks.synth write`; validation stays on the
 rendered val split, or on the fly).  The garment (`--garment`, default the dataset's template.npz)
 gives the marker IDs that are synthesized and that the recognizer classifies among
-(`TrainConfig.recognizer_classes`).  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
+(`TrainConfig.recognizer_classes`, `--recognizer-ids`: "garment", the reference's; "codebook"; or "modules",
+a reader of the code modules decoded against the codebook, whose synthesized crops are of every
+codebook ID unless `--garment` is given).  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
 with the loss and its parts, one per validation with the metrics of `networks.evaluate`, and one
 per call at its first step, `startup`: seconds from the call's start to the training loop, then to the
 first batch and the first finished step),
@@ -50,9 +52,10 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
-from assets.pattern import CROSSPOINT_CROP, PatternSpec
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook
 from networks.augment import Augment, MarkerShrink, ViewWarp
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
+from networks.codes import module_targets
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
 from networks.data import (MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids,
@@ -294,16 +297,19 @@ def _dataset_root(data: str | Path) -> Path:
 def run_marker_ids(config: TrainConfig, data: str | Path, garment: str | Path | None) -> tuple[np.ndarray | None,
                                                                                             np.ndarray | None]:
     """(the garment's marker IDs or None, the recognizer's class IDs or None for the whole codebook).
-    The garment is `garment` (a dataset folder or template.npz), else the dataset's template.npz."""
-    if garment is None and str(data) != "synth" and (_dataset_root(data) / "template.npz").is_file():
+    The garment is `garment` (a dataset folder or template.npz), else the dataset's template.npz; a
+    module reader ("modules") learns from every codebook ID unless `garment` is given."""
+    reads_modules = config.task == "recognizer" and config.recognizer_classes == "modules"
+    if garment is None and not reads_modules and str(data) != "synth" \
+            and (_dataset_root(data) / "template.npz").is_file():
         garment = data
     ids = garment_marker_ids(garment) if garment is not None else None
-    if config.task != "recognizer" or config.recognizer_classes == "codebook":
+    if config.task != "recognizer" or config.recognizer_classes != "garment":
         return ids, None
     if ids is None:
         raise ValueError(f"recognizer_classes 'garment' needs the garment whose marker IDs are the classes: "
                          f"{data} has no template.npz; pass --garment (a factory dataset folder or its "
-                         "template.npz) or --recognizer-classes codebook")
+                         "template.npz) or --recognizer-ids codebook or modules")
     return ids, ids
 
 
@@ -396,13 +402,18 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained,
                         crosspoint_margin_cells=config.crosspoint_margin_cells,
-                        recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend).to(device)
+                        recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend,
+                        recognizer_classes=config.recognizer_classes,
+                        modules_per_side=spec.modules_per_side).to(device)
     if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
         model = model.to(memory_format=torch.channels_last)
     if saved is None and config.init is not None:
         init_weights(model, config, spec, class_ids)
     if class_ids is not None:
         restrict_classes(model, class_ids)
+    # a module reader's targets: the module grids of the batch's IDs, rows of this (num_ids, n * n) table
+    codes = module_targets(generate_codebook(spec)).to(device) \
+        if config.task == "recognizer" and config.recognizer_classes == "modules" else None
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
     def schedule(step: int) -> float:  # reads `config` when called: a fitted schedule takes effect at once
@@ -501,7 +512,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
                 startup["first_batch_s"] = time.monotonic() - started
             with autocast(device, config.mixed_precision):
                 _, loss, parts = forward(config.task, trained, batch, device, count_mean,
-                                         config.crosspoint_visibility_weight)
+                                         config.crosspoint_visibility_weight, codes)
             # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
             reported = mean_over_ranks(torch.stack([loss.detach().float(), *(v.float() for v in parts.values())]),
                                        ranks).tolist()
@@ -598,8 +609,11 @@ def main(argv: list[str] | None = None) -> int:
                         "(python -m networks.synth write) to draw the synthesized training samples from")
     parser.add_argument("--garment", type=Path, help="a factory dataset folder or template.npz: the marker IDs to "
                         "synthesize and to recognize (default: the dataset's template.npz)")
-    parser.add_argument("--recognizer-classes", choices=RECOGNIZER_CLASSES,
-                        help="recognizer: the garment's marker IDs (the reference; default) or the whole codebook")
+    parser.add_argument("--recognizer-ids", "--recognizer-classes", dest="recognizer_classes",
+                        choices=RECOGNIZER_CLASSES,
+                        help="recognizer: 'garment' classifies the garment's marker IDs (the reference; default), "
+                        "'codebook' every codebook ID, 'modules' reads the marker's code modules and decodes them "
+                        "against the codebook, so garments never trained on are recognised")
     parser.add_argument("--steps", type=int, help="optimizer steps in total")
     parser.add_argument("--batch-size", type=int)
     parser.add_argument("--lr", type=float, help="peak learning rate (Adam, cosine decay)")
