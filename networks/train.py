@@ -140,16 +140,26 @@ def init_weights(model: torch.nn.Module, config: TrainConfig, spec: PatternSpec,
                  ) -> None:
     """Load the weights of the checkpoint `config.init` (same task and pattern; any dtype) into the
     new run's `model`.  A recognizer's classes that the checkpoint had masked off (it was trained on
-    another garment's IDs) start from zero weights and bias, not from the masked logit."""
+    another garment's IDs) start from zero weights and bias, not from the masked logit.  A module
+    reader started from an ID classifier (or the other way) takes its backbone and starts its output
+    layer (``backbone.fc``, IDs or modules) afresh."""
     path = Path(config.init)
     data = read_checkpoint(path)
     if data["task"] != config.task:
         raise ValueError(f"{path}: a {data['task']} checkpoint, cannot start a {config.task} run from it")
     check_pattern(data, spec, source=str(path))
+    state = data["model"]
+    reads_modules = (config.task == "recognizer") and (config.recognizer_classes == "modules")
+    if reads_modules != (data["config"].get("recognizer_classes") == "modules"):
+        state = {k: v for k, v in state.items() if not k.startswith("backbone.fc.")}
+        log.info("%s: its backbone only (the output layer reads %s)", path, "modules" if reads_modules else "IDs")
     try:
-        model.load_state_dict(data["model"])
+        missing, unexpected = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:
         raise ValueError(f"{path}: its weights do not fit this {config.task} network: {str(exc).splitlines()[0]}") from exc
+    if unexpected or any(not k.startswith("backbone.fc.") or len(state) == len(data["model"]) for k in missing):
+        raise ValueError(f"{path}: its weights do not fit this {config.task} network (missing {missing[:3]}, "
+                         f"unexpected {unexpected[:3]})")
     trained = data.get("recognizer_ids")
     if class_ids is not None and trained is not None:
         fresh = np.setdiff1d(class_ids, np.asarray(trained, dtype=np.int64))

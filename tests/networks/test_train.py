@@ -326,6 +326,19 @@ def test_init_gives_a_recognizer_s_new_classes_a_neutral_start(dataset, tmp_path
     assert torch.allclose(bias[seen], trained[seen], atol=1e-6)
 
 
+def test_a_module_reader_starts_from_an_id_classifier_s_backbone(dataset, tmp_path):
+    config = _config("recognizer", recognizer_classes="codebook", steps=2)
+    train(config, dataset, tmp_path / "ids", device="cpu", spec=SPEC, progress=False)
+    later = config.replace(recognizer_classes="modules", steps=1, lr=1e-12, init=str(tmp_path / "ids" / "last.pt"))
+    train(later, dataset, tmp_path / "reader", device="cpu", spec=SPEC, progress=False)
+    ids, reader = (read_checkpoint(tmp_path / run / "last.pt")["model"] for run in ("ids", "reader"))
+    assert ids.keys() == reader.keys()
+    assert reader["backbone.fc.weight"].shape == (SPEC.modules_per_side ** 2, ids["backbone.fc.weight"].shape[1])
+    for key, value in ids.items():
+        if value.is_floating_point() and "running_" not in key and not key.startswith("backbone.fc."):
+            assert torch.allclose(value.float(), reader[key], atol=1e-6), key
+
+
 def test_the_recognizer_trains_on_jittered_crops_from_shards_written_so(dataset, tmp_path):
     shards = tmp_path / "shards"
     write_shards(shards, "recognizer", SPEC, count=2, config=SynthConfig(image_size=(128, 128), crop_jitter_px=1.0),
