@@ -4,6 +4,8 @@
         --checkpoints localizer.pt recognizer.pt crosspoints.pt
     python -m reconstruction run --views out/capture --template shirt --out out/rec \\
         --detections groundtruth --noise 0.3 --evaluate          # a factory capture, no networks
+    python -m reconstruction run --views out/capture --template shirt --out out/rec \\
+        --checkpoints localizer.pt recognizer.pt crosspoints.pt --evaluate   # networks, evaluated
     python -m reconstruction detect | triangulate | refine | export | evaluate --out DIR ...
 
 Each stage writes into --out and skips what is already there, so an interrupted run resumes and a
@@ -34,6 +36,18 @@ def _frames(text: str | None) -> list[int] | None:
 
 def _levels(text: str | None) -> tuple[int, ...] | None:
     return tuple(int(v) for v in text.split(",")) if text else None
+
+
+def _check_factory_capture(views: str) -> None:
+    """Refuse `views` unless it is a factory capture (cameras, ground truth per camera, garment.npz)."""
+    from reconstruction.groundtruth import GroundTruthCapture
+
+    try:
+        GroundTruthCapture(views)
+    except ValueError as exc:
+        raise ValueError(f"--evaluate needs a factory capture as --views: {exc}") from exc
+    if not (Path(views) / "garment.npz").is_file():
+        raise ValueError(f"--evaluate needs a factory capture as --views: {views} has no garment.npz")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -86,7 +100,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="every stage: detect, triangulate, refine, export (and evaluate)")
     settings(run), common(run), refine_options(run)
-    run.add_argument("--evaluate", action="store_true", help="ground-truth mode: evaluate against the capture")
+    run.add_argument("--evaluate", action="store_true", help="evaluate against the ground truth of --views, which "
+                     "must then be a factory capture (either detection mode)")
     detect = sub.add_parser("detect", help="detections per camera and frame")
     settings(detect), common(detect)
     triangulate = sub.add_parser("triangulate", help="captured 3D points per frame")
@@ -116,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         from reconstruction import pipeline
 
         progress = not args.quiet
+        if args.command == "run" and args.evaluate:
+            _check_factory_capture(args.views)  # refused before any stage runs
         if args.command in ("run", "detect"):
             cameras = None
             if args.cameras:
@@ -157,12 +174,10 @@ def main(argv: list[str] | None = None) -> int:
                 texture = Path(args.views) / "texture.png"  # a factory capture's pattern texture
             print(f"exports in {pipeline.export(args.out, texture=texture, fps=args.fps, progress=progress)}")
         if args.command == "evaluate" or args.command == "run" and args.evaluate:
-            if args.command == "run" and args.detections != "groundtruth":
-                raise ValueError("--evaluate needs a factory capture: use --detections groundtruth, or the "
-                                 "evaluate command with --groundtruth")
             summary = pipeline.evaluate(args.out, args.groundtruth if args.command == "evaluate" else args.views)
             for key, value in summary["summary"].items():
-                print(f"{key}: {value}")
+                meaning = summary["definitions"].get(key)
+                print(f"{key}: {value}" + (f"  ({meaning})" if meaning else ""))
 
     return run_cli(action, failures=(ValueError, RuntimeError))
 

@@ -42,6 +42,13 @@ from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_S
 log = logging.getLogger(__name__)
 
 STAGES = ("detect", "triangulate", "refine", "export", "evaluate")
+#: what `evaluate`'s fractions measure, written beside them in evaluation.json
+DEFINITIONS = {
+    "garment_coverage": "triangulated crosspoints / all crosspoints on the garment's fabric (the rest is "
+                        "filled by the physics pass)",
+    "captured_fraction": "triangulated crosspoints / crosspoints visible in at least two cameras' ground "
+                         "truth (a detection measure, not coverage)",
+}
 #: frames per second of a sequence whose capture does not say (the motion-capture rate of the reference)
 DEFAULT_FPS = 120.0
 
@@ -312,14 +319,19 @@ def export(out: str | Path, template: Template | None = None, texture: str | Pat
 
 
 def evaluate(out: str | Path, groundtruth: str | Path) -> dict:
-    """Accuracy of the folder's points and sequence against a factory capture's ground truth.
+    """Accuracy of the folder's points and sequence against a factory capture's ground truth, whichever
+    mode made the detections (networks or ground truth).
 
-    Per frame: the fraction of the crosspoints seen by at least two cameras in the ground truth that
-    were triangulated; the median and 95th-percentile 3D error of the triangulated points (mm); the
-    error of filled regions (the refined surface at the crosspoints that were not triangulated, mm);
-    intersecting triangle pairs before and after post-processing (refine's diagnostics); and the
-    temporal jitter (mean magnitude of the second difference over frames of the refined surface at
-    every crosspoint, mm per frame^2) beside the ground truth's own.  Writes ``evaluation.json``."""
+    Per frame: the garment coverage (the crosspoints on the garment's fabric that were triangulated,
+    over all of them: the share the cameras and the detections captured; physics filled the rest);
+    the captured fraction (of the crosspoints seen by at least two cameras in the ground truth, the
+    share that were triangulated: a detection measure, not coverage); the median and 95th-percentile
+    3D error of the triangulated points (mm); the error of filled regions (the refined surface at the
+    crosspoints that were not triangulated, mm); intersecting triangle pairs before and after
+    post-processing (refine's diagnostics); and the temporal jitter (mean magnitude of the second
+    difference over frames of the refined surface at every crosspoint, mm per frame^2) beside the
+    ground truth's own.  Writes ``evaluation.json``: the
+    summary (medians over frames), the `DEFINITIONS` of its fractions and the rows per frame."""
     from reconstruction.correspondence import CrosspointMap
     from reconstruction.groundtruth import GroundTruthCapture
     from reconstruction.points import load_sequence
@@ -332,14 +344,20 @@ def evaluate(out: str | Path, groundtruth: str | Path) -> dict:
     truth_map = capture.crosspoint_map
     every_key = truth_map.unflat(np.arange(truth_map.num_crosspoints))
     refined_map = CrosspointMap.build(capture.template, refined.level_mm) if refined is not None else None
+    on_fabric = truth_map.face >= 0
     rows, surfaces, truths = [], [], []
     for frame in sorted(captures):
         points = captures[frame]
         seen = _seen_twice(capture, frame, truth_map)
         truth = capture.crosspoints(frame, points.key)
         error_mm = 1e3 * np.linalg.norm(points.xyz - truth, axis=1)
-        triangulated = np.isin(truth_map.flat(points.key), seen)
-        row = {"frame": int(frame), "captured_fraction": float(triangulated.sum() / max(1, len(seen))),
+        flat = truth_map.flat(points.key)
+        triangulated = np.isin(flat, seen)
+        covered = np.zeros(truth_map.num_crosspoints, dtype=bool)
+        covered[flat] = True
+        row = {"frame": int(frame),
+               "garment_coverage": float((covered & on_fabric).sum() / max(1, on_fabric.sum())),
+               "captured_fraction": float(triangulated.sum() / max(1, len(seen))),
                "points": len(points), "error_mm_median": _q(error_mm, 50), "error_mm_p95": _q(error_mm, 95)}
         if refined is not None and frame in refined.frames.tolist():
             t = refined.frames.tolist().index(frame)
@@ -355,7 +373,7 @@ def evaluate(out: str | Path, groundtruth: str | Path) -> dict:
             truths.append(exact)
         rows.append(row)
     summary = {"frames": len(rows), "source": next(iter(captures.values())).source if captures else None}
-    for key in ("captured_fraction", "error_mm_median", "error_mm_p95", "filled_error_mm_median",
+    for key in ("garment_coverage", "captured_fraction", "error_mm_median", "error_mm_p95", "filled_error_mm_median",
                 "filled_error_mm_p95"):
         values = [r[key] for r in rows if r.get(key) is not None]
         summary[key] = float(np.median(values)) if values else None
@@ -364,7 +382,7 @@ def evaluate(out: str | Path, groundtruth: str | Path) -> dict:
     if len(surfaces) >= 3:
         summary["jitter_mm"] = _jitter(np.stack(surfaces))
         summary["jitter_mm_groundtruth"] = _jitter(np.stack(truths))
-    result = {"summary": summary, "frames": rows}
+    result = {"summary": summary, "definitions": DEFINITIONS, "frames": rows}
     save_json(out / "evaluation.json", result)
     return result
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from reconstruction.__main__ import main
+from reconstruction.groundtruth import GroundTruthCapture
 from reconstruction.points import load_sequence
 from reconstruction.refine import RefinedSequence
 
@@ -34,6 +35,13 @@ def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, ca
     # noise-free: every point seen twice, but for the small patches of these 96 x 64 views that no
     # other marker's crosspoints confirm (the neighbour check drops them)
     assert 0.95 < summary["captured_fraction"] <= 1.0
+    # three 96 x 64 views of one side see part of the garment: the rest of its crosspoints is filled
+    assert 0.0 < summary["garment_coverage"] < summary["captured_fraction"]
+    crosspoints = GroundTruthCapture(capture_folder).crosspoint_map
+    for row, frame in zip(json.loads((out / "evaluation.json").read_text())["frames"], points):
+        captured = np.unique(crosspoints.flat(frame.key))
+        assert (crosspoints.face[captured] >= 0).all()  # points lie on the fabric
+        assert row["garment_coverage"] == len(captured) / (crosspoints.face >= 0).sum()
     assert summary["error_mm_median"] < 1e-3
     assert summary["intersections_after_max"] == 0
     assert (out / "export" / "sequence.npz").is_file() and (out / "export" / "review.blend").is_file()

@@ -79,6 +79,18 @@ def test_networks_mode_reads_the_cameras_of_a_capture_folder(capture_folder, tmp
     assert f"put cameras.json in {bare}" in capsys.readouterr().err
 
 
+def test_run_evaluate_refuses_views_that_are_not_a_factory_capture_before_any_stage(tmp_path, capsys):
+    views = tmp_path / "views"
+    views.mkdir()
+    (views / "cameras.json").write_text(json.dumps({"cameras": []}))
+    checkpoints = [str(tmp_path / f"{task}.pt") for task in ("localizer", "recognizer", "crosspoints")]
+    argv = ["run", "--views", str(views), "--template", "shirt", "--out", str(tmp_path / "rec"),
+            "--checkpoints", *checkpoints, "--evaluate", "--quiet"]
+    assert main(argv) != 0
+    assert "--evaluate needs a factory capture as --views" in capsys.readouterr().err
+    assert not (tmp_path / "rec").exists()
+
+
 def _older_folder(out, settings, field: str):
     """A reconstruction folder started with `settings`, its run.json then written without `field`, as a
     folder made before that setting existed."""
