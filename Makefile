@@ -17,8 +17,11 @@ demo: $(STAMP)
 		--resolution 256 --samples 16 --reuse-simulation walk=$(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/dataset
 	$(BIN)/python -m factory.dataset capture --garment shirt --motion walk --frames 3 --cameras 4 \
 		--resolution 640x360 --samples 16 --reuse-simulation $(DEMO_OUT)/shirt_walk --out $(DEMO_OUT)/capture
+# the shipped networks, written from the repository's history (kept when their SHA-256 matches)
+	$(BIN)/python -m networks.weights fetch --out $(DEMO_OUT)/weights
 	$(BIN)/python -m reconstruction run --views $(DEMO_OUT)/capture --template $(DEMO_OUT)/capture/template.npz \
-		--out $(DEMO_OUT)/reconstruction --detections groundtruth --noise 0.3 --levels 12 --evaluate
+		--out $(DEMO_OUT)/reconstruction --checkpoints $(DEMO_OUT)/weights/localizer.pt \
+		$(DEMO_OUT)/weights/recognizer.pt $(DEMO_OUT)/weights/crosspoints.pt --levels 12 --evaluate
 	$(MAKE) addon
 
 # The Blender add-on as one zip (extension and legacy add-on): out/addon/clothcapture-<version>.zip.
