@@ -32,9 +32,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    through the bent map, targets through its inverse; chained with its crosspoints mapped back through
    it), recognizer_shrink and crosspoints_shrink (the
    main recognizer's and crosspoint run's configs with half their rendered crops showing their marker
-   shrunk, `RUN_SHRINK`), crosspoints_vis10 and crosspoints_vis1 (the main crosspoint run's config
-   with the loss's visibility BCE weighted 10 and 1, not 100, `RUN_VISIBILITY_WEIGHT`; both lost to
-   the reference's weight in the twenty-ninth run), crosspoints_margin4 (the main crosspoint
+   shrunk, `RUN_SHRINK`), crosspoints_margin4 (the main crosspoint
    run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place, as
    crosspoints_bent is), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
@@ -118,7 +116,7 @@ from assets.fileio import save_json, save_npz  # noqa: E402
 from assets.pattern import CROSSPOINT_CROP  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, training_samples  # noqa: E402
 from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
-from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, TrainConfig  # noqa: E402
+from networks.config import TrainConfig  # noqa: E402
 from networks.data import dataset_spec, garment_marker_ids, write_training_samples  # noqa: E402
 from networks.evaluate import evaluate, read_manifest  # noqa: E402
 from networks.shards import write_shards  # noqa: E402
@@ -181,12 +179,6 @@ RUNS = {
     # its inverse, `SHARD_SYNTH`): its fully visible crops err with the marker's curvature (0.247 px
     # nearly flat, 0.663 px 4 cells off a homography; RESULTS.md, fifteenth session)
     "crosspoints_bent": ("crosspoints", 0.25, None, 6, "crosspoints_bent"),
-    # the main crosspoint run's config with the visibility BCE weighted less than the reference's 100
-    # (`RUN_VISIBILITY_WEIGHT`): two fine-tunes at 1e-4 (27th, 28th runs) overfit visibility (val BCE
-    # 0.066 -> 0.098) while the crop error stood still; in the 29th run (LR 1e-5) both ended behind the
-    # control, 10 behind 100 and 1 behind 10 (0.333 and 0.338 against 0.327 px on fully visible crops)
-    "crosspoints_vis10": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
-    "crosspoints_vis1": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
 }
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
@@ -194,8 +186,6 @@ RUN_MARKER_PX = {"localizer_22px": 22.0}
 #: runs whose rendered crops are cut from their image shrunk around the marker at these odds
 #: (`TrainConfig.marker_shrink`)
 RUN_SHRINK = {"recognizer_shrink": 0.5, "crosspoints_shrink": 0.5}
-#: runs whose crosspoint loss weighs its visibility BCE so (`TrainConfig.crosspoint_visibility_weight`)
-RUN_VISIBILITY_WEIGHT = {"crosspoints_vis10": 10.0, "crosspoints_vis1": 1.0}
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_rendered"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
@@ -521,7 +511,6 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
                        localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0),
-                       crosspoint_visibility_weight=RUN_VISIBILITY_WEIGHT.get(name, CROSSPOINT_VISIBILITY_WEIGHT),
                        recognizer_bend=run_crop(name)[1] and task == "recognizer",
                        crosspoint_bend=run_crop(name)[1] and task == "crosspoints")
 

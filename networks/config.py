@@ -16,7 +16,7 @@ from pathlib import Path
 from assets.fileio import check_json_object, load_json, save_json
 from assets.pattern.crops import crosspoint_crop
 
-#: the reference's weight of the visibility BCE in the crosspoint loss (`TrainConfig.crosspoint_visibility_weight`)
+#: the reference's weight of the visibility BCE in the crosspoint loss (`networks.models.crosspoint_loss`)
 CROSSPOINT_VISIBILITY_WEIGHT = 100.0
 
 #: The three networks, by the name used in checkpoints, datasets and the CLIs.
@@ -36,6 +36,12 @@ TASK_DEFAULTS: dict[str, dict[str, int]] = {
 #: the marker sides (pixels) a localizer scale may aim at (`TrainConfig.localizer_marker_px`,
 #: `networks.DetectorConfig.localizer_marker_px`, `networks.data.RenderedDataset` marker_px)
 MARKER_PX_RANGE = (4.0, 256.0)
+
+#: `TrainConfig` fields that measurements removed (docs/journal/2026-11-28-crop-options-removed.md):
+#: name -> the value that trains as the product now does, the only one a saved config may still carry
+REMOVED_FIELDS: dict[str, object] = {
+    "crosspoint_visibility_weight": CROSSPOINT_VISIBILITY_WEIGHT,
+}
 
 
 #: the crop pixels within which the Detector moves a crosspoint onto its marker's smooth field by
@@ -153,10 +159,9 @@ class TrainConfig:
     the bent map, the targets through its inverse (`assets.pattern.bent_crop_inverse`), and its
     crosspoints mapped to the image through the map (`networks.homography.crop_to_image(bend=True)`);
     shards written with `networks.synth write --crosspoint-bend`.  False: the reference's crops.
-    crosspoint_visibility_weight (crosspoints): the weight of the visibility BCE in the loss, beside
-    the MSE of the visible crosspoints' (x, y) in crop pixels; the reference's 100 is the default.
-    Late in training the weighted BCE (100 x 0.07) is tens of times the MSE (0.1-0.3 px^2), yet
-    weights of 10 and 1 left the positions worse, not better (the twenty-ninth GPU run, RESULTS.md).
+
+    A saved config may still name a field that measurements removed (`REMOVED_FIELDS`) with the value
+    the product now uses; `from_dict` drops it, and refuses any other value by the field's name.
     """
 
     task: str
@@ -187,7 +192,6 @@ class TrainConfig:
     marker_shrink: float = 0.0
     recognizer_bend: bool = False
     crosspoint_bend: bool = False
-    crosspoint_visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -233,11 +237,6 @@ class TrainConfig:
             problems.append(f"crosspoint_bend must be true or false, got {self.crosspoint_bend!r}")
         elif self.crosspoint_bend and self.task != "crosspoints":
             problems.append("crosspoint_bend is for the crosspoint network's crops")
-        weight = self.crosspoint_visibility_weight
-        if not (isinstance(weight, (int, float)) and not isinstance(weight, bool) and 0 < weight <= 1e4):
-            problems.append(f"crosspoint_visibility_weight must be in (0, 10000], got {weight!r}")
-        elif weight != CROSSPOINT_VISIBILITY_WEIGHT and self.task != "crosspoints":
-            problems.append("crosspoint_visibility_weight is for the crosspoint network's loss")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:
@@ -265,10 +264,16 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: object, source: str = "TrainConfig") -> "TrainConfig":
-        """Build from a dict (as `to_dict` writes); unknown fields and bad values name `source`."""
-        check_json_object(data, (f.name for f in dataclasses.fields(cls)), source)
+        """Build from a dict (as `to_dict` writes); unknown fields, bad values and removed fields of
+        another value than `REMOVED_FIELDS` name `source`."""
+        check_json_object(data, [f.name for f in dataclasses.fields(cls)] + list(REMOVED_FIELDS), source)
         if "task" not in data:
             raise ValueError(f"{source}: missing field 'task' (one of {', '.join(TASKS)})")
+        refused = [f"{name} is {data[name]!r}, an option removed from training (only {value!r} loads)"
+                   for name, value in REMOVED_FIELDS.items() if name in data and data[name] != value]
+        if refused:
+            raise ValueError(f"{source}: " + "; ".join(refused))
+        data = {name: value for name, value in data.items() if name not in REMOVED_FIELDS}
         data = {"recognizer_partial": False, **data}  # configs from before the field: whole markers only
         try:
             return cls(**data)

@@ -46,7 +46,7 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
                                        recognizer_crops, recognizer_markers, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.codes import CodeDecoder, module_targets
-from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, SMOOTH_CROSSPOINTS_PX, TASKS
+from networks.config import SMOOTH_CROSSPOINTS_PX, TASKS
 from networks.data import SHARD_META, ShardDataset, shard_bend_problem
 from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
@@ -312,22 +312,19 @@ class _Results:
 
 def evaluate_model(task: str, model: nn.Module, batches: Iterable[dict], device: str | torch.device = "cpu",
                    spec: PatternSpec | None = None, mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX,
-                   threshold: float = 0.5, progress: bool = False,
-                   visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT) -> dict:
+                   threshold: float = 0.5, progress: bool = False) -> dict:
     """Metrics of `model` (any mode; evaluated in eval mode, then restored) over `batches` (collated
     dataset items, optionally with the extra ground truth of `folder_batches`).  `spec` is needed for
-    the crosspoints' image error; `visibility_weight` weighs the crosspoint loss's total as the run
-    trained (`TrainConfig.crosspoint_visibility_weight`).  Returns {"loss": {"total", parts},
-    "samples", task metrics}."""
+    the crosspoints' image error.  Returns {"loss": {"total", parts}, "samples", task metrics}."""
     return evaluate_model_at(task, model, batches, [threshold], device, spec, mixed_precision, radius_px,
-                             progress, visibility_weight)[threshold]
+                             progress)[threshold]
 
 
 @torch.no_grad()
 def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thresholds: Sequence[float],
                       device: str | torch.device = "cpu", spec: PatternSpec | None = None,
-                      mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX, progress: bool = False,
-                      visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT) -> dict[float, dict]:
+                      mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX, progress: bool = False
+                      ) -> dict[float, dict]:
     """`evaluate_model` at each of `thresholds` (presence or visibility probability) from one pass of the
     network over `batches`: {threshold: metrics}.  A module reader (`networks.tasks.reads_modules`) needs
     `spec`: its targets and decoded IDs come from the pattern's codebook."""
@@ -348,8 +345,7 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):
-                output, loss, parts = forward(task, model, batch, device, visibility_weight=visibility_weight,
-                                              codes=codes)
+                output, loss, parts = forward(task, model, batch, device, codes=codes)
             for result in results.values():
                 result.update(output, loss, parts, batch)
     finally:

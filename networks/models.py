@@ -277,10 +277,10 @@ class CrosspointLocalizer(nn.Module):
         return torch.cat([out[:, :1], out[:, 1:] + self.canonical_px], dim=1)
 
 
-def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor,
-                    visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT, count_mean=None
+def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tensor, count_mean=None
                     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """visibility_weight * BCE(visibility) + MSE of (x, y) on visible crosspoints.
+    """The reference's loss: CROSSPOINT_VISIBILITY_WEIGHT (100) * BCE(visibility) + MSE of (x, y) on
+    visible crosspoints.
 
     output: (B, 3, K, K) `CrosspointLocalizer` output.  xy: (B, K, K, 2) float32 crop pixels, NaN off
     the fabric; visible: (B, K, K) bool.  BCE is the mean over all crosspoints; the MSE the mean over
@@ -300,5 +300,5 @@ def crosspoint_loss(output: torch.Tensor, xy: torch.Tensor, visible: torch.Tenso
     squared = torch.where(valid, pred - torch.where(valid, target, 0.0), 0.0) ** 2
     count = valid.sum() if count_mean is None else count_mean(valid.sum().to(squared.dtype))
     mse = squared.sum() / count.clamp(min=1)
-    loss = visibility_weight * visibility + mse
+    loss = CROSSPOINT_VISIBILITY_WEIGHT * visibility + mse
     return loss, {"visibility": visibility.detach(), "xy": mse.detach()}

@@ -17,7 +17,7 @@ import contextlib
 import torch
 from torch import nn
 
-from networks.config import CROSSPOINT_VISIBILITY_WEIGHT, TASKS
+from networks.config import TASKS
 from networks.models import (
     CrosspointLocalizer,
     MarkerLocalizer,
@@ -85,11 +85,9 @@ def batch_length(batch: dict[str, torch.Tensor]) -> int:
 
 
 def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device: torch.device, count_mean=None,
-            visibility_weight: float = CROSSPOINT_VISIBILITY_WEIGHT, codes: torch.Tensor | None = None
-            ) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
+            codes: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
     """Run `model` on a batch: (raw output, loss scalar, {loss part: detached scalar}); `count_mean`:
     under DDP, the mean over the ranks of the losses' target counts (see `localizer_loss`);
-    `visibility_weight`: the crosspoint loss's weight of its visibility BCE (the reference's 100);
     `codes`: for a module-reading recognizer (`reads_modules`), the codebook's module grids
     (num_ids, n * n) {0, 1} (`networks.codes.module_targets`), whose rows of the batch's IDs are the
     targets of `module_loss`.
@@ -115,5 +113,5 @@ def forward(task: str, model: nn.Module, batch: dict[str, torch.Tensor], device:
         parts = {"cross_entropy": loss.detach()}
     else:
         output = model(normalize(get["crop"]), normalize(get["reference"]))
-        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"], visibility_weight, count_mean)
+        loss, parts = crosspoint_loss(output.float(), get["xy"], get["visible"], count_mean)
     return output, loss, parts

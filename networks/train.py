@@ -475,8 +475,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
         nonlocal val_metrics, best_val
         if not ranks.main:
             return
-        val_metrics = evaluate_model(config.task, model, val_loader, device, spec, config.mixed_precision,
-                                     visibility_weight=config.crosspoint_visibility_weight)
+        val_metrics = evaluate_model(config.task, model, val_loader, device, spec, config.mixed_precision)
         _append_log(log_path, {"step": step, "val": val_metrics})
         if val_metrics["loss"]["total"] < best_val:
             best_val = val_metrics["loss"]["total"]
@@ -521,8 +520,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
             if "first_batch_s" not in startup:
                 startup["first_batch_s"] = time.monotonic() - started
             with autocast(device, config.mixed_precision):
-                _, loss, parts = forward(config.task, trained, batch, device, count_mean,
-                                         config.crosspoint_visibility_weight, codes)
+                _, loss, parts = forward(config.task, trained, batch, device, count_mean, codes)
             # the global batch's loss and parts (the mean of the ranks'), so that all ranks stop together
             reported = mean_over_ranks(torch.stack([loss.detach().float(), *(v.float() for v in parts.values())]),
                                        ranks).tolist()
@@ -596,7 +594,6 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "marker_shrink": args.marker_shrink,
                  "recognizer_bend": True if args.recognizer_bend else None,
                  "crosspoint_bend": True if args.crosspoint_bend else None,
-                 "crosspoint_visibility_weight": args.visibility_weight,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -659,9 +656,6 @@ def main(argv: list[str] | None = None) -> int:
                         "(assets.pattern.bent_crop_inverse); the checkpoint carries it, and the Detector and "
                         "networks.evaluate cut so for it and map its crosspoints back through the map; shards need "
                         "the same")
-    parser.add_argument("--visibility-weight", type=float, metavar="W",
-                        help="crosspoints: the weight of the visibility BCE in the loss, beside the MSE of the "
-                        "visible crosspoints in crop pixels (default: the reference's 100)")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
                         "markers with a visible centre too; shards need the same: networks.synth write "

@@ -414,14 +414,6 @@ def test_the_shrink_runs_differ_from_the_main_ones_only_in_their_shrunk_crops(be
         assert bench.RUNS[name] == bench.RUNS[bench.MAIN[task]]
 
 
-def test_the_visibility_weight_runs_differ_from_the_main_crosspoint_run_only_in_their_loss(bench):
-    main = bench.run_config(bench.MAIN["crosspoints"], 1, 2, {})
-    assert main.crosspoint_visibility_weight == 100.0  # the reference's
-    for name, weight in (("crosspoints_vis10", 10.0), ("crosspoints_vis1", 1.0)):
-        assert bench.run_config(name, 1, 2, {}) == main.replace(crosspoint_visibility_weight=weight)
-        assert bench.RUNS[name] == bench.RUNS[bench.MAIN["crosspoints"]]
-
-
 def test_the_bent_recognizer_run_differs_from_the_main_one_only_in_its_bent_crops(bench):
     bent, main = bench.run_config("recognizer_bent", 1, 2, {}), bench.run_config(bench.MAIN["recognizer"], 1, 2, {})
     assert bent.recognizer_bend and not main.recognizer_bend and bent == main.replace(recognizer_bend=True)

@@ -18,7 +18,7 @@ from assets.fileio import save_npz
 from assets.pattern import CROSSPOINT_CROP, PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.augment import MarkerShrink
-from networks.config import TrainConfig
+from networks.config import REMOVED_FIELDS, TrainConfig
 from networks.data import RenderedDataset
 from networks.evaluate import _Results, evaluate, folder_batches
 from networks.homography import crop_to_image
@@ -448,25 +448,34 @@ def test_a_bent_crosspoint_network_trains_evaluates_and_loads_on_bent_crops(data
         _config("recognizer", crosspoint_bend=True)
 
 
-def test_the_crosspoint_loss_weighs_visibility_as_configured_in_training_and_validation(dataset, tmp_path):
-    """--visibility-weight: the checkpoint carries it, and the logged training and validation totals are
-    that weight times the visibility BCE plus the MSE (the reference's 100 by default)."""
-    for weight, flags in ((10.0, ["--visibility-weight", "10"]), (100.0, [])):
-        out = tmp_path / f"vis{weight:g}"
-        assert main(["crosspoints", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
-                     "--num-workers", "0", "--device", "cpu", *flags]) == 0
-        _, config, _ = load_checkpoint(out / "last.pt", expected_task="crosspoints")
-        assert config.crosspoint_visibility_weight == weight
-        rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
-        trained = [r for r in rows if "loss" in r]
-        val = [r["val"]["loss"] for r in rows if "val" in r]
-        assert trained and val
-        for r in trained:
-            assert r["loss"] == pytest.approx(weight * r["visibility"] + r["xy"], rel=1e-4)
-        for loss in val:
-            assert loss["total"] == pytest.approx(weight * loss["visibility"] + loss["xy"], rel=1e-4)
-    with pytest.raises(ValueError, match="crosspoint_visibility_weight is for the crosspoint network"):
-        _config("recognizer", crosspoint_visibility_weight=10.0)
+def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_validation(dataset, tmp_path):
+    """The logged training and validation totals are the reference's 100 times the visibility BCE plus
+    the MSE."""
+    out = tmp_path / "run"
+    assert main(["crosspoints", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
+                 "--num-workers", "0", "--device", "cpu"]) == 0
+    rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    trained = [r for r in rows if "loss" in r]
+    val = [r["val"]["loss"] for r in rows if "val" in r]
+    assert trained and val
+    for r in trained:
+        assert r["loss"] == pytest.approx(100 * r["visibility"] + r["xy"], rel=1e-4)
+    for loss in val:
+        assert loss["total"] == pytest.approx(100 * loss["visibility"] + loss["xy"], rel=1e-4)
+
+
+#: per removed TrainConfig field: (task, a value other than the product's)
+REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0)}
+
+
+@pytest.mark.parametrize("name", sorted(REMOVED_FIELDS))
+def test_saved_configs_naming_a_removed_option_load_only_with_the_value_the_product_trains_with(name):
+    task, other = REMOVED_OTHER_VALUES[name]
+    saved = _config(task).to_dict()
+    assert name not in saved
+    assert TrainConfig.from_dict({**saved, name: REMOVED_FIELDS[name]}, source="run/config.json") == _config(task)
+    with pytest.raises(ValueError, match=f"run/config.json: {name} is"):
+        TrainConfig.from_dict({**saved, name: other}, source="run/config.json")
 
 
 def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers():
