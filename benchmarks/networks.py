@@ -30,9 +30,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    with its crops cut through the bent crop map that follows curved cloth, rendered and synthesized,
    `SHARD_SYNTH`; evaluated on bent crops), crosspoints_bent (the same for the main crosspoint run: crops
    through the bent map, targets through its inverse; chained with its crosspoints mapped back through
-   it), recognizer_shrink and crosspoints_shrink (the
-   main recognizer's and crosspoint run's configs with half their rendered crops showing their marker
-   shrunk, `RUN_SHRINK`), crosspoints_margin4 (the main crosspoint
+   it), crosspoints_margin4 (the main crosspoint
    run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place, as
    crosspoints_bent is), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
@@ -157,9 +155,6 @@ RUNS = {
     # the main recognizer's config on synthesized markers from 10 px (`SHARD_SYNTH`): at 0.75 it read
     # 0.996 of the renders' fully visible markers of 16-24 px, 0.955 of 12-16 px and 0.78 under 12 px
     "recognizer_small": ("recognizer", 0.25, None, 6, "recognizer_small"),
-    # the main recognizer's config with half its rendered crops cut from the image shrunk around the
-    # marker (`RUN_SHRINK`, `networks.augment.MarkerShrink`): small markers as a farther camera renders them
-    "recognizer_shrink": ("recognizer", 0.25, None, 6, "recognizer_partial"),
     # the main recognizer's config with its crops bent (`assets.pattern.bent_crop_map`, `SHARD_SYNTH`):
     # the crop follows curved cloth, where it errs (markers off a homography by more than 4 cells)
     "recognizer_bent": ("recognizer", 0.25, None, 6, "recognizer_bent"),
@@ -173,8 +168,6 @@ RUNS = {
     # schedule: the outer crosspoints, nearest the reference crop's edge, err most; the sixteenth run
     # found no gain (0.464 against 0.453 px on renders at near-equal steps from a 112 px start)
     "crosspoints_margin4": ("crosspoints", 0.75, None, 3, "crosspoints_margin4"),
-    # the main crosspoint run's config with half its rendered crops showing their marker shrunk (`RUN_SHRINK`)
-    "crosspoints_shrink": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
     # the main crosspoint run's config with its crops bent (`assets.pattern.bent_crop_map`, targets through
     # its inverse, `SHARD_SYNTH`): its fully visible crops err with the marker's curvature (0.247 px
     # nearly flat, 0.663 px 4 cells off a homography; RESULTS.md, fifteenth session)
@@ -183,9 +176,6 @@ RUNS = {
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
 RUN_MARKER_PX = {"localizer_22px": 22.0}
-#: runs whose rendered crops are cut from their image shrunk around the marker at these odds
-#: (`TrainConfig.marker_shrink`)
-RUN_SHRINK = {"recognizer_shrink": 0.5, "crosspoints_shrink": 0.5}
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_rendered"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
@@ -510,7 +500,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        crosspoint_margin_cells=run_margin(name) if task == "crosspoints" else CROSSPOINT_CROP.margin_cells,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
-                       localizer_marker_px=marker_px, marker_shrink=RUN_SHRINK.get(name, 0.0),
+                       localizer_marker_px=marker_px,
                        recognizer_bend=run_crop(name)[1] and task == "recognizer",
                        crosspoint_bend=run_crop(name)[1] and task == "crosspoints")
 

@@ -28,7 +28,6 @@ import torch  # noqa: E402
 
 from assets.cli import localizer_scale_arg  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, completed_points, recognizer_markers  # noqa: E402
-from networks.augment import MarkerShrink, shrink_around  # noqa: E402
 from networks.detector import Detector, DetectorConfig  # noqa: E402
 from networks.homography import layout_residual  # noqa: E402
 
@@ -145,37 +144,6 @@ def top1(detector: Detector, pairs: list[tuple[Path, Path]]) -> dict[str, dict]:
     return {"groups": groups, "by_size": by_size, "by_visible": by_visible(records), "by_residual": by_residual(records)}
 
 
-def shrunk(detector: Detector, pairs: list[tuple[Path, Path]], targets: list[float], squeeze: float = 1.0,
-           min_side: float = 16.0, seed: int = 0) -> dict[float, dict]:
-    """Per target side (px): the recognizer's top-1 given the true points on the fully visible markers
-    of at least `min_side` px, each cut from its image compressed by `squeeze` along a random
-    direction and shrunk around it to that side (`networks.augment.shrink_around`, as `MarkerShrink`
-    makes training crops): do they read as the rendered markers of that size do?  Markers that the
-    squeeze alone takes under a target are left out of it."""
-    from foreshortening import marker_shape  # benchmarks/, on the path from main and networks.py
-
-    margin = MarkerShrink().margin_sides
-    rng = np.random.default_rng(seed)
-    counts = {target: [0, 0] for target in targets}
-    for image_path, gt_path in pairs:
-        image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
-        gt = ImageGroundTruth.load(gt_path)
-        pick = np.flatnonzero(groups(gt, detector.spec)[GROUPS[0]])
-        points = gt.points_px[pick].astype(np.float64)
-        sides = marker_shape(points)[1] if len(pick) else np.zeros(0)
-        for target in targets:
-            take = np.flatnonzero((sides >= min_side) & (sides * np.sqrt(squeeze) > target))
-            if not len(take):
-                continue
-            shrunk = [shrink_around(image, points[k], target / (sides[k] * np.sqrt(squeeze)), margin * sides[k] + 2,
-                                    squeeze, rng.uniform(0.0, np.pi)) for k in take]
-            ids, _ = detector.recognize([s.image for s in shrunk], np.arange(len(take)),
-                                        np.stack([s.points(points[k]) for s, k in zip(shrunk, take)]))
-            counts[target][0] += len(take)
-            counts[target][1] += int((ids == gt.marker_id[pick[take]]).sum())
-    return {target: {"markers": n, "top1": right / max(n, 1)} for target, (n, right) in counts.items()}
-
-
 #: the chain's groups: the two above, and partial markers with a visible centre whose five points do
 #: not give a sane crop (folded, seen edge-on, behind the camera, or cut with too little of it on the
 #: fabric to complete: the recognizer never trains on them)
@@ -226,26 +194,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every-image", action="store_true", help="--rendered: every image of the folder (a "
                         "held-out set such as the networks benchmark's --extra-heldout), not only its val and test")
     parser.add_argument("--by-motion", action="store_true", help="--rendered: the top-1 per motion too")
-    parser.add_argument("--shrink-to", default="", metavar="PX,PX", help="--rendered: also the fully visible "
-                        "markers of 16 px and more shrunk around themselves to these sides (e.g. 10,14), beside the "
-                        "rendered markers of that size: how real `networks.augment.MarkerShrink`'s small markers are")
-    parser.add_argument("--shrink-squeeze", type=float, default=1.0, metavar="F", help="with --shrink-to: first "
-                        "compress the markers by F (0-1) along a random direction, as an oblique view does (the "
-                        "renders' markers under 12 px have an axis ratio of 0.26 at the median)")
     parser.add_argument("--recognizer-bend", choices=("trained", "on", "off"), default="trained",
                         help="cut the recognizer's crops through the bent crop map (on), the homography (off) or as "
                         "the recognizer was trained (DetectorConfig.recognizer_bend)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
-    if not 0 < args.shrink_squeeze <= 1:
-        parser.error(f"--shrink-squeeze must be in (0, 1], got {args.shrink_squeeze}")
-    try:
-        targets = [float(v) for v in args.shrink_to.split(",") if v.strip()]
-    except ValueError:
-        parser.error(f"--shrink-to takes sides in pixels separated by commas, got {args.shrink_to!r}")
-    if any(not 4 <= t < 16 for t in targets):
-        parser.error(f"--shrink-to sides must be in [4, 16) px (the markers shrunk measure 16 px and more), "
-                     f"got {args.shrink_to}")
     from assets.garments import load_template  # needs triangle: here only, so top1 runs on the GPU machine
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -256,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not (args.rendered or args.capture):
         parser.error("give --rendered and/or --capture")
-    sources, sizes, chains, motions, shrinks, residuals, visibles = {}, {}, {}, {}, {}, {}, {}
+    sources, sizes, chains, motions, residuals, visibles = {}, {}, {}, {}, {}, {}
     for label, rendered, capture in (("renders, held out", args.rendered, None), ("capture", None, args.capture)):
         if rendered is None and capture is None:
             continue
@@ -276,8 +229,6 @@ def main(argv: list[str] | None = None) -> int:
         sources[source], sizes[source] = tally(records)
         residuals[source] = by_residual(records)
         visibles[source] = by_visible(records)
-        if targets and rendered is not None:
-            shrinks[source] = shrunk(detector, pairs, targets, args.shrink_squeeze)
         if args.chain:
             chains[source] = chain(detector, pairs, args.radius or (4.0 if rendered is not None else 12.0))
         if args.by_motion and rendered is not None:
@@ -305,13 +256,6 @@ def main(argv: list[str] | None = None) -> int:
     for source, rows in visibles.items():
         for label, r in rows.items():
             print(f"| {source} | {label} | {r['markers']} | {r['top1']:.3f} |")
-    if shrinks:
-        print(f"\n# fully visible markers of 16 px and more, compressed by {args.shrink_squeeze:g} along a random "
-              "direction and shrunk around themselves to a side")
-        print("| images | side px | markers | top-1 |\n|---|---|---|---|")
-        for source, rows in shrinks.items():
-            for target, r in rows.items():
-                print(f"| {source} | {target:g} | {r['markers']} | {r['top1']:.3f} |")
     if chains:
         print(f"\n# the chain: {', '.join(p.name for p in args.checkpoints)}")
         print("| images | markers | count | found | identified, recognizer alone | identified after the votes "
@@ -327,9 +271,7 @@ def main(argv: list[str] | None = None) -> int:
             for name, r in rows.items():
                 print(f"| {motion} | {name} | {r['markers']} | {r['top1']:.3f} |")
     print("RESULT " + json.dumps({"top1": sources, "by_size": sizes, "chain": chains, "by_motion": motions,
-                                    "by_residual": residuals, "by_visible": visibles,
-                                    "shrunk": {source: {f"{t:g}": r for t, r in rows.items()}
-                                               for source, rows in shrinks.items()}}))
+                                    "by_residual": residuals, "by_visible": visibles}))
     return 0
 
 

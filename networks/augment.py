@@ -3,10 +3,9 @@
 `Augment` holds probabilities and ranges; ``Augment()(image, rng)`` (or `augment(image, rng, config)`)
 applies, in the order a camera would: optical or motion blur, exposure, contrast, saturation and white
 balance, sensor noise (read noise plus signal-dependent shot noise), a gamma curve, and JPEG
-re-encoding.  Photometric steps move no pixel, so exact targets stay exact.  Two steps are geometric:
+re-encoding.  Photometric steps move no pixel, so exact targets stay exact.  One step is geometric:
 `ViewWarp`, a random zoom, rotation and compression of a rendered localizer training image, whose
-targets are remade from its ground-truth points moved by the same homography, and `MarkerShrink`,
-which shows a rendered crop's marker smaller, as a camera farther away would
+targets are remade from its ground-truth points moved by the same homography
 (`networks.data.RenderedDataset`).  Every random choice comes from the generator passed in, so an
 item is reproducible from its seed.
 
@@ -19,13 +18,11 @@ cost of drawing it anew (the draws were half of an item's cost).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from assets.pattern.observation import ImageGroundTruth, completed_points
-from networks.homography import marker_side_px
 
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 #: standard normal draws shared by all images of a process (made on first use, 8 MiB); an image's
@@ -207,124 +204,3 @@ def warp_image(image: np.ndarray, homography: np.ndarray, out_size: tuple[int, i
     to_index = np.linalg.inv(shift) @ homography @ shift  # OpenCV's pixel centres are at integers
     return cv2.warpPerspective(image, to_index, tuple(int(v) for v in out_size), flags=cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_REPLICATE)
-
-
-@dataclass(frozen=True)
-class MarkerShrink:
-    """A rendered marker seen smaller and more obliquely, as a farther camera or cloth turned further
-    away shows it: with `probability`, the image around a marker is compressed along a random
-    direction by a factor drawn log-uniformly between `squeeze` and 1, then shrunk evenly so that the
-    marker's side (`marker_side_px`, the square root of its area) becomes a size drawn uniformly
-    between `min_px` and its side after the compression; both with area resampling (as a camera with
-    larger pixels), the points (and crosspoints) moved with the image (`Shrunk`).  The compression
-    never takes the side under `min_px`; markers at most `min_px`, or with a point off the fabric,
-    are left as they are.
-
-    Written because the recognizer's errors are on small markers (fully visible ones: 0.87-0.90 top-1
-    under 12 px, 0.998 at 16-24 px, twenty-fourth GPU run), as are the crosspoint network's largest
-    crop errors, and synthesized small markers did not help (the nineteenth and twenty-third runs).
-    Measured since (`benchmarks/partial_ids.py --shrink-to --shrink-squeeze`, RESULTS.md): the stored
-    recognizer reads larger held-out markers shrunk to 8 px 0.999 right, and compressed by 0.3 and
-    shrunk to 10 px 0.994, against 0.87 for rendered markers under 12 px.  What it misreads is
-    curved cloth (five points off a homography), not size, so these examples are mostly easy ones;
-    off by default (`TrainConfig.marker_shrink` 0) and not yet measured in training."""
-
-    probability: float = 0.5
-    min_px: float = 8.0
-    squeeze: float = 0.25
-    #: the window shrunk reaches this many marker sides (and 2 px) beyond the points: the crops'
-    #: bilinear samples (and the crosspoint crop's margin of 2 to 4 cells of 24) stay inside it
-    margin_sides: float = 0.25
-
-    def __post_init__(self) -> None:
-        problems = []
-        if not 0 <= self.probability <= 1:
-            problems.append(f"probability must be in [0, 1], got {self.probability}")
-        if not 4 <= self.min_px <= 64:
-            problems.append(f"min_px must be in [4, 64] pixels, got {self.min_px}")
-        if not 0.05 <= self.squeeze <= 1:
-            problems.append(f"squeeze must be in [0.05, 1], got {self.squeeze}")
-        if not 0 <= self.margin_sides <= 2:
-            problems.append(f"margin_sides must be in [0, 2], got {self.margin_sides}")
-        if problems:
-            raise ValueError("invalid MarkerShrink: " + "; ".join(problems))
-
-    def __call__(self, image: np.ndarray, points_px: np.ndarray, rng: np.random.Generator) -> "Shrunk":
-        """The image to cut the marker of five points `points_px` (5, 2) from, and how its pixels map
-        to the given image's: at this draw's odds, the part of `image` around it compressed and
-        shrunk, else `image`."""
-        if rng.uniform() >= self.probability:
-            return Shrunk(image)
-        side = float(marker_side_px(np.asarray(points_px, np.float64)[None])[0])
-        if not side > self.min_px:  # small already, or a point off the fabric (NaN)
-            return Shrunk(image)
-        lowest = max(self.squeeze, (self.min_px / side) ** 2)  # the area, and so the side squared, scales with it
-        squeeze = float(np.exp(rng.uniform(np.log(lowest), 0.0)))
-        angle = float(rng.uniform(0.0, np.pi))
-        squeezed = side * np.sqrt(squeeze)
-        scale = float(rng.uniform(self.min_px, squeezed) / squeezed) if squeezed > self.min_px else 1.0
-        return shrink_around(image, points_px, scale, self.margin_sides * side + 2, squeeze, angle)
-
-
-@dataclass(frozen=True)
-class Shrunk:
-    """An image shrunk around a marker (`shrink_around`): its pixels, and the affine map (2, 3) from
-    the source image's continuous pixel coordinates to its own (None: the source image itself)."""
-
-    image: np.ndarray
-    affine: np.ndarray | None = None
-
-    def points(self, points_px: np.ndarray) -> np.ndarray:
-        """Source pixel coordinates (..., 2) in the shrunk image's (NaN stays NaN)."""
-        if self.affine is None:
-            return points_px
-        return np.asarray(points_px, np.float64) @ self.affine[:, :2].T + self.affine[:, 2]
-
-    def ground_truth(self, gt: ImageGroundTruth) -> ImageGroundTruth:
-        """`gt`'s markers as the shrunk image shows them: points and crosspoints moved, the image size
-        the shrunk image's; depths, visibility and status as they were.  Points off the fabric are
-        completed in the source first (`completed_points`), as `ImageGroundTruth.jittered` does, and
-        moved: a least-squares completion is not invariant under the squeeze, and from a few nearly
-        collinear crosspoints a completion made after it landed a corner 1,000 px off, so the marker
-        failed the crop-sanity test (it stopped the twenty-seventh run's `crosspoints_shrink`)."""
-        if self.affine is None:
-            return gt
-        return replace(gt, width=int(self.image.shape[1]), height=int(self.image.shape[0]),
-                       points_px=self.points(completed_points(gt)).astype(np.float32),
-                       crosspoints_px=self.points(gt.crosspoints_px).astype(np.float32))
-
-
-def shrink_around(image: np.ndarray, points_px: np.ndarray, scale: float, margin_px: float,
-                  squeeze: float = 1.0, angle: float = 0.0) -> Shrunk:
-    """The window of `image` (H, W, C) that holds `points_px` (N, 2; continuous pixel coordinates,
-    pixel centres at integer + 0.5; NaN ignored) with `margin_px` around them (clipped to the image),
-    compressed by `squeeze` along the direction `angle` (radians from the x axis; turned so that
-    direction is the result's x axis, bilinear), then resized by `scale`; both with area resampling
-    (< 1), as a camera with larger pixels.  Points outside the image (a partial marker's completed
-    corners) stay outside the window alike."""
-    if not 0 < scale <= 1 or not 0 < squeeze <= 1:
-        raise ValueError(f"scale and squeeze must be in (0, 1], got {scale} and {squeeze}")
-    points = np.asarray(points_px, np.float64).reshape(-1, 2)
-    h, w = image.shape[:2]
-    with np.errstate(invalid="ignore"):
-        low = np.clip(np.floor(np.nanmin(points, axis=0) - margin_px), 0, [w, h])
-        high = np.clip(np.ceil(np.nanmax(points, axis=0) + margin_px), 0, [w, h])
-    extent = high - low
-    if not (extent >= 1).all():  # off the image, or no finite point: nothing to shrink
-        return Shrunk(image)
-    lo, hi = low.astype(int), high.astype(int)
-    window = image[lo[1]:hi[1], lo[0]:hi[0]]
-    to_window = np.array([[1.0, 0.0, -low[0]], [0.0, 1.0, -low[1]], [0.0, 0.0, 1.0]])
-    if squeeze < 1:  # turn the window so the squeeze is along x (a canvas holding all of it)
-        c, s = np.cos(angle), np.sin(angle)
-        turn = np.array([[c, s], [-s, c]])
-        corners = np.array([[0.0, 0.0], [extent[0], 0.0], [0.0, extent[1]], extent]) @ turn.T
-        start = corners.min(axis=0)
-        extent = np.ceil(corners.max(axis=0) - start)
-        turned = np.eye(3)
-        turned[:2, :2], turned[:2, 2] = turn, -start
-        window = warp_image(window, turned, (int(extent[0]), int(extent[1])))
-        to_window = turned @ to_window
-    size = np.maximum(1, np.round(extent * scale * np.array([squeeze, 1.0]))).astype(int)
-    small = cv2.resize(window, (int(size[0]), int(size[1])), interpolation=cv2.INTER_AREA)
-    return Shrunk(small, (np.diag([*(size / extent), 1.0]) @ to_window)[:2])

@@ -41,6 +41,7 @@ MARKER_PX_RANGE = (4.0, 256.0)
 #: name -> the value that trains as the product now does, the only one a saved config may still carry
 REMOVED_FIELDS: dict[str, object] = {
     "crosspoint_visibility_weight": CROSSPOINT_VISIBILITY_WEIGHT,
+    "marker_shrink": 0.0,
 }
 
 
@@ -140,12 +141,6 @@ class TrainConfig:
     are read shrunk so their markers' median side is this many pixels, the size the Detector's
     automatic scale shows them at (`networks.DetectorConfig.localizer_marker_px`, 22; the renders'
     `RenderedDataset` marker_px); None: at their own scale, as the reference.
-    marker_shrink (crop tasks, with augment): the probability that a rendered training crop is cut
-    from its image compressed along a random direction and shrunk around the marker, so that it
-    shows a marker between 8 px and its own size (`networks.augment.MarkerShrink`, crosspoint
-    targets moved with it): small, oblique markers as a farther camera renders them; not in the
-    reference.  0 (the default; the stored recognizer already reads such markers, RESULTS.md): crops
-    at the renders' own scale.
     recognizer_bend (recognizer): its crops (training, evaluation and the Detector's) are cut through
     `assets.pattern.bent_crop_map`, which follows curved cloth (the centre on its own point), not
     the least-squares homography of the five points; shards must have been written with the same
@@ -189,7 +184,6 @@ class TrainConfig:
     recognizer_partial: bool = True
     localizer_marker_px: float | None = None
     crosspoint_margin_cells: int = 2
-    marker_shrink: float = 0.0
     recognizer_bend: bool = False
     crosspoint_bend: bool = False
 
@@ -224,11 +218,6 @@ class TrainConfig:
             problems.append(f"crosspoint_margin_cells: {exc}")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
-        if not (isinstance(self.marker_shrink, (int, float)) and 0 <= self.marker_shrink <= 1):
-            problems.append(f"marker_shrink must be a probability in [0, 1], got {self.marker_shrink!r}")
-        elif self.marker_shrink > 0 and self.task == "localizer":
-            problems.append("marker_shrink is for the crop tasks (the localizer's images scale by localizer_marker_px "
-                            "and view_warp)")
         if not isinstance(self.recognizer_bend, bool):
             problems.append(f"recognizer_bend must be true or false, got {self.recognizer_bend!r}")
         elif self.recognizer_bend and self.task != "recognizer":

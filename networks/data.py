@@ -51,7 +51,7 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
                                         crosspoint_markers, localizer_targets, marker_cells, recognizer_crops,
                                         recognizer_markers, training_samples)
 from assets.pattern.spec import PatternSpec
-from networks.augment import Augment, MarkerShrink, ViewWarp, warp_image
+from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
 from networks.config import TASKS, marker_px_problem
 from networks.decoded import DecodedArrays
@@ -73,8 +73,6 @@ _ATTEMPTS = 32
 _JITTER = 7
 #: the stream of a rendered localizer item's view warp (`ViewWarp`), apart from its crop's and augmentation's
 _VIEW = 8
-#: the stream of a rendered crop item's marker shrink (`MarkerShrink`)
-_SHRINK = 9
 #: shard folders: the format name in shards.json, and the arrays of a part per task (first axis: item)
 SHARD_FORMAT = "clothcapture-synth-shards"
 SHARD_META = "shards.json"
@@ -200,10 +198,6 @@ class RenderedDataset(_Items, Dataset):
     partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
     (whole markers and partial ones with a visible centre), their crops cut from the image
     (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
-    marker_shrink (crop tasks): each crop is cut from its image shrunk around the marker at the
-    shrink's odds (`networks.augment.MarkerShrink`: the marker seen smaller, as a farther camera
-    renders it, crosspoint targets moved with it; seeded per (seed, epoch, index)), before the crop
-    jitter, which so stays in the pixels the marker is seen in; crops are then cut anew.
     recognizer_bend (recognizer), crosspoint_bend (crosspoints): crops cut anew through
     `assets.pattern.bent_crop_map` (curved cloth) instead of the crop homography; crosspoint targets
     through its inverse (`crosspoint_crops(bend=True)`).
@@ -225,8 +219,7 @@ class RenderedDataset(_Items, Dataset):
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
                  partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2,
-                 decode_ahead: bool = False, marker_shrink: MarkerShrink | None = None, recognizer_bend: bool = False,
-                 crosspoint_bend: bool = False):
+                 decode_ahead: bool = False, recognizer_bend: bool = False, crosspoint_bend: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -246,10 +239,6 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
-        if marker_shrink is not None and task == "localizer":
-            raise ValueError("marker_shrink is for the crop tasks' crops, not the localizer's images "
-                             "(marker_px and view_warp scale those)")
-        self.marker_shrink = marker_shrink
         if recognizer_bend and task != "recognizer":
             raise ValueError(f"recognizer_bend is for the recognizer's crops, not the {task} task's")
         self.recognizer_bend = bool(recognizer_bend)
@@ -339,9 +328,6 @@ class RenderedDataset(_Items, Dataset):
         if self.task == "recognizer":
             if self._cut_anew:
                 image, points = arrays["image"], arrays["points_px"][crop]
-                if self.marker_shrink is not None:
-                    shrunk = self.marker_shrink(image, points, self._rng(index, _SHRINK))
-                    image, points = shrunk.image, shrunk.points(points)
                 if self.crop_jitter_px > 0:
                     points = points + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
                 cut = unwarp(image, self.spec, RECOGNIZER_CROP, points, self.recognizer_bend)
@@ -349,21 +335,12 @@ class RenderedDataset(_Items, Dataset):
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
             image, one = arrays["image"], arrays["gt"].select(np.array([crop]))
-            sources = [(image, one)]
-            if self.marker_shrink is not None:  # shrunk first; the source when the shrunk marker fails the
-                # crop-sanity test: its five-point fit is least squares, not invariant under the squeeze,
-                # so a marker at the test's limit can pass in one image and not in the other
-                shrunk = self.marker_shrink(image, completed_points(one)[0], self._rng(index, _SHRINK))
-                sources.insert(0, (shrunk.image, shrunk.ground_truth(one)))
-            for image, one in sources:
-                made = None
-                if self.crop_jitter_px > 0:
-                    made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
-                                            self.spec, self.crosspoint_crop, self.crosspoint_bend)
-                if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the sanity test
-                    made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop, self.crosspoint_bend)
-                if len(made[0]):
-                    break
+            made = None
+            if self.crop_jitter_px > 0:
+                made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
+                                        self.spec, self.crosspoint_crop, self.crosspoint_bend)
+            if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the sanity test
+                made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop, self.crosspoint_bend)
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
@@ -433,9 +410,9 @@ class RenderedDataset(_Items, Dataset):
 
     @property
     def _cut_anew(self) -> bool:
-        """Crops are cut from the image per item (crop jitter, partial markers, shrunk markers, bent
-        crops or another crosspoint crop than the stored ones'), not read stored."""
-        return (self.crop_jitter_px > 0 or self.partial_markers or self.marker_shrink is not None
+        """Crops are cut from the image per item (crop jitter, partial markers, bent crops or another
+        crosspoint crop than the stored ones'), not read stored."""
+        return (self.crop_jitter_px > 0 or self.partial_markers
                 or self.recognizer_bend or self.crosspoint_bend or self.crosspoint_crop != CROSSPOINT_CROP)
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:

@@ -53,7 +53,7 @@ from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
 from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook
-from networks.augment import Augment, MarkerShrink, ViewWarp
+from networks.augment import Augment, ViewWarp
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
 from networks.codes import module_targets
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
@@ -273,12 +273,10 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     root = _dataset_root(data)
     view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
     marker_px = config.localizer_marker_px if task == "localizer" else None
-    shrink = MarkerShrink(config.marker_shrink) \
-        if task != "localizer" and config.augment and config.marker_shrink > 0 else None
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
                                crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
-                               crosspoint_margin_cells=margin, decode_ahead=True, marker_shrink=shrink,
+                               crosspoint_margin_cells=margin, decode_ahead=True,
                                recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px,
                           crosspoint_margin_cells=margin, recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
@@ -591,7 +589,6 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "view_warp": False if args.no_view_warp else None,
                  "localizer_marker_px": args.localizer_marker_px,
                  "crosspoint_margin_cells": args.crosspoint_margin,
-                 "marker_shrink": args.marker_shrink,
                  "recognizer_bend": True if args.recognizer_bend else None,
                  "crosspoint_bend": True if args.crosspoint_bend else None,
                  "recognizer_partial": False if args.whole_markers_only else None,
@@ -644,9 +641,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
                         help="localizer: read rendered images shrunk so their markers measure this many pixels, "
                         "as the Detector's automatic scale shows them (22); default: their own scale")
-    parser.add_argument("--marker-shrink", type=float, metavar="P",
-                        help="recognizer, crosspoints: cut this share of the rendered crops from the image shrunk "
-                        "around the marker, so it shows between 8 px and its own size (default 0)")
     parser.add_argument("--recognizer-bend", action="store_true",
                         help="recognizer: cut its crops through the bent crop map that follows curved cloth "
                         "(assets.pattern.bent_crop_map), not the homography; the checkpoint carries it and the "

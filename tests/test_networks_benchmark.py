@@ -406,14 +406,6 @@ def test_the_small_marker_recognizer_run_differs_from_the_main_one_only_in_its_m
     assert bench.run_config("recognizer_small", 1, 2, {}).recognizer_partial
 
 
-def test_the_shrink_runs_differ_from_the_main_ones_only_in_their_shrunk_crops(bench):
-    for name, task in (("recognizer_shrink", "recognizer"), ("crosspoints_shrink", "crosspoints")):
-        shrink, main = bench.run_config(name, 1, 2, {}), bench.run_config(bench.MAIN[task], 1, 2, {})
-        assert shrink.marker_shrink == 0.5 and main.marker_shrink == 0.0
-        assert shrink == main.replace(marker_shrink=0.5)
-        assert bench.RUNS[name] == bench.RUNS[bench.MAIN[task]]
-
-
 def test_the_bent_recognizer_run_differs_from_the_main_one_only_in_its_bent_crops(bench):
     bent, main = bench.run_config("recognizer_bent", 1, 2, {}), bench.run_config(bench.MAIN["recognizer"], 1, 2, {})
     assert bent.recognizer_bend and not main.recognizer_bend and bent == main.replace(recognizer_bend=True)

@@ -1,5 +1,5 @@
-"""Augmentation: photometric steps change appearance only, reproducibly; the view warp and the marker
-shrink move pixels as they move points."""
+"""Augmentation: photometric steps change appearance only, reproducibly; the view warp moves pixels as
+it moves points."""
 
 from dataclasses import replace
 
@@ -9,10 +9,7 @@ import pytest
 
 from assets.geometry import apply_homography
 from assets.pattern import PatternSpec
-from assets.pattern.observation import completed_points
-from networks.augment import Augment, MarkerShrink, Shrunk, ViewWarp, augment, shrink_around, warp_image
-from networks.homography import marker_side_px
-from networks.synth import PatternSynthesizer, SynthConfig
+from networks.augment import Augment, ViewWarp, augment, warp_image
 
 SPEC = PatternSpec(rows=8, cols=8, num_ids=512)
 OFF = Augment(blur_probability=0, motion_blur_probability=0, colour_probability=0, noise_probability=0,
@@ -158,91 +155,3 @@ def test_a_view_warp_stays_inside_its_source_and_draws_its_ranges():
         ViewWarp(scale=(1.4, 0.75))
 
 
-def test_a_shrunk_window_keeps_its_points_on_the_same_image_content():
-    # on a linear ramp, area resampling is exact: the shrunk image sampled at a moved point (bilinear,
-    # pixel centres at integer + 0.5) reads the ramp at the original point, for whole and odd factors
-    yy, xx = np.mgrid[0:120, 0:160] + 0.5
-    ramp = (0.7 * xx + 1.3 * yy).astype(np.float32)[..., None].repeat(3, axis=2)
-    points = np.array([[80.2, 60.7], [70.0, 50.5], [91.3, 49.9], [68.8, 71.1], [90.6, 70.4]])
-    for scale, squeeze, angle in ((0.5, 1.0, 0.0), (0.37, 1.0, 0.0), (1.0, 1.0, 0.0), (0.8, 0.4, 0.7), (0.6, 0.3, 2.5)):
-        shrunk = shrink_around(ramp, points, scale, margin_px=8.0, squeeze=squeeze, angle=angle)
-        small, moved = shrunk.image, shrunk.points(points)
-        read = [cv2.getRectSubPix(small[..., 0], (1, 1), (float(x) - 0.5, float(y) - 0.5))[0, 0] for x, y in moved]
-        # 0.03 px, 0.07 px through the turn (OpenCV's warps place samples to 1/32 px)
-        np.testing.assert_allclose(read, 0.7 * points[:, 0] + 1.3 * points[:, 1], atol=0.05 if squeeze == 1 else 0.1)
-        side = marker_side_px(moved[None])[0] / marker_side_px(points[None])[0]
-        assert abs(side - scale * np.sqrt(squeeze)) < 0.03  # the window's size is rounded to whole pixels
-        # compressed by squeeze along the direction, not across it
-        along, across = np.linalg.norm(shrunk.affine[:, :2] @ [[np.cos(angle), -np.sin(angle)],
-                                                              [np.sin(angle), np.cos(angle)]], axis=0)
-        assert abs(along - scale * squeeze) < 0.03 and abs(across - scale) < 0.03
-    # a window at the image's edge is clipped to it, points beyond stay beyond, NaN points are ignored
-    off = np.concatenate([points + [-75.0, 0.0], [[np.nan, np.nan]]])
-    shrunk = shrink_around(ramp, off, 0.5, margin_px=4.0)
-    moved = shrunk.points(off)
-    assert moved[1, 0] < 0 and np.isnan(moved[5]).all()
-    np.testing.assert_allclose(moved[:5, 0], off[:5, 0] * shrunk.image.shape[1] / np.ceil(np.nanmax(off[:, 0]) + 4))
-    for bad in ({"scale": 1.5}, {"scale": 0.5, "squeeze": 0.0}):
-        with pytest.raises(ValueError, match="scale and squeeze"):
-            shrink_around(ramp, points, margin_px=2.0, **bad)
-
-
-def test_a_shrunk_ground_truth_moves_points_and_crosspoints_and_keeps_the_rest():
-    gt = PatternSynthesizer(SPEC, SynthConfig(image_size=(160, 120), marker_px=(30, 40))).sample(0)[1]
-    image = np.zeros((120, 160, 3), np.uint8)
-    k = int(np.flatnonzero(gt.status == 2)[0])
-    shrunk = shrink_around(image, gt.points_px[k], 0.5, margin_px=6.0, squeeze=0.3, angle=0.4)
-    moved = shrunk.ground_truth(gt)
-    assert (moved.width, moved.height) == (shrunk.image.shape[1], shrunk.image.shape[0])
-    np.testing.assert_allclose(moved.points_px, shrunk.points(gt.points_px), atol=1e-4)
-    # a cut marker's corner off the fabric, known from two rows of crosspoints: completed in the source
-    # and moved (a completion after the squeeze is another least-squares fit)
-    whole = np.isfinite(gt.points_px).all(axis=(1, 2)) & np.isfinite(gt.crosspoints_px).all(axis=(1, 2, 3))
-    k_cut = int(np.flatnonzero(whole)[0])
-    points = gt.points_px
-    cut = points.copy()
-    cut[k_cut, 2] = np.nan  # TR
-    crosspoints = gt.crosspoints_px.copy()
-    crosspoints[k_cut, 2:] = np.nan
-    gt = replace(gt, points_px=cut, crosspoints_px=crosspoints)
-    moved = shrunk.ground_truth(gt)
-    assert np.isfinite(completed_points(gt)[k_cut]).all()
-    np.testing.assert_allclose(moved.points_px, shrunk.points(completed_points(gt)), atol=1e-3)
-    np.testing.assert_allclose(moved.points_px[k_cut, 2], shrunk.points(points[k_cut, 2]), atol=0.5)
-    np.testing.assert_allclose(moved.crosspoints_px, shrunk.points(gt.crosspoints_px), atol=1e-4)
-    for name in ("marker_id", "points_depth", "point_visible", "crosspoint_visible", "status"):
-        assert np.array_equal(getattr(moved, name), getattr(gt, name))
-    assert shrink_around(image, gt.points_px[k], 1.0, 0.0).ground_truth(gt) is not gt  # a window: moved
-    assert Shrunk(image).ground_truth(gt) is gt  # unshrunk: as it was
-
-
-def test_a_marker_shrink_draws_sizes_between_its_floor_and_the_marker():
-    image = np.zeros((200, 200, 3), np.uint8)
-    square = np.array([[100, 100], [85, 85], [115, 85], [85, 115], [115, 115]], np.float64)  # a 30 px marker
-    even = MarkerShrink(probability=1.0, min_px=10.0, squeeze=1.0)
-    sides = []
-    for seed in range(200):
-        shrunk = even(image, square, np.random.default_rng(seed))
-        sides.append(marker_side_px(shrunk.points(square)[None])[0])
-    sides = np.array(sides)
-    assert 9.8 < sides.min() < 11.5 and 28.5 < sides.max() < 30.2
-    assert abs(np.median(sides) - 20.0) < 1.5  # uniform over [10, 30]
-    sides, ratios = [], []
-    for seed in range(200):  # compressed along a random direction by 0.25 to 1, never under min_px
-        moved = MarkerShrink(probability=1.0, min_px=10.0)(image, square, np.random.default_rng(seed)).points(square)
-        sides.append(marker_side_px(moved[None])[0])
-        singular = np.linalg.svd(np.stack([moved[2] - moved[1], moved[3] - moved[1]], axis=1), compute_uv=False)
-        ratios.append(singular[1] / singular[0])
-    assert min(sides) > 9.5 and max(sides) < 30.2
-    assert 0.23 < min(ratios) < 0.35 and max(ratios) > 0.95 and np.median(ratios) < 0.75
-    kept = [MarkerShrink(probability=0.3)(image, square, np.random.default_rng(seed)).image is image
-            for seed in range(400)]
-    assert abs(np.mean(kept) - 0.7) < 0.07
-    small = square * 0.25 + 75  # a 7.5 px marker: under the floor, left as it is
-    assert MarkerShrink(probability=1.0, min_px=8.0)(image, small, np.random.default_rng(0)).points(small) is small
-    cut = square.copy()
-    cut[1] = np.nan  # a corner off the fabric: no size, left as it is
-    assert MarkerShrink(probability=1.0)(image, cut, np.random.default_rng(0)).image is image
-    for bad in ({"probability": 1.2}, {"min_px": 2.0}, {"margin_sides": -1.0}, {"squeeze": 0.0}):
-        with pytest.raises(ValueError, match="invalid MarkerShrink"):
-            MarkerShrink(**bad)

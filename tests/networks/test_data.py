@@ -18,7 +18,7 @@ from assets.pattern import CROSSPOINT_CROP, RECOGNIZER_CROP, PatternSpec, genera
 from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops,
                                         recognizer_markers)
-from networks.augment import Augment, MarkerShrink, ViewWarp, warp_image
+from networks.augment import Augment, ViewWarp, warp_image
 from networks.homography import auto_localizer_scale, marker_side_px
 from networks.data import (_VIEW, MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids,
                            synth_crops)
@@ -233,28 +233,6 @@ def test_partial_marker_items_add_the_partial_markers_crops_cut_from_the_image(f
         RenderedDataset(folder, "train", "crosspoints", partial_markers=True)
 
 
-def test_shrunk_recognizer_crops_show_the_same_marker_smaller(folder):
-    exact = RenderedDataset(folder, "train", "recognizer")
-    never = RenderedDataset(folder, "train", "recognizer", marker_shrink=MarkerShrink(probability=0.0))
-    near = RenderedDataset(folder, "train", "recognizer",
-                           marker_shrink=MarkerShrink(probability=1.0, min_px=30.0, squeeze=1.0))
-    far = RenderedDataset(folder, "train", "recognizer", marker_shrink=MarkerShrink(probability=1.0, min_px=8.0,
-                                                                                    squeeze=1.0))
-    assert len(exact) == len(never) == len(near) == len(far) > 2
-    moved = {"near": [], "far": []}
-    for i in range(len(exact)):
-        stored = exact[i]["crop"].numpy().astype(float)
-        assert np.array_equal(never[i]["crop"].numpy(), exact[i]["crop"].numpy())  # cut anew, unshrunk: the same
-        for name, dataset in (("near", near), ("far", far)):
-            item = dataset[i]
-            assert item["marker_id"] == exact[i]["marker_id"] and item["crop"].shape == exact[i]["crop"].shape
-            assert torch.equal(item["crop"], dataset[i]["crop"])  # reproducible per (seed, epoch, index)
-            moved[name].append(np.abs(item["crop"].numpy().astype(float) - stored).mean())
-            # the same marker, in place: the crop still follows the stored one
-            assert np.corrcoef(item["crop"].numpy().ravel(), stored.ravel())[0, 1] > 0.5
-    assert 0 < np.mean(moved["near"]) < np.mean(moved["far"])  # the smaller, the more detail is lost
-
-
 def test_bent_recognizer_crops_are_cut_through_the_bent_map(folder):
     bent = RenderedDataset(folder, "train", "recognizer", recognizer_bend=True)
     exact = RenderedDataset(folder, "train", "recognizer")
@@ -374,33 +352,6 @@ def test_jittered_crosspoint_crops_move_their_targets_with_the_crop(folder):
     assert len(same) > 2
     assert 0.3 < np.mean(shift) < 10  # 1.5 px of jitter moves the targets by a few crop pixels
     assert np.mean(same) < 0.5 * np.mean(shuffled)
-
-
-def test_shrunk_crosspoint_crops_show_the_same_marker_with_its_targets(folder):
-    # the crop maps the same place of the pattern to the same crop pixel at any image scale and squeeze:
-    # a shrunk marker's crop has (nearly) the stored crop's targets and the same visibility; shrunk
-    # evenly, it is a blurrier likeness of the stored crop
-    exact = RenderedDataset(folder, "train", "crosspoints")
-    shrinks = {"even": MarkerShrink(probability=1.0, min_px=10.0, squeeze=1.0),
-               "squeezed": MarkerShrink(probability=1.0, min_px=10.0)}
-    changed = {name: [] for name in shrinks}
-    for name, shrink in shrinks.items():
-        shrunk = RenderedDataset(folder, "train", "crosspoints", marker_shrink=shrink)
-        assert len(shrunk) == len(exact) > 2
-        for i in range(len(exact)):
-            want, item = exact[i], shrunk[i]
-            assert torch.equal(item["visible"], want["visible"]) and torch.equal(item["reference"], want["reference"])
-            # the five points fit no homography exactly: squeezed, the least-squares fit moves a little
-            off = np.abs(item["xy"].numpy() - want["xy"].numpy())
-            assert np.array_equal(np.isnan(off), np.isnan(want["xy"].numpy()))
-            assert np.nanmax(off) < (0.05 if name == "even" else 0.5) and np.nanmedian(off) < 0.1
-            assert torch.equal(item["crop"], shrunk[i]["crop"])  # reproducible per (seed, epoch, index)
-            if name == "even":
-                assert np.corrcoef(item["crop"].numpy().ravel(), want["crop"].numpy().ravel())[0, 1] > 0.5
-            changed[name].append(np.abs(item["crop"].numpy().astype(float) - want["crop"].numpy()).mean())
-    assert 2 < np.mean(changed["even"]) < np.mean(changed["squeezed"])  # the detail lost in the shrink
-    with pytest.raises(ValueError, match="marker_shrink is for the crop tasks"):
-        RenderedDataset(folder, "train", "localizer", marker_shrink=MarkerShrink())
 
 
 def test_wider_crosspoint_crops_are_cut_anew_around_the_stored_ones(folder, codebook):

@@ -17,7 +17,6 @@ import torch
 from assets.fileio import save_npz
 from assets.pattern import CROSSPOINT_CROP, PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
-from networks.augment import MarkerShrink
 from networks.config import REMOVED_FIELDS, TrainConfig
 from networks.data import RenderedDataset
 from networks.evaluate import _Results, evaluate, folder_batches
@@ -367,26 +366,6 @@ def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset
               shards=shards, progress=False)
 
 
-def test_the_crop_networks_train_on_rendered_crops_shrunk_at_the_configured_odds(dataset, tmp_path):
-    config = _config("recognizer", steps=2, augment=True, marker_shrink=1.0)
-    rendered, _ = make_datasets(config, dataset, SPEC)
-    assert rendered.marker_shrink == MarkerShrink(probability=1.0)
-    assert make_datasets(config.replace(marker_shrink=0.0), dataset, SPEC)[0].marker_shrink is None
-    assert make_datasets(config.replace(augment=False), dataset, SPEC)[0].marker_shrink is None  # --no-augment
-    result = main(["recognizer", "--data", str(dataset), "--out", str(tmp_path / "run"), "--steps", "2",
-                   "--batch-size", "2", "--num-workers", "0", "--recognizer-classes", "codebook",
-                   "--marker-shrink", "0.5", "--device", "cpu"])
-    assert result == 0
-    assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["marker_shrink"] == 0.5
-    assert TrainConfig.from_dict({"task": "recognizer"}).marker_shrink == 0.0  # saved before the field
-    with pytest.raises(ValueError, match="marker_shrink must be a probability"):
-        _config("recognizer", marker_shrink=1.5)
-    with pytest.raises(ValueError, match="marker_shrink is for the crop tasks"):
-        _config("localizer", marker_shrink=0.5)
-    crosspoints = _config("crosspoints", steps=2, augment=True, marker_shrink=0.5)
-    assert make_datasets(crosspoints, dataset, SPEC)[0].marker_shrink == MarkerShrink(probability=0.5)
-
-
 def _refuses_homography_shards(config: TrainConfig, dataset: Path, tmp_path: Path) -> None:
     """A run of a bent network (`config`) refuses shards written without its bend, naming the flag."""
     shards = tmp_path / "shards"
@@ -465,7 +444,7 @@ def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_
 
 
 #: per removed TrainConfig field: (task, a value other than the product's)
-REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0)}
+REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0), "marker_shrink": ("recognizer", 0.5)}
 
 
 @pytest.mark.parametrize("name", sorted(REMOVED_FIELDS))
