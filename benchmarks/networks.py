@@ -30,9 +30,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    with its crops cut through the bent crop map that follows curved cloth, rendered and synthesized,
    `SHARD_SYNTH`; evaluated on bent crops), crosspoints_bent (the same for the main crosspoint run: crops
    through the bent map, targets through its inverse; chained with its crosspoints mapped back through
-   it), crosspoints_margin4 (the main crosspoint
-   run's config with a 4-cell crop margin, 128 x 128, `run_margin`; chained in its place, as
-   crosspoints_bent is), and
+   it), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
@@ -111,7 +109,6 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from assets.fileio import save_json, save_npz  # noqa: E402
-from assets.pattern import CROSSPOINT_CROP  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, training_samples  # noqa: E402
 from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
@@ -164,10 +161,6 @@ RUNS = {
     # the held-out renders in the thirteenth and twenty-first runs (0.480 against 0.502 px); a rendered
     # crop costs a worker more than a shard's (decoded ahead, about 5 ms against 1.7): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
-    # the main crosspoint run's config with a 4-cell crop margin (128 x 128, `SHARD_SYNTH`), for its whole
-    # schedule: the outer crosspoints, nearest the reference crop's edge, err most; the sixteenth run
-    # found no gain (0.464 against 0.453 px on renders at near-equal steps from a 112 px start)
-    "crosspoints_margin4": ("crosspoints", 0.75, None, 3, "crosspoints_margin4"),
     # the main crosspoint run's config with its crops bent (`assets.pattern.bent_crop_map`, targets through
     # its inverse, `SHARD_SYNTH`): its fully visible crops err with the marker's curvature (0.247 px
     # nearly flat, 0.663 px 4 cells off a homography; RESULTS.md, fifteenth session)
@@ -191,17 +184,14 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
           "recognizer_bent": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False),
-          "crosspoints_margin4": ("crosspoints", 4800, CROP_JITTER_PX, False),
           "crosspoints_bent": ("crosspoints", 4800, CROP_JITTER_PX, False)}
 #: shard folder -> SynthConfig fields that differ from the defaults.  localizer_upright: every marker
 #: near upright (the defaults turn one in five uniformly: 17% of the synthesizer's fully visible
 #: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's).
-#: crosspoint_margin_cells: the crop of the runs on that folder too (`run_margin`).  recognizer_small:
-#: markers from 10 px (the default's 16 px is the edge along the direction not foreshortened)
+#: recognizer_small: markers from 10 px (the default's 16 px is the edge along the direction not foreshortened)
 SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
                "recognizer_small": {"marker_px": (10.0, 32.0)},
                "recognizer_bent": {"recognizer_bend": True},
-               "crosspoints_margin4": {"crosspoint_margin_cells": 4},
                "crosspoints_bent": {"crosspoint_bend": True}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
@@ -354,25 +344,18 @@ def shard_config(folder: str, seed: int | None = None) -> SynthConfig:
                        **SHARD_SYNTH.get(folder, {}), **({} if seed is None else {"seed": seed}))
 
 
-def run_margin(name: str) -> int:
-    """The crosspoint crop margin (cells) of run `name`: its shard folder's (`SHARD_SYNTH`), else the
-    reference's."""
-    return int(SHARD_SYNTH.get(RUNS[name][4], {}).get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
-
-
-def run_crop(name: str) -> tuple[int, bool]:
-    """How run `name`'s crops are cut: (crosspoint crop margin, `run_margin`; bent crops, of its task:
-    `SynthConfig.recognizer_bend` or `crosspoint_bend` of its shard folder)."""
+def run_crop(name: str) -> bool:
+    """Whether run `name`'s crops are bent, of its task (`SynthConfig.recognizer_bend` or
+    `crosspoint_bend` of its shard folder)."""
     synth = SHARD_SYNTH.get(RUNS[name][4], {})
-    return run_margin(name), bool(synth.get("recognizer_bend", False) or synth.get("crosspoint_bend", False))
+    return bool(synth.get("recognizer_bend", False) or synth.get("crosspoint_bend", False))
 
 
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
     synthesized samples of its shard folder (`synth_heldout`); an --init whose crops are cut otherwise
-    than its run's (`run_crop`: a wider-crop run started from a reference-crop network, a bent
-    recognizer from a homography one) is measured on the folder of a run that cuts them as it does,
+    than its run's (`run_crop`: a bent recognizer started from a homography one) is measured on the folder of a run that cuts them as it does,
     under its run's label, when there is one."""
     checkpoints = {name: (name, out / name / "run" / "last.pt") for name in RUNS
                    if (out / name / "run" / "last.pt").exists()}
@@ -380,8 +363,7 @@ def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init:
         task = RUNS[name][0]
         config = TrainConfig.from_dict(read_checkpoint(path)["config"], source=f"{path}:config") \
             if task != "localizer" else None
-        cut = None if config is None else (config.crosspoint_margin_cells if task == "crosspoints" else
-                                          CROSSPOINT_CROP.margin_cells, config.recognizer_bend or config.crosspoint_bend)
+        cut = None if config is None else config.recognizer_bend or config.crosspoint_bend
         if cut is None or cut == run_crop(name):
             checkpoints[f"{name}, its --init"] = (name, Path(path))
             continue
@@ -497,12 +479,11 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        pretrained=None if start else pretrained.get(task), init=start,
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        recognizer_partial=SHARDS[folder][3],
-                       crosspoint_margin_cells=run_margin(name) if task == "crosspoints" else CROSSPOINT_CROP.margin_cells,
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
                        localizer_marker_px=marker_px,
-                       recognizer_bend=run_crop(name)[1] and task == "recognizer",
-                       crosspoint_bend=run_crop(name)[1] and task == "crosspoints")
+                       recognizer_bend=run_crop(name) and task == "recognizer",
+                       crosspoint_bend=run_crop(name) and task == "crosspoints")
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
@@ -656,7 +637,7 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     baseline of that step); without crosspoint smoothing (`DetectorConfig.smooth_crosspoints_px`, the
     network's raw outputs); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
     before; and with the comparison runs on exact crops, and the localizers trained on shrunk images
-    and the crosspoint runs with a wider crop (`stand_ins`), in place of the main runs, where they exist;
+    and the crosspoint runs with bent crops (`stand_ins`), in place of the main runs, where they exist;
     keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
     fields set in every variant."""
     paths = main_checkpoints(out, init)
@@ -692,11 +673,10 @@ def stand_ins(out: Path, paths: list[Path]) -> dict[str, list[Path]]:
     """The comparison runs trained in `out` that stand in for a main run of the chain `paths`
     (localizer, recognizer, crosspoints), by a chain label, each with `paths` with that one network
     replaced: the localizers of RUN_MARKER_PX (in a Detector at the automatic scale, the scale they
-    trained at) and the crosspoint runs whose crops are cut otherwise than the reference's (`run_crop`:
-    wider, or bent)."""
+    trained at) and the crosspoint runs whose crops are bent (`run_crop`)."""
     slots = {name: 0 for name in RUN_MARKER_PX}
     slots.update({name: 2 for name in RUNS if RUNS[name][0] == "crosspoints"
-                  and run_crop(name) != (CROSSPOINT_CROP.margin_cells, False)})
+                  and run_crop(name)})
     chains = {}
     for name, slot in slots.items():
         last = out / name / "run" / "last.pt"

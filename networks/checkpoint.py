@@ -267,7 +267,6 @@ def load_checkpoint(
 
     def build() -> nn.Module:
         return build_model(data["task"], data["num_ids"], data["crosspoints_per_side"],
-                           crosspoint_margin_cells=config.crosspoint_margin_cells,
                            recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend,
                            recognizer_classes=config.recognizer_classes, modules_per_side=modules_per_side)
 

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from assets.fileio import check_json_object, load_json, save_json
-from assets.pattern.crops import crosspoint_crop
 
 #: the reference's weight of the visibility BCE in the crosspoint loss (`networks.models.crosspoint_loss`)
 CROSSPOINT_VISIBILITY_WEIGHT = 100.0
@@ -42,7 +41,18 @@ MARKER_PX_RANGE = (4.0, 256.0)
 REMOVED_FIELDS: dict[str, object] = {
     "crosspoint_visibility_weight": CROSSPOINT_VISIBILITY_WEIGHT,
     "marker_shrink": 0.0,
+    "crosspoint_margin_cells": 2,
 }
+
+
+def without_removed(data: dict, removed: dict[str, object], source: str) -> dict:
+    """`data` without the fields of `removed` (name -> the only value still accepted); a field of
+    another value is refused, naming `source` and the field."""
+    refused = [f"{name} is {data[name]!r}, an option removed from the product (only {value!r} loads)"
+               for name, value in removed.items() if name in data and data[name] != value]
+    if refused:
+        raise ValueError(f"{source}: " + "; ".join(refused))
+    return {name: value for name, value in data.items() if name not in removed}
 
 
 #: the crop pixels within which the Detector moves a crosspoint onto its marker's smooth field by
@@ -146,10 +156,6 @@ class TrainConfig:
     the least-squares homography of the five points; shards must have been written with the same
     (`networks.synth write --recognizer-bend`).  False: the reference's homography crops (and what a
     saved config without the field trained on).
-    crosspoint_margin_cells (crosspoints): the crop's margin around the marker in cells (2: the
-    reference's 112 x 112; 4: 128 x 128, `assets.pattern.crosspoint_crop`), so the outer crosspoints
-    have more image around them; shards must have been written with the same
-    (`networks.synth write --crosspoint-margin`).
     crosspoint_bend (crosspoints): as recognizer_bend, for the crosspoint network's crops: cut through
     the bent map, the targets through its inverse (`assets.pattern.bent_crop_inverse`), and its
     crosspoints mapped to the image through the map (`networks.homography.crop_to_image(bend=True)`);
@@ -183,7 +189,6 @@ class TrainConfig:
     view_warp: bool = True
     recognizer_partial: bool = True
     localizer_marker_px: float | None = None
-    crosspoint_margin_cells: int = 2
     recognizer_bend: bool = False
     crosspoint_bend: bool = False
 
@@ -212,10 +217,6 @@ class TrainConfig:
         if self.localizer_marker_px is not None and (problem := marker_px_problem("localizer_marker_px",
                                                                                    self.localizer_marker_px)):
             problems.append(problem + " (or None)")
-        try:
-            crosspoint_crop(self.crosspoint_margin_cells)
-        except ValueError as exc:
-            problems.append(f"crosspoint_margin_cells: {exc}")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not isinstance(self.recognizer_bend, bool):
@@ -258,11 +259,7 @@ class TrainConfig:
         check_json_object(data, [f.name for f in dataclasses.fields(cls)] + list(REMOVED_FIELDS), source)
         if "task" not in data:
             raise ValueError(f"{source}: missing field 'task' (one of {', '.join(TASKS)})")
-        refused = [f"{name} is {data[name]!r}, an option removed from training (only {value!r} loads)"
-                   for name, value in REMOVED_FIELDS.items() if name in data and data[name] != value]
-        if refused:
-            raise ValueError(f"{source}: " + "; ".join(refused))
-        data = {name: value for name, value in data.items() if name not in REMOVED_FIELDS}
+        data = without_removed(data, REMOVED_FIELDS, source)
         data = {"recognizer_partial": False, **data}  # configs from before the field: whole markers only
         try:
             return cls(**data)

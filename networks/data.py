@@ -46,7 +46,7 @@ from tqdm import tqdm
 from assets.fileio import load_json, load_npz, save_npz
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
-from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, CropSpec, crosspoint_crop, reference_textures, unwarp
+from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_centre_markers, crosspoint_crops,
                                         crosspoint_markers, localizer_targets, marker_cells, recognizer_crops,
                                         recognizer_markers, training_samples)
@@ -140,8 +140,6 @@ class _Items:
     spec: PatternSpec | None
     codebook: np.ndarray | None
     _references: dict[int, np.ndarray]
-    #: the crosspoint crops' (and so their references') crop (`assets.pattern.crosspoint_crop`)
-    crosspoint_crop: CropSpec = CROSSPOINT_CROP
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -158,7 +156,7 @@ class _Items:
             if not 0 <= marker_id < len(self.codebook):
                 raise ValueError(f"marker ID {marker_id} is outside the codebook of {len(self.codebook)} IDs")
             cache[marker_id] = reference_textures(self.spec, self.codebook[marker_id][None],
-                                                  self.crosspoint_crop)[0]
+                                                  CROSSPOINT_CROP)[0]
         return cache[marker_id]
 
     def _item(self, index: int, image=None, cells=None, crop=None, marker_id=None, xy=None, visible=None) -> dict:
@@ -206,9 +204,6 @@ class RenderedDataset(_Items, Dataset):
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
     from the ground-truth points; crops and view warps are then taken from it.  None: the renders'
     own scale.
-    crosspoint_margin_cells (crosspoints): the crops' margin (`assets.pattern.crosspoint_crop`); other
-    than the reference's 2, the crops are cut anew from the images (the stored ones are 112 x 112),
-    of the markers that pass the crop-sanity test in that crop.
     decode_ahead: what an item reads of its image from disk is decoded once for every image of the
     split, when the dataset is made, into a memory-mapped file the workers share (`networks.decoded`;
     a split too large for its limit is read per item as without): the localizer's image and cells;
@@ -218,7 +213,7 @@ class RenderedDataset(_Items, Dataset):
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
-                 partial_markers: bool = False, marker_px: float | None = None, crosspoint_margin_cells: int = 2,
+                 partial_markers: bool = False, marker_px: float | None = None,
                  decode_ahead: bool = False, recognizer_bend: bool = False, crosspoint_bend: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
@@ -245,9 +240,6 @@ class RenderedDataset(_Items, Dataset):
         if crosspoint_bend and task != "crosspoints":
             raise ValueError(f"crosspoint_bend is for the crosspoint network's crops, not the {task} task's")
         self.crosspoint_bend = bool(crosspoint_bend)
-        if crosspoint_margin_cells != CROSSPOINT_CROP.margin_cells and task != "crosspoints":
-            raise ValueError(f"crosspoint_margin_cells is for the crosspoint network's crops, not the {task} task's")
-        self.crosspoint_crop = crosspoint_crop(crosspoint_margin_cells)
         if marker_px is not None and task != "localizer":
             raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
         if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
@@ -338,9 +330,9 @@ class RenderedDataset(_Items, Dataset):
             made = None
             if self.crop_jitter_px > 0:
                 made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
-                                        self.spec, self.crosspoint_crop, self.crosspoint_bend)
+                                        self.spec, CROSSPOINT_CROP, self.crosspoint_bend)
             if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the sanity test
-                made = crosspoint_crops(image, one, self.spec, self.crosspoint_crop, self.crosspoint_bend)
+                made = crosspoint_crops(image, one, self.spec, CROSSPOINT_CROP, self.crosspoint_bend)
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
@@ -410,17 +402,16 @@ class RenderedDataset(_Items, Dataset):
 
     @property
     def _cut_anew(self) -> bool:
-        """Crops are cut from the image per item (crop jitter, partial markers, bent crops or another
-        crosspoint crop than the stored ones'), not read stored."""
+        """Crops are cut from the image per item (crop jitter, partial markers, bent crops), not read
+        stored."""
         return (self.crop_jitter_px > 0 or self.partial_markers
-                or self.recognizer_bend or self.crosspoint_bend or self.crosspoint_crop != CROSSPOINT_CROP)
+                or self.recognizer_bend or self.crosspoint_bend)
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
         crop (`recognizer_markers`; with partial_markers, `completed_points`) or the crosspoint network's
-        markers (`pick`, indices into gt/<name>.npz: `crosspoint_markers` in the dataset's crop), with
-        their IDs.  Without partial_markers or a wider crosspoint crop they are checked against the
-        samples' stored crops: the markers of those."""
+        markers (`pick`, indices into gt/<name>.npz: `crosspoint_markers`), with their IDs.  Without
+        partial_markers they are checked against the samples' stored crops: the markers of those."""
         entry = self.entries[image_index]
         gt = ImageGroundTruth.load(self.root / entry["gt"])
         key = _CROP_KEYS[self.task][1]
@@ -428,9 +419,6 @@ class RenderedDataset(_Items, Dataset):
             completed = completed_points(gt)
             pick = recognizer_markers(gt, self.spec, True, completed)
             return {"points_px": completed[pick].astype(np.float64), key: gt.marker_id[pick]}
-        if self.task == "crosspoints" and self.crosspoint_crop != CROSSPOINT_CROP:  # stored: other markers' crops
-            pick = crosspoint_markers(gt, self.spec, crop=self.crosspoint_crop)[0]
-            return {"pick": pick, key: gt.marker_id[pick]}
         pick = recognizer_markers(gt, self.spec) if self.task == "recognizer" else crosspoint_markers(gt, self.spec)[0]
         stored = load_npz(self.root / entry["samples"], only=(key,))[key]
         if not np.array_equal(gt.marker_id[pick], stored):
@@ -503,7 +491,6 @@ class SynthDataset(_Items, Dataset):
         self.crops_per_sample = 1 if task == "localizer" else int(crops_per_sample)
         self.synthesizer = PatternSynthesizer(spec, config, codebook, marker_ids)
         self.codebook = self.synthesizer.codebook
-        self.crosspoint_crop = crosspoint_crop(config.crosspoint_margin_cells)
         self._references = {}
         self._last: tuple[tuple[int, int], list[tuple]] | None = None
 
@@ -563,11 +550,10 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
         kept = keep(len(made[0]))  # drawn once: crops and IDs keep the same rows
         return tuple(array[kept] for array in made)
     config = config or SynthConfig()
-    crop = crosspoint_crop(config.crosspoint_margin_cells)
-    chosen = crosspoint_centre_markers(gt, spec, crop, config.crosspoint_bend)
+    chosen = crosspoint_centre_markers(gt, spec, CROSSPOINT_CROP, config.crosspoint_bend)
     if keep is not None:
         chosen = chosen[keep(len(chosen))]
-    return crosspoint_crops(image, gt.select(chosen), spec, crop, config.crosspoint_bend)
+    return crosspoint_crops(image, gt.select(chosen), spec, CROSSPOINT_CROP, config.crosspoint_bend)
 
 
 class ShardDataset(_Items, Dataset):
@@ -575,8 +561,7 @@ class ShardDataset(_Items, Dataset):
 
     Arrays are memory-mapped per worker on first use (the dataset pickles without them, so spawned
     DataLoader workers each open their own).  spec: the pattern to train on; the shards' codebook
-    must be its codebook.  Items are augmented per (seed, epoch, index) as the other datasets'.
-    Crosspoint crops are in the crop the shards were written with (`shard_margin_cells`)."""
+    must be its codebook.  Items are augmented per (seed, epoch, index) as the other datasets'."""
 
     def __init__(self, root: str | Path, task: str, augment: Augment | None = None, spec: PatternSpec | None = None,
                  seed: int = 0):
@@ -596,7 +581,6 @@ class ShardDataset(_Items, Dataset):
         counts = [len(next(iter(open_shard_part(part, task).values()))) for part in self.parts]
         self._starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self.codebook = generate_codebook(self.spec) if task == "crosspoints" else None
-        self.crosspoint_crop = crosspoint_crop(shard_margin_cells(self.meta))
         self._references = {}
         self._open: dict[int, dict[str, np.ndarray]] = {}
 
@@ -643,12 +627,6 @@ def open_shard_part(part: Path, task: str) -> dict[str, np.ndarray]:
     return arrays
 
 
-def shard_margin_cells(meta: dict) -> int:
-    """The crosspoint crop margin (cells) a shard folder's shards.json says its crops were cut with
-    (2, the reference's, for folders written before the option)."""
-    return int(meta["synth"].get("crosspoint_margin_cells", CROSSPOINT_CROP.margin_cells))
-
-
 def shard_bend_problem(root: str | Path, meta: dict, bend: bool, task: str = "recognizer") -> str | None:
     """Why a shard folder's crops of a crop `task` do not suit a network whose crops are `bend`
     (`SynthConfig.recognizer_bend` or `crosspoint_bend`, False for folders written before the
@@ -674,6 +652,7 @@ def read_shard_meta(root: str | Path) -> dict:
     missing = [k for k in ("task", "spec", "codebook_hash", "synth", "images_per_part") if k not in meta]
     if missing or meta["task"] not in TASKS:
         raise ValueError(f"{path}: missing field(s) {', '.join(missing) or 'task'} or unknown task")
+    SynthConfig.from_dict(meta["synth"], source=f"{path}:synth")  # written with a removed option: refused by name
     return meta
 
 

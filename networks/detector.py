@@ -20,7 +20,7 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        garment's `tables`, their points are re-estimated from the fully visible neighbours on the
        pattern (`networks.neighbours.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
-    5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`; wider for a network trained so) and the
+    5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the
        reference texture of its ID -> Crosspoint Localizer (with `crosspoint_shift_px`, also on the
        crop shifted four ways, the five predictions averaged); visible = sigmoid > `visibility_threshold`;
        the visible crosspoints near a cubic field fitted to them take its value
@@ -478,7 +478,7 @@ class Detector:
 
     def references(self, marker_id: np.ndarray) -> np.ndarray:
         """(N, S, S, 3) uint8 reference textures of the IDs in the crosspoint network's crop
-        (`CROSSPOINT_CROP`, S = 112, unless it was trained with a wider margin), cached per ID."""
+        (`CROSSPOINT_CROP`, S = 112), cached per ID."""
         marker_id = np.asarray(marker_id, dtype=np.int64)
         missing = np.array(sorted(set(marker_id.tolist()) - set(self._references)), dtype=np.int64)
         if len(missing):

@@ -206,13 +206,10 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
 def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
                  crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> Iterable[dict]:
     """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
-    is not used), or of a factory dataset's split (`folder_batches`); crop: the crosspoint crops' (a
-    shard folder's must be it); bend: the network's crops are bent (a shard folder's must be so)."""
+    is not used), or of a factory dataset's split (`folder_batches`, whose crosspoint crops are cut in
+    `crop`); bend: the network's crops are bent (a shard folder's must be so)."""
     if (Path(data) / SHARD_META).is_file():
         shards = ShardDataset(data, task, spec=spec)
-        if task == "crosspoints" and shards.crosspoint_crop != crop:
-            raise ValueError(f"{data}: crosspoint crops of {shards.crosspoint_crop.size_px} px, but the network's "
-                             f"are {crop.size_px} px; write shards with --crosspoint-margin {crop.margin_cells:g}")
         if problem := shard_bend_problem(data, shards.meta, bend, task):
             raise ValueError(problem)
         return DataLoader(shards, batch_size=batch_size)

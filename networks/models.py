@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, crosspoint_crop
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px
 from networks.backbone import ResNet, load_pretrained, resnet18, resnet50
 from networks.config import CROSSPOINT_VISIBILITY_WEIGHT
 
@@ -196,10 +196,6 @@ class CrosspointLocalizer(nn.Module):
       decoder ``decoder.up`` ConvTranspose2d(2048 -> 512, 2, stride 2) -> ReLU ->
       ``decoder.conv`` Conv2d(512 -> 64, 4, no padding) -> ReLU -> ``decoder.out`` Conv2d(64 -> 3, 1)
       sizes 112 -> 56 -> 28 (maxpool) -> 28 -> 28 -> 14 (layer4) -> 28 -> 25.
-    margin_cells (not the reference's, which is 2): the crop `assets.pattern.crosspoint_crop` with
-    that margin (4 -> 128 x 128); its up-convolved features (one per 4 px) lose the extra cells on
-    every side before ``decoder.conv``, so the output is still K x K and each output's 4 x 4 window
-    is centred on its crosspoint as in the reference.  The weights are the same either way.
     ``decoder.out`` starts at zero (visibility 0.5, every crosspoint at its canonical position).
     ``fuse`` starts as the identity on the crop's features and zero on the reference's, so the
     pretrained layers first see what ImageNet trained them on; with `pretrained` the reference stem
@@ -217,15 +213,12 @@ class CrosspointLocalizer(nn.Module):
     """
 
     def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25,
-                 margin_cells: int = 2, bend: bool = False) -> None:
+                 bend: bool = False) -> None:
         super().__init__()
         k = crosspoints_per_side
-        self.crop = crosspoint_crop(margin_cells)
+        self.crop = CROSSPOINT_CROP
         self.bend = bool(bend)
-        # feature cells (4 px each) beyond the reference crop's on every side, cut off before the
-        # decoder's convolution so its window stays centred on each crosspoint
-        self.trim = (self.crop.size_px - CROSSPOINT_CROP.size_px) // 8
-        size = CROSSPOINT_CROP.size_px // 4  # feature size after the decoder's up-convolution and the trim
+        size = CROSSPOINT_CROP.size_px // 4  # feature size after the decoder's up-convolution
         if not 1 <= k <= size:
             raise ValueError(f"CrosspointLocalizer: crosspoints_per_side must be in 1..{size}, got {k}")
         self.crosspoints_per_side = k
@@ -262,7 +255,7 @@ class CrosspointLocalizer(nn.Module):
             _check_images(x, f"CrosspointLocalizer {name}")
             if tuple(x.shape[2:]) != (size, size):
                 raise ValueError(f"CrosspointLocalizer {name}: expected {size} x {size} crops "
-                                 f"(assets.pattern.crosspoint_crop({self.crop.margin_cells:g})), got {x.shape[2]} x "
+                                 f"(assets.pattern.CROSSPOINT_CROP), got {x.shape[2]} x "
                                  f"{x.shape[3]}; the decoder yields {self.crosspoints_per_side} x "
                                  f"{self.crosspoints_per_side} only from that size")
         if crop.shape[0] != reference.shape[0]:
@@ -271,8 +264,6 @@ class CrosspointLocalizer(nn.Module):
         ref = F.relu(self.reference_bn(self.reference_conv(reference)))
         fused = F.relu(self.fuse(torch.cat([image, ref], dim=1)))
         features = self.decoder.relu1(self.decoder.up(self.backbone.stages(fused)))
-        if self.trim:
-            features = features[:, :, self.trim:-self.trim, self.trim:-self.trim]
         out = self.decoder.out(self.decoder.relu2(self.decoder.conv(features)))
         return torch.cat([out[:, :1], out[:, 1:] + self.canonical_px], dim=1)
 

@@ -207,9 +207,6 @@ def main(argv: list[str] | None = None) -> int:
                        "map that follows curved cloth (SynthConfig.recognizer_bend; default: the homography)")
     write.add_argument("--crosspoint-bend", action="store_true", help="crosspoints: crops through the bent crop "
                        "map, targets through its inverse (SynthConfig.crosspoint_bend; default: the homography)")
-    write.add_argument("--crosspoint-margin", type=int, metavar="CELLS", help="crosspoints: the crops' margin "
-                       "around the marker (SynthConfig.crosspoint_margin_cells; default 2, the reference's 112 px "
-                       "crop; 4: 128 px)")
     write.add_argument("--images-per-part", type=int, default=64)
     write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
     write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
@@ -231,8 +228,6 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(recognizer_bend=True)
         if args.crosspoint_bend:
             config = config.replace(crosspoint_bend=True)
-        if args.crosspoint_margin is not None:
-            config = config.replace(crosspoint_margin_cells=args.crosspoint_margin)
         if args.pattern is not None:
             spec = PatternSpec.load(args.pattern)
         else:

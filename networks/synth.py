@@ -55,11 +55,15 @@ import numpy as np
 from assets.fileio import check_json_object
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
-from assets.pattern.crops import crosspoint_crop
 from assets.pattern.observation import ImageGroundTruth
 from assets.pattern.raster import render_grid_view
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import MarkerTable, localization_rc
+from networks.config import without_removed
+
+#: `SynthConfig` fields that measurements removed (docs/journal/2026-11-28-crop-options-removed.md):
+#: name -> the only value a saved config (a shard folder's shards.json) may still carry
+SYNTH_REMOVED_FIELDS: dict[str, object] = {"crosspoint_margin_cells": 2}
 
 _GEOMETRY, _IDS, _LIGHT, _OCCLUDERS, _BACKGROUND, _CAMERA = range(6)
 _SKIN_RGB = np.array([[224, 172, 140], [198, 134, 102], [141, 85, 60], [92, 58, 40], [240, 200, 175]], np.float32)
@@ -92,8 +96,6 @@ class SynthConfig:
     (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).  recognizer_bend:
     recognizer crops through `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`).
     crosspoint_bend: crosspoint crops through it, targets through its inverse (`TrainConfig.crosspoint_bend`).
-    crosspoint_margin_cells: the crosspoint crops' margin around the marker, cells
-    (`assets.pattern.crosspoint_crop`; 2: the reference's 112 x 112; `TrainConfig.crosspoint_margin_cells`).
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -125,7 +127,6 @@ class SynthConfig:
     seed: int = 0
     crop_jitter_px: float = 0.0
     recognizer_partial: bool = True
-    crosspoint_margin_cells: int = 2
     recognizer_bend: bool = False
     crosspoint_bend: bool = False
 
@@ -134,10 +135,6 @@ class SynthConfig:
         problems = []
         if not self.crop_jitter_px >= 0:
             problems.append(f"crop_jitter_px must be >= 0, got {self.crop_jitter_px}")
-        try:
-            crosspoint_crop(self.crosspoint_margin_cells)
-        except ValueError as exc:
-            problems.append(f"crosspoint_margin_cells: {exc}")
         if w < 8 or h < 8 or w % 8 or h % 8:
             problems.append(f"image_size must be multiples of 8, got {self.image_size}")
         if not 0 < self.marker_px[0] <= self.marker_px[1]:
@@ -173,8 +170,10 @@ class SynthConfig:
 
     @classmethod
     def from_dict(cls, data: object, source: str = "SynthConfig") -> "SynthConfig":
-        """From a dict as `to_dict` writes (missing fields take the defaults); errors name `source`."""
-        check_json_object(data, (f.name for f in dataclasses.fields(cls)), source)
+        """From a dict as `to_dict` writes (missing fields take the defaults); errors name `source`, as
+        do removed options of another value than `SYNTH_REMOVED_FIELDS`."""
+        check_json_object(data, [f.name for f in dataclasses.fields(cls)] + list(SYNTH_REMOVED_FIELDS), source)
+        data = without_removed(data, SYNTH_REMOVED_FIELDS, source)
         try:
             return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
         except (TypeError, ValueError) as exc:

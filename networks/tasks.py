@@ -39,11 +39,9 @@ BATCH_KEYS = {
 
 
 def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None,
-                crosspoint_margin_cells: int = 2, recognizer_bend: bool = False,
-                crosspoint_bend: bool = False, recognizer_classes: str = "garment",
+                recognizer_bend: bool = False, crosspoint_bend: bool = False, recognizer_classes: str = "garment",
                 modules_per_side: int = 12) -> nn.Module:
     """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file;
-    crosspoint_margin_cells: the crosspoint network's crop margin (`TrainConfig.crosspoint_margin_cells`);
     recognizer_bend, crosspoint_bend: the recognizer's or the crosspoint network's crops are bent
     (`TrainConfig.recognizer_bend`, `crosspoint_bend`); recognizer_classes "modules"
     (`TrainConfig.recognizer_classes`): the recognizer is a `MarkerModuleReader` of the pattern's
@@ -56,7 +54,7 @@ def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrai
         return MarkerRecognizer(num_ids, pretrained=pretrained, bend=recognizer_bend)
     if task == "crosspoints":
         return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side,
-                                   margin_cells=crosspoint_margin_cells, bend=crosspoint_bend)
+                                   bend=crosspoint_bend)
     raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
 
 

@@ -52,14 +52,14 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook
+from assets.pattern import PatternSpec, generate_codebook
 from networks.augment import Augment, ViewWarp
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
 from networks.codes import module_targets
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
 from networks.data import (MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids,
-                           shard_bend_problem, shard_margin_cells)
+                           shard_bend_problem)
 from networks.evaluate import evaluate_model, resolve_device
 from networks.synth import SynthConfig
 from networks.tasks import autocast, build_model, forward
@@ -228,7 +228,6 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     partial = config.recognizer_partial and task == "recognizer"
     bend = config.recognizer_bend and task == "recognizer"
     crosspoint_bend = config.crosspoint_bend and task == "crosspoints"
-    margin = config.crosspoint_margin_cells if task == "crosspoints" else CROSSPOINT_CROP.margin_cells
 
     def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
               stored: bool = True, crop_jitter_px: float = 0.0) -> Dataset:
@@ -236,7 +235,6 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
             synth_config = None if task == "localizer" else SynthConfig(image_size=(256, 256), centred=True,
                                                                          crop_jitter_px=crop_jitter_px,
                                                                          recognizer_partial=partial,
-                                                                         crosspoint_margin_cells=margin,
                                                                          recognizer_bend=bend,
                                                                          crosspoint_bend=crosspoint_bend)
             return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
@@ -254,10 +252,6 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
                              f"{'without' if partial else 'with'} --whole-markers-only")
         if problem := shard_bend_problem(shards, dataset.meta, bend or crosspoint_bend, task):
             raise ValueError(problem)
-        if task == "crosspoints" and shard_margin_cells(dataset.meta) != margin:
-            raise ValueError(f"{shards}: crops with a margin of {shard_margin_cells(dataset.meta)} cells, but this "
-                             f"run's crosspoint_margin_cells is {margin}; write shards with --crosspoint-margin "
-                             f"{margin} or train with --crosspoint-margin {shard_margin_cells(dataset.meta)}")
         if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
                                                   else np.arange(spec.num_ids), marker_ids).all():
             raise ValueError(f"{shards}: the shards hold marker IDs outside the {len(marker_ids)} of this run; "
@@ -276,10 +270,9 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
                                crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
-                               crosspoint_margin_cells=margin, decode_ahead=True,
-                               recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
+                               decode_ahead=True, recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px,
-                          crosspoint_margin_cells=margin, recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
+                          recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
             raise ValueError(f"{root}: the {split} split has no {task} samples")
@@ -409,7 +402,6 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     torch.manual_seed(config.seed)
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained,
-                        crosspoint_margin_cells=config.crosspoint_margin_cells,
                         recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend,
                         recognizer_classes=config.recognizer_classes,
                         modules_per_side=spec.modules_per_side).to(device)
@@ -588,7 +580,6 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "view_warp": False if args.no_view_warp else None,
                  "localizer_marker_px": args.localizer_marker_px,
-                 "crosspoint_margin_cells": args.crosspoint_margin,
                  "recognizer_bend": True if args.recognizer_bend else None,
                  "crosspoint_bend": True if args.crosspoint_bend else None,
                  "recognizer_partial": False if args.whole_markers_only else None,
@@ -627,9 +618,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--crop-jitter", type=float, metavar="PX", help="cut the recognizer's crops and the "
                         "synthesized crosspoint crops from five points moved by this noise (px), as the Detector "
                         "cuts them from the localizer's; shards need the same (default 0: exact crops)")
-    parser.add_argument("--crosspoint-margin", type=int, metavar="CELLS", help="crosspoints: the crop's margin "
-                        "around the marker (default 2: the reference's 112 x 112; 4: 128 x 128, more image around "
-                        "the outer crosspoints); shards need the same")
     parser.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the dataset's, or the default spec)")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--num-workers", type=int, help="data loading processes")

@@ -176,7 +176,6 @@ def test_init_takes_a_run_s_own_checkpoint_else_its_task_s_stored_one(bench, tmp
     assert {name: Path(path).name for name, path in init.items() if name in localizers} == \
         {name: "localizer.pt" for name in localizers}
     assert Path(init["crosspoints_rendered"]).name == "crosspoints_rendered.pt"
-    assert "crosspoints_margin4" not in init  # another run's checkpoint is not its own nor its task's
     assert not any(bench.RUNS[name][0] == "recognizer" for name in init)
     assert bench.init_weights(tmp_path / "missing") == {}
     assert set(bench.init_weights(stored, ["localizer_upright", "crosspoints_rendered", "recognizer"])) == \
@@ -343,44 +342,6 @@ def test_the_upright_localizer_run_draws_its_own_shards_with_markers_near_uprigh
     assert set(written) == {"localizer_upright"}
     assert json.loads((tmp_path / "shards" / "localizer_upright" / "shards.json").read_text()
                       )["synth"]["upright_probability"] == 1.0
-
-
-def test_the_wider_crop_crosspoint_run_trains_measures_and_chains_in_its_own_crop(bench, tmp_path, garment_dataset,
-                                                                                  init_folder):
-    """crosspoints_margin4: its config, shards and held-out shards have the 4-cell margin; it starts
-    from the reference-crop network (whose held-out samples measure that --init), and stands in for
-    the main crosspoint run in a chain."""
-    import torch
-    from networks.checkpoint import read_checkpoint
-
-    assert bench.run_config("crosspoints_margin4", 1, 2, {}).crosspoint_margin_cells == 4
-    assert bench.run_config("crosspoints_jitter", 1, 2, {}).crosspoint_margin_cells == 2
-    assert bench.run_config("localizer_mix", 1, 2, {}).crosspoint_margin_cells == 2
-    assert bench.shard_config("crosspoints_margin4").crosspoint_margin_cells == 4
-    assert bench.shard_config("crosspoints_margin4").crop_jitter_px == bench.CROP_JITTER_PX
-    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["crosspoints_jitter", "crosspoints_margin4"])
-    assert json.loads((folders["crosspoints_margin4"] / "shards.json").read_text()
-                      )["synth"]["crosspoint_margin_cells"] == 4
-    # the run's last.pt: the reference-crop network's weights in the wider network
-    saved = read_checkpoint(init_folder / "crosspoints_rendered.pt")
-    saved["config"] = {**saved["config"], "crosspoint_margin_cells": 4}
-    trained = tmp_path / "crosspoints_margin4" / "run" / "last.pt"
-    trained.parent.mkdir(parents=True)
-    torch.save(saved, trained)
-    init = {**bench.init_weights(init_folder), "crosspoints_margin4": str(init_folder / "crosspoints_rendered.pt")}
-    measured = bench.evaluate_synthesized(tmp_path, {k: v for k, v in folders.items()}, "cpu",
-                                          {k: v for k, v in init.items() if k.startswith("crosspoints")})
-    assert set(measured) == {"crosspoints_margin4", "crosspoints_rendered, its --init",
-                             "crosspoints_margin4, its --init (on crosspoints_jitter's samples)"}
-    assert measured["crosspoints_margin4, its --init (on crosspoints_jitter's samples)"]["crop_error_px"] == \
-        measured["crosspoints_rendered, its --init"]["crop_error_px"]
-    paths = bench.main_checkpoints(tmp_path, init)
-    label = "crosspoints_margin4 in place of crosspoints_rendered"
-    assert bench.stand_ins(tmp_path, paths) == {label: [*paths[:2], trained]}
-    view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
-    chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
-    # a Detector that cut 112 px crops for it would stop at the network's size check
-    assert chains[label]["images"] == 3 and chains["defaults"]["images"] == 3
 
 
 def test_throughput_times_each_size_with_the_defaults_and_each_variant_on_the_same_images(bench, tmp_path,

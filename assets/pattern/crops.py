@@ -9,9 +9,7 @@ sits at continuous crop coordinates (pixel centres at +0.5, DESIGN.md)::
 
 The reference's crops: the Marker Recognizer sees 96 x 96 (`RECOGNIZER_CROP`: margin 0, 4 px per cell,
 corners on the crop's outer edge) and the Crosspoint Localizer 112 x 112 (`CROSSPOINT_CROP`: margin 2
-cells, 4 px per cell, crosspoints at 8, 12, ..., 104).  `crosspoint_crop(margin_cells)` is the
-Crosspoint Localizer's crop with a wider margin at the same 4 px per cell (an option, not the
-reference's: 4 cells give 128 x 128 with crosspoints at 16, ..., 112).
+cells, 4 px per cell, crosspoints at 8, 12, ..., 104).
 
 `crop_homography` (image -> crop, fitted by least squares to the five localization points) is the one
 function that makes training crops from ground truth, unwarps detections at inference, and renders the
@@ -58,22 +56,6 @@ class CropSpec:
 
 RECOGNIZER_CROP = CropSpec(size_px=96, margin_cells=0)
 CROSSPOINT_CROP = CropSpec(size_px=112, margin_cells=2)
-#: the widest crosspoint crop margin `crosspoint_crop` makes (cells)
-MAX_CROSSPOINT_MARGIN = 8
-
-
-def crosspoint_crop(margin_cells: int = 2) -> CropSpec:
-    """The Crosspoint Localizer's crop with `margin_cells` whole cells around the marker (2: the
-    reference's `CROSSPOINT_CROP`): each cell beyond 2 adds 4 px on every side at the reference's 4 px
-    per cell of the 24-cell marker, so the same crosspoints keep their spacing and get more of the
-    image around them.  The network's features are one per 4 px, so a wider crop trims the extra
-    cells before its decoder and still yields exactly 25 x 25 (`networks.models.CrosspointLocalizer`)."""
-    if (not isinstance(margin_cells, (int, np.integer)) or isinstance(margin_cells, bool)
-            or not CROSSPOINT_CROP.margin_cells <= margin_cells <= MAX_CROSSPOINT_MARGIN):
-        raise ValueError(f"crosspoint crop margin must be a whole number of cells in "
-                         f"[{CROSSPOINT_CROP.margin_cells:g}, {MAX_CROSSPOINT_MARGIN}], got {margin_cells!r}")
-    extra = int(margin_cells) - int(CROSSPOINT_CROP.margin_cells)
-    return CropSpec(size_px=CROSSPOINT_CROP.size_px + 8 * extra, margin_cells=int(margin_cells))
 
 
 def crop_crosspoints_px(spec: PatternSpec, crop: CropSpec) -> np.ndarray:

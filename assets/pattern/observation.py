@@ -235,7 +235,7 @@ def crosspoint_crops(
     """Crosspoint localizer samples for the markers of `crosspoint_markers`.
 
     Returns crops (N, S, S, C) of the image's dtype (`crop`: the reference's `CROSSPOINT_CROP`, S =
-    112, or a wider `crosspoint_crop`), marker IDs (N,) int32, xy (N, K, K, 2) float32 crosspoint
+    112), marker IDs (N,) int32, xy (N, K, K, 2) float32 crosspoint
     positions in crop pixels (the crop's homography applied to the projected crosspoints; NaN off
     the fabric) and visible (N, K, K) bool: the crosspoint is visible in the image and its xy lies
     in the crop, [0, S] x [0, S] (a visible crosspoint of a curved marker can fall outside; the

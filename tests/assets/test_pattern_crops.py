@@ -13,7 +13,6 @@ from assets.pattern import (
     crop_crosspoints_px,
     crop_homography,
     crop_localization_px,
-    crosspoint_crop,
     reference_textures,
     render_region,
     unwarp,
@@ -28,33 +27,6 @@ def test_crop_geometry_is_as_documented(small_table):
     assert np.allclose(grid[0, 24], [104, 8])  # TR: right, top
     grid96 = crop_crosspoints_px(spec, RECOGNIZER_CROP)
     assert np.allclose(grid96[0, 0], [0, 0]) and np.allclose(grid96[24, 24], [96, 96])
-
-
-def test_wider_crosspoint_crops_keep_4_px_per_cell(small_table):
-    spec = small_table.spec
-    assert crosspoint_crop() == crosspoint_crop(2) == CROSSPOINT_CROP
-    wide = crosspoint_crop(4)
-    assert wide.size_px == 128 and wide.px_per_cell(spec) == CROSSPOINT_CROP.px_per_cell(spec) == 4
-    grid = crop_crosspoints_px(spec, wide)
-    assert np.allclose(grid[0, 0], [16, 16]) and np.allclose(grid[24, 24], [112, 112])
-    for bad in (1, 9, 2.5, True, "4"):
-        with pytest.raises(ValueError, match="whole number of cells in \\[2, 8\\]"):
-            crosspoint_crop(bad)
-
-
-def test_a_wider_crop_shows_the_reference_crop_in_its_middle(small_table):
-    """The same marker unwarped into the 112 and 128 px crops: the 128 px one holds the 112 px one
-    8 px in from each side, and its reference texture likewise."""
-    spec = small_table.spec
-    dpi = 4 / spec.pitch_mm * 25.4
-    image = render_region(small_table, dpi=dpi)
-    m = small_table.num_markers // 2
-    loc = xy_to_pixel(small_table.localization_xy[m], spec.fabric_bounds, dpi)
-    narrow, wide = (unwarp(image, spec, crop, loc).astype(int) for crop in (CROSSPOINT_CROP, crosspoint_crop(4)))
-    assert np.abs(wide[8:120, 8:120] - narrow).max() <= 1
-    refs = [reference_textures(spec, small_table.codes[m][None], crop)[0].astype(int)
-            for crop in (CROSSPOINT_CROP, crosspoint_crop(4))]
-    assert np.abs(refs[1][8:120, 8:120] - refs[0]).max() <= 1
 
 
 def test_fit_homography_recovers_a_projective_map():

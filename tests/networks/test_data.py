@@ -354,30 +354,6 @@ def test_jittered_crosspoint_crops_move_their_targets_with_the_crop(folder):
     assert np.mean(same) < 0.5 * np.mean(shuffled)
 
 
-def test_wider_crosspoint_crops_are_cut_anew_around_the_stored_ones(folder, codebook):
-    """crosspoint_margin_cells 4: each item's 128 px crop holds the stored 112 px crop 8 px in from
-    each side, its targets moved by 8 px, its reference the wider one; visible crosspoints stay
-    visible.  Synthesized items take the margin from their config."""
-    exact = RenderedDataset(folder, "train", "crosspoints")
-    wide = RenderedDataset(folder, "train", "crosspoints", crosspoint_margin_cells=4)
-    assert len(wide) == len(exact) > 2
-    for i in range(len(exact)):
-        want, item = exact[i], wide[i]
-        assert item["crop"].shape == item["reference"].shape == (3, 128, 128)
-        assert np.abs(item["crop"][:, 8:120, 8:120].numpy().astype(int) - want["crop"].numpy().astype(int)).max() <= 1
-        assert np.abs(item["reference"][:, 8:120, 8:120].numpy().astype(int)
-                      - want["reference"].numpy().astype(int)).max() <= 1
-        assert np.allclose(item["xy"].numpy(), want["xy"].numpy() + 8, atol=1e-3, equal_nan=True)
-        assert not (want["visible"] & ~item["visible"]).any()
-    with pytest.raises(ValueError, match="for the crosspoint network's crops"):
-        RenderedDataset(folder, "train", "recognizer", crosspoint_margin_cells=4)
-    config = SynthConfig(image_size=(160, 160), marker_px=(40, 64), centred=True, crosspoint_margin_cells=4)
-    synthesized = SynthDataset("crosspoints", SPEC, length=2, seed=1, config=config, codebook=codebook)[0]
-    assert synthesized["crop"].shape == synthesized["reference"].shape == (3, 128, 128)
-    with pytest.raises(ValueError, match="crosspoint_margin_cells"):
-        SynthConfig(crosspoint_margin_cells=0)
-
-
 def test_default_collate_batches_the_items(folder):
     for task, keys in (("localizer", {"image", "cells"}), ("recognizer", {"crop", "marker_id"}),
                        ("crosspoints", {"crop", "reference", "xy", "visible"})):
@@ -584,7 +560,7 @@ def _assert_same_items(read: RenderedDataset, *others: RenderedDataset) -> None:
 
 @pytest.mark.parametrize("task, settings", [
     ("recognizer", {}), ("recognizer", {"crop_jitter_px": 1.0, "partial_markers": True}),
-    ("crosspoints", {}), ("crosspoints", {"crop_jitter_px": 1.0}), ("crosspoints", {"crosspoint_margin_cells": 3})])
+    ("crosspoints", {}), ("crosspoints", {"crop_jitter_px": 1.0})])
 def test_crop_items_decoded_ahead_give_the_items_read_per_image(folder, tmp_path, task, settings):
     """The crop tasks decode ahead what they read per image (stored crops; or the image and the
     markers' ground truth that crops cut anew are cut from): the same items, augmented and over two

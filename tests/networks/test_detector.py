@@ -16,7 +16,6 @@ from assets.pattern import (
     PatternSpec,
     bent_crop_map,
     crop_crosspoints_px,
-    crosspoint_crop,
     generate_codebook,
     reference_textures,
     render_region,
@@ -75,7 +74,7 @@ def scene(table):
 def test_unwarp_with_the_true_points_gives_the_reference_textures(table, scene):
     image, points, _ = scene
     m = table.num_markers
-    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP, crosspoint_crop(4)):
+    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
         crops = unwarp_markers([image], np.zeros(m, np.int64), points, SPEC, crop).astype(np.float64)
         refs = reference_textures(SPEC, table.codes, crop).astype(np.float64)
         lo = round(crop.margin_cells * crop.px_per_cell(SPEC)) + 4
@@ -90,7 +89,7 @@ def test_unwarp_with_the_true_points_gives_the_reference_textures(table, scene):
 
 def test_crop_crosspoints_map_back_to_the_true_image_crosspoints(scene):
     _, points, crosspoints = scene
-    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP, crosspoint_crop(4)):
+    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
         canonical = np.broadcast_to(crop_crosspoints_px(SPEC, crop), crosspoints.shape)
         mapped = crop_to_image(SPEC, crop, points, canonical)
         assert mapped.shape == crosspoints.shape
@@ -422,23 +421,6 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         assert np.array_equal(a.marker_id, b.marker_id) and np.array_equal(a.points_px, b.points_px)
     with pytest.raises(ValueError, match=r"images\[1\]: expected uint8"):
         detector([small, small.astype(np.float32)])
-
-
-def test_a_wider_crop_network_gets_its_crops_and_maps_its_output_back(codebook, table, scene):
-    """A crosspoint network trained in a 128 px crop: the Detector cuts and references in that crop,
-    and a network that answers each crosspoint's canonical crop position (its decoder at zero) gives
-    the true image crosspoints from the true points."""
-    image, points, crosspoints = scene
-    localizer, recognizer, _ = _networks(0)
-    wide = CrosspointLocalizer(margin_cells=4)
-    with torch.no_grad():
-        wide.decoder.out.weight.zero_()
-        wide.decoder.out.bias.zero_()
-    detector = Detector(localizer, recognizer, wide, SPEC, tables=[table], codebook=codebook)
-    assert detector.references(np.array([FIRST_ID])).shape == (1, 128, 128, 3)
-    m = len(points)
-    xy, _ = detector.locate_crosspoints([image], np.zeros(m, np.int64), points, table.marker_ids)
-    assert np.abs(xy - crosspoints).max() < 1e-3
 
 
 def test_a_crosspoint_network_trained_on_bent_crops_gets_them_and_maps_its_output_back_through_the_bend(

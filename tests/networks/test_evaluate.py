@@ -366,11 +366,6 @@ def test_evaluate_on_a_shard_folder_of_synthesized_samples(task, tmp_path):
                             PatternSpec(rows=2, cols=2, num_ids=64, seed=1), step=2)
     with pytest.raises(ValueError, match="another codebook"):
         evaluate(other, tmp_path / "shards", task=task, device="cpu", progress=False)
-    if task == "crosspoints":  # a network of another crop than the shards'
-        wide = save_checkpoint(tmp_path / "wide.pt", task, build_model(task, SPEC.num_ids, crosspoint_margin_cells=4),
-                               TrainConfig(task, crosspoint_margin_cells=4), SPEC, step=2)
-        with pytest.raises(ValueError, match=r"crops of 112 px, but the network's are 128 px.*--crosspoint-margin 4"):
-            evaluate(wide, tmp_path / "shards", task=task, device="cpu", progress=False)
 
 
 def test_crosspoint_results_give_the_detectors_smoothed_crosspoints_beside_the_networks():

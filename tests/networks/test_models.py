@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px, crosspoint_crop
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px
 from networks.backbone import resnet18, resnet50
 from networks.models import (
     IMAGENET_MEAN,
@@ -68,30 +68,6 @@ def test_output_shapes_and_input_checks():
         crosspoints.fuse.weight[:, 64:].normal_()
         changed = crosspoints(crop, torch.randn(1, 3, 112, 112))
         assert not torch.allclose(changed, crosspoints(crop, reference))
-
-
-def test_a_wider_crosspoint_crop_keeps_the_weights_and_the_25_x_25_output():
-    """margin_cells 4: 128 x 128 crops, the same weights as the reference's network (a 112 px network
-    starts a 128 px run), the extra cells trimmed so each output sits on its crosspoint."""
-    torch.manual_seed(0)
-    narrow, wide = CrosspointLocalizer().eval(), CrosspointLocalizer(margin_cells=4).eval()
-    assert wide.crop == crosspoint_crop(4) and wide.trim == 2 and narrow.trim == 0
-    assert {k: v.shape for k, v in wide.state_dict().items()} == {k: v.shape for k, v in narrow.state_dict().items()}
-    wide.load_state_dict(narrow.state_dict())
-    with torch.no_grad():
-        out = wide(torch.randn(2, 3, 128, 128), torch.randn(2, 3, 128, 128))
-        assert out.shape == (2, 3, 25, 25)
-        # the decoder's zero start: every crosspoint at its place in the 128 px crop (16, 20, ..., 112)
-        wide.decoder.out.weight.zero_()
-        wide.decoder.out.bias.zero_()
-        out = wide(torch.randn(1, 3, 128, 128), torch.randn(1, 3, 128, 128))
-        np.testing.assert_array_equal(out[0, 1:].permute(1, 2, 0).numpy(),
-                                      crop_crosspoints_px(PatternSpec(), crosspoint_crop(4)))
-        assert out[0, 1, 0, 0] == 16 and out[0, 1, 0, 24] == 112
-        with pytest.raises(ValueError, match=r"expected 128 x 128 crops \(assets.pattern.crosspoint_crop\(4\)\)"):
-            wide(torch.randn(1, 3, 112, 112), torch.randn(1, 3, 112, 112))
-    with pytest.raises(ValueError, match="whole number of cells"):
-        CrosspointLocalizer(margin_cells=1)
 
 
 def _bce(logit, target):

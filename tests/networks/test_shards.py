@@ -1,5 +1,6 @@
 """Pre-synthesized shards: written by a process pool, read back as exactly the synthesizer's samples."""
 
+import json
 import pickle
 
 import numpy as np
@@ -10,7 +11,7 @@ from assets.pattern import PatternSpec
 from assets.pattern.observation import localizer_targets
 from networks.data import ShardDataset, read_shard_meta, synth_crops
 from networks.shards import main, write_shards
-from networks.synth import PatternSynthesizer, SynthConfig
+from networks.synth import SYNTH_REMOVED_FIELDS, PatternSynthesizer, SynthConfig
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=128)
 CONFIG = SynthConfig(image_size=(64, 64), marker_px=(20, 28), seed=3)
@@ -118,18 +119,22 @@ def test_time_limit_stops_submitting_parts_that_would_end_after_it(tmp_path):
     assert (rest["written_parts"], rest["complete"]) == (3, True)
 
 
-def test_cli_writes_crosspoint_crops_with_a_wider_margin(tmp_path):
-    """--crosspoint-margin 4: shards.json records it and the crops are 128 x 128, read back so."""
-    pattern = tmp_path / "pattern.json"
-    SPEC.save(pattern)
-    out = tmp_path / "wide"
-    assert main(["write", "--out", str(out), "--task", "crosspoints", "--count", "2", "--pattern", str(pattern),
-                 "--image-size", "128", "--images-per-part", "2", "--crosspoint-margin", "4", "--quiet"]) == 0
-    assert read_shard_meta(out)["synth"]["crosspoint_margin_cells"] == 4
-    stored = ShardDataset(out, "crosspoints")
-    assert len(stored) > 0 and stored[0]["crop"].shape == stored[0]["reference"].shape == (3, 128, 128)
-    assert main(["write", "--out", str(tmp_path / "bad"), "--task", "crosspoints", "--count", "1",
-                 "--pattern", str(pattern), "--crosspoint-margin", "1", "--quiet"]) != 0
+#: per removed SynthConfig field: a value other than the product's
+SYNTH_REMOVED_OTHER_VALUES = {"crosspoint_margin_cells": 4}
+
+
+@pytest.mark.parametrize("name", sorted(SYNTH_REMOVED_FIELDS))
+def test_shards_written_with_a_removed_option_are_read_only_at_the_value_the_product_uses(tmp_path, name):
+    out = tmp_path / "shards"
+    write_shards(out, "crosspoints", SPEC, count=1, config=CONFIG.replace(image_size=(128, 128), centred=True),
+                 workers=1, images_per_part=1, progress=False)
+    meta_path = out / "shards.json"
+    meta = json.loads(meta_path.read_text())
+    meta_path.write_text(json.dumps({**meta, "synth": {**meta["synth"], name: SYNTH_REMOVED_FIELDS[name]}}))
+    assert len(ShardDataset(out, "crosspoints")) > 0
+    meta_path.write_text(json.dumps({**meta, "synth": {**meta["synth"], name: SYNTH_REMOVED_OTHER_VALUES[name]}}))
+    with pytest.raises(ValueError, match=f"shards.json:synth: {name} is"):
+        ShardDataset(out, "crosspoints")
 
 
 @pytest.mark.parametrize("bend", [False, True])

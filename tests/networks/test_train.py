@@ -444,7 +444,8 @@ def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_
 
 
 #: per removed TrainConfig field: (task, a value other than the product's)
-REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0), "marker_shrink": ("recognizer", 0.5)}
+REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0), "marker_shrink": ("recognizer", 0.5),
+                        "crosspoint_margin_cells": ("crosspoints", 4)}
 
 
 @pytest.mark.parametrize("name", sorted(REMOVED_FIELDS))
@@ -464,28 +465,3 @@ def test_configs_saved_before_recognizer_partial_keep_training_on_whole_markers(
     assert TrainConfig("recognizer").recognizer_partial is True
 
 
-def test_the_crosspoint_network_trains_and_evaluates_in_a_wider_crop_from_a_reference_crop_network(dataset, tmp_path):
-    """crosspoint_margin_cells 4: 128 x 128 crops from shards written so and cut anew from the renders;
-    the checkpoint rebuilds the wider network, evaluates on the renders' crops cut in its crop, and a
-    112 px network's weights start such a run."""
-    narrow = _config("crosspoints", steps=1)
-    train(narrow, dataset, tmp_path / "narrow", device="cpu", spec=SPEC, progress=False)
-    shards = tmp_path / "shards"
-    write_shards(shards, "crosspoints", SPEC, count=2, images_per_part=2, progress=False,
-                 config=SynthConfig(image_size=(128, 128), centred=True, crosspoint_margin_cells=4))
-    config = _config("crosspoints", synth_weight=0.5, steps=2, crosspoint_margin_cells=4,
-                     init=str(tmp_path / "narrow" / "last.pt"))
-    result = train(config, dataset, tmp_path / "wide", device="cpu", spec=SPEC, shards=shards, progress=False)
-    assert result["step"] == 2
-    model, saved_config, _ = load_checkpoint(tmp_path / "wide" / "last.pt")
-    assert saved_config.crosspoint_margin_cells == 4 and model.crop.size_px == 128
-    metrics = evaluate(tmp_path / "wide" / "last.pt", dataset, split="test", device="cpu", progress=False)
-    assert metrics["crops"] >= 1 and metrics["crop_error_px"]["count"] > 0 and metrics["image_error_px"] is not None
-    by_size = metrics["by_marker_size"]  # the crops' markers by size, from their five image points
-    assert sum(b["crops"] for b in by_size.values()) == metrics["crops"]
-    assert sum(b["crop_error_px"]["count"] for b in by_size.values()) == metrics["crop_error_px"]["count"]
-    with pytest.raises(ValueError, match=r"margin of 4 cells.*--crosspoint-margin 2"):
-        train(config.replace(crosspoint_margin_cells=2, init=None), dataset, tmp_path / "mismatch", device="cpu",
-              spec=SPEC, shards=shards, progress=False)
-    with pytest.raises(ValueError, match="crosspoint_margin_cells: crosspoint crop margin must be"):
-        config.replace(crosspoint_margin_cells=3.5)
