@@ -45,23 +45,22 @@ from networks.evaluate import (  # noqa: E402
 )
 from networks.homography import crop_to_image  # noqa: E402
 from networks.metrics import crosspoint_metrics  # noqa: E402
-from networks.tasks import autocast, forward, model_bend  # noqa: E402
+from networks.tasks import autocast, forward  # noqa: E402
 from partial_ids import SIZES, size_bin  # noqa: E402
 from vote_settings import images_and_truth  # noqa: E402
 
 
-def crop_set(pairs: list[tuple[Path, Path]], spec, codebook: np.ndarray, crop: CropSpec = CROSSPOINT_CROP,
-             bend: bool = False) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Every crosspoint crop of the images in `crop` (the network's; bend: cut as a network trained on
-    bent crops takes them), as `evaluate_model` takes them (with the image points for the image
-    error), and each crop's marker size px."""
+def crop_set(pairs: list[tuple[Path, Path]], spec, codebook: np.ndarray, crop: CropSpec = CROSSPOINT_CROP
+             ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Every crosspoint crop of the images in `crop` (the network's), as `evaluate_model` takes them
+    (with the image points for the image error), and each crop's marker size px."""
     parts, sizes = [], []
     for image_path, gt_path in tqdm(pairs, desc="crops", unit="image", leave=False):
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
         if image is None:
             raise ValueError(f"{image_path}: not a readable image")
         gt = ImageGroundTruth.load(gt_path)
-        crops, ids, xy, visible = crosspoint_crops(image[:, :, ::-1].copy(), gt, spec, crop, bend)
+        crops, ids, xy, visible = crosspoint_crops(image[:, :, ::-1].copy(), gt, spec, crop)
         if not len(ids):
             continue
         arrays = crosspoint_arrays(spec, codebook, crops, ids, xy, visible, crop)
@@ -86,7 +85,7 @@ def by_size(model, arrays: dict[str, np.ndarray], sizes: np.ndarray, spec, devic
         visible.append(v)
         xy.append(p)
     visible, xy = np.concatenate(visible), np.concatenate(xy)
-    image = crop_to_image(spec, model_crop(model), arrays["points_px"].astype(np.float64), xy, model_bend(model))
+    image = crop_to_image(spec, model_crop(model), arrays["points_px"].astype(np.float64), xy)
     which = np.digitize(sizes, SIZES[1:-1])
     groups = {"all sizes": np.ones(len(sizes), bool)}
     groups.update({size_bin(lo, hi): which == k for k, (lo, hi) in enumerate(zip(SIZES[:-1], SIZES[1:]))})
@@ -141,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         pairs = pairs[:args.max_images]
         if not pairs:
             parser.error(f"{rendered or capture}: no images with ground truth (check --frames)")
-        arrays, sizes = crop_set(pairs, spec, codebook, model_crop(model), model_bend(model))
+        arrays, sizes = crop_set(pairs, spec, codebook, model_crop(model))
         results[f"{label} ({len(pairs)} images)"] = by_size(model, arrays, sizes, spec, device, args.batch_size)
     print(f"# crosspoint error by marker size, {args.checkpoint.name} (crops cut from the true points)")
     print("| images | marker size | crops | size median px | visibility P / R | crop px median / p95 "

@@ -28,9 +28,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    renders' are), recognizer_small (the main recognizer's config on synthesized markers from 10 px,
    `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_bent (the main recognizer's config
    with its crops cut through the bent crop map that follows curved cloth, rendered and synthesized,
-   `SHARD_SYNTH`; evaluated on bent crops), crosspoints_bent (the same for the main crosspoint run: crops
-   through the bent map, targets through its inverse; chained with its crosspoints mapped back through
-   it), and
+   `SHARD_SYNTH`; evaluated on bent crops), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
@@ -161,10 +159,6 @@ RUNS = {
     # the held-out renders in the thirteenth and twenty-first runs (0.480 against 0.502 px); a rendered
     # crop costs a worker more than a shard's (decoded ahead, about 5 ms against 1.7): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
-    # the main crosspoint run's config with its crops bent (`assets.pattern.bent_crop_map`, targets through
-    # its inverse, `SHARD_SYNTH`): its fully visible crops err with the marker's curvature (0.247 px
-    # nearly flat, 0.663 px 4 cells off a homography; RESULTS.md, fifteenth session)
-    "crosspoints_bent": ("crosspoints", 0.25, None, 6, "crosspoints_bent"),
 }
 #: runs that read the rendered images shrunk so their markers measure this many pixels
 #: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
@@ -183,16 +177,14 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
           "recognizer_small": ("recognizer", 9600, CROP_JITTER_PX, True),
           "recognizer_bent": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
-          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False),
-          "crosspoints_bent": ("crosspoints", 4800, CROP_JITTER_PX, False)}
+          "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False)}
 #: shard folder -> SynthConfig fields that differ from the defaults.  localizer_upright: every marker
 #: near upright (the defaults turn one in five uniformly: 17% of the synthesizer's fully visible
 #: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's).
 #: recognizer_small: markers from 10 px (the default's 16 px is the edge along the direction not foreshortened)
 SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
                "recognizer_small": {"marker_px": (10.0, 32.0)},
-               "recognizer_bent": {"recognizer_bend": True},
-               "crosspoints_bent": {"crosspoint_bend": True}}
+               "recognizer_bent": {"recognizer_bend": True}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
@@ -345,25 +337,24 @@ def shard_config(folder: str, seed: int | None = None) -> SynthConfig:
 
 
 def run_crop(name: str) -> bool:
-    """Whether run `name`'s crops are bent, of its task (`SynthConfig.recognizer_bend` or
-    `crosspoint_bend` of its shard folder)."""
+    """Whether run `name`'s crops are bent (`SynthConfig.recognizer_bend` of its shard folder)."""
     synth = SHARD_SYNTH.get(RUNS[name][4], {})
-    return bool(synth.get("recognizer_bend", False) or synth.get("crosspoint_bend", False))
+    return bool(synth.get("recognizer_bend", False))
 
 
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
     synthesized samples of its shard folder (`synth_heldout`); an --init whose crops are cut otherwise
-    than its run's (`run_crop`: a bent recognizer started from a homography one) is measured on the folder of a run that cuts them as it does,
-    under its run's label, when there is one."""
+    than its run's (`run_crop`: a bent recognizer started from a homography one) is measured on the
+    folder of a run that cuts them as it does, under its run's label, when there is one."""
     checkpoints = {name: (name, out / name / "run" / "last.pt") for name in RUNS
                    if (out / name / "run" / "last.pt").exists()}
     for name, path in (init or {}).items():
         task = RUNS[name][0]
         config = TrainConfig.from_dict(read_checkpoint(path)["config"], source=f"{path}:config") \
             if task != "localizer" else None
-        cut = None if config is None else config.recognizer_bend or config.crosspoint_bend
+        cut = None if config is None else config.recognizer_bend
         if cut is None or cut == run_crop(name):
             checkpoints[f"{name}, its --init"] = (name, Path(path))
             continue
@@ -482,8 +473,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
                        localizer_marker_px=marker_px,
-                       recognizer_bend=run_crop(name) and task == "recognizer",
-                       crosspoint_bend=run_crop(name) and task == "crosspoints")
+                       recognizer_bend=run_crop(name) and task == "recognizer")
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
@@ -637,7 +627,7 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     baseline of that step); without crosspoint smoothing (`DetectorConfig.smooth_crosspoints_px`, the
     network's raw outputs); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
     before; and with the comparison runs on exact crops, and the localizers trained on shrunk images
-    and the crosspoint runs with bent crops (`stand_ins`), in place of the main runs, where they exist;
+    (`stand_ins`), in place of the main runs, where they exist;
     keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
     fields set in every variant."""
     paths = main_checkpoints(out, init)
@@ -673,10 +663,8 @@ def stand_ins(out: Path, paths: list[Path]) -> dict[str, list[Path]]:
     """The comparison runs trained in `out` that stand in for a main run of the chain `paths`
     (localizer, recognizer, crosspoints), by a chain label, each with `paths` with that one network
     replaced: the localizers of RUN_MARKER_PX (in a Detector at the automatic scale, the scale they
-    trained at) and the crosspoint runs whose crops are bent (`run_crop`)."""
+    trained at)."""
     slots = {name: 0 for name in RUN_MARKER_PX}
-    slots.update({name: 2 for name in RUNS if RUNS[name][0] == "crosspoints"
-                  and run_crop(name)})
     chains = {}
     for name, slot in slots.items():
         last = out / name / "run" / "last.pt"

@@ -267,7 +267,7 @@ def load_checkpoint(
 
     def build() -> nn.Module:
         return build_model(data["task"], data["num_ids"], data["crosspoints_per_side"],
-                           recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend,
+                           recognizer_bend=config.recognizer_bend,
                            recognizer_classes=config.recognizer_classes, modules_per_side=modules_per_side)
 
     with torch.device("meta"):  # the network's shapes, nothing allocated

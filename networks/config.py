@@ -42,6 +42,7 @@ REMOVED_FIELDS: dict[str, object] = {
     "crosspoint_visibility_weight": CROSSPOINT_VISIBILITY_WEIGHT,
     "marker_shrink": 0.0,
     "crosspoint_margin_cells": 2,
+    "crosspoint_bend": False,
 }
 
 
@@ -156,10 +157,6 @@ class TrainConfig:
     the least-squares homography of the five points; shards must have been written with the same
     (`networks.synth write --recognizer-bend`).  False: the reference's homography crops (and what a
     saved config without the field trained on).
-    crosspoint_bend (crosspoints): as recognizer_bend, for the crosspoint network's crops: cut through
-    the bent map, the targets through its inverse (`assets.pattern.bent_crop_inverse`), and its
-    crosspoints mapped to the image through the map (`networks.homography.crop_to_image(bend=True)`);
-    shards written with `networks.synth write --crosspoint-bend`.  False: the reference's crops.
 
     A saved config may still name a field that measurements removed (`REMOVED_FIELDS`) with the value
     the product now uses; `from_dict` drops it, and refuses any other value by the field's name.
@@ -190,7 +187,6 @@ class TrainConfig:
     recognizer_partial: bool = True
     localizer_marker_px: float | None = None
     recognizer_bend: bool = False
-    crosspoint_bend: bool = False
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -223,10 +219,6 @@ class TrainConfig:
             problems.append(f"recognizer_bend must be true or false, got {self.recognizer_bend!r}")
         elif self.recognizer_bend and self.task != "recognizer":
             problems.append("recognizer_bend is for the recognizer's crops")
-        if not isinstance(self.crosspoint_bend, bool):
-            problems.append(f"crosspoint_bend must be true or false, got {self.crosspoint_bend!r}")
-        elif self.crosspoint_bend and self.task != "crosspoints":
-            problems.append("crosspoint_bend is for the crosspoint network's crops")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:

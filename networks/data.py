@@ -196,9 +196,8 @@ class RenderedDataset(_Items, Dataset):
     partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
     (whole markers and partial ones with a visible centre), their crops cut from the image
     (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
-    recognizer_bend (recognizer), crosspoint_bend (crosspoints): crops cut anew through
-    `assets.pattern.bent_crop_map` (curved cloth) instead of the crop homography; crosspoint targets
-    through its inverse (`crosspoint_crops(bend=True)`).
+    recognizer_bend (recognizer): crops cut anew through `assets.pattern.bent_crop_map` (curved
+    cloth) instead of the crop homography.
     marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
     median side of its fully visible markers is this many pixels, as the Detector's automatic scale
     shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
@@ -214,7 +213,7 @@ class RenderedDataset(_Items, Dataset):
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
                  partial_markers: bool = False, marker_px: float | None = None,
-                 decode_ahead: bool = False, recognizer_bend: bool = False, crosspoint_bend: bool = False):
+                 decode_ahead: bool = False, recognizer_bend: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -237,9 +236,6 @@ class RenderedDataset(_Items, Dataset):
         if recognizer_bend and task != "recognizer":
             raise ValueError(f"recognizer_bend is for the recognizer's crops, not the {task} task's")
         self.recognizer_bend = bool(recognizer_bend)
-        if crosspoint_bend and task != "crosspoints":
-            raise ValueError(f"crosspoint_bend is for the crosspoint network's crops, not the {task} task's")
-        self.crosspoint_bend = bool(crosspoint_bend)
         if marker_px is not None and task != "localizer":
             raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
         if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
@@ -330,9 +326,9 @@ class RenderedDataset(_Items, Dataset):
             made = None
             if self.crop_jitter_px > 0:
                 made = crosspoint_crops(image, one.jittered(self.crop_jitter_px, self._rng(index, _JITTER)),
-                                        self.spec, CROSSPOINT_CROP, self.crosspoint_bend)
+                                        self.spec, CROSSPOINT_CROP)
             if made is None or not len(made[0]):  # unjittered, or the jittered fit fails the sanity test
-                made = crosspoint_crops(image, one, self.spec, CROSSPOINT_CROP, self.crosspoint_bend)
+                made = crosspoint_crops(image, one, self.spec, CROSSPOINT_CROP)
             cut, marker_id, xy, visible = (a[0] for a in made)
             return self._item(index, crop=cut, marker_id=marker_id, xy=xy, visible=visible)
         return self._item(index, crop=arrays["crosspoint_crops"][crop], marker_id=arrays["crosspoint_ids"][crop],
@@ -405,7 +401,7 @@ class RenderedDataset(_Items, Dataset):
         """Crops are cut from the image per item (crop jitter, partial markers, bent crops), not read
         stored."""
         return (self.crop_jitter_px > 0 or self.partial_markers
-                or self.recognizer_bend or self.crosspoint_bend)
+                or self.recognizer_bend)
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
@@ -534,12 +530,10 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
     see them (the localizer finds those); recognizer crops of partial markers too unless
-    config.recognizer_partial is False, bent if config.recognizer_bend (crosspoints:
-    config.crosspoint_bend; config None: the defaults).
+    config.recognizer_partial is False, bent if config.recognizer_bend (config None: the defaults).
     config.crop_jitter_px > 0: cut from jittered points (`ImageGroundTruth.jittered`), drawn from
     (config.seed, index).  keep: count -> the indices (sorted) of the crops to return, of the count
-    there are; crosspoint crops are cut for those only (a bent crop and its targets' inverse cost
-    about 2 ms a marker, and a synthetic image shows hundreds)."""
+    there are; crosspoint crops are cut for those only (a synthetic image shows hundreds)."""
     if config is not None and config.crop_jitter_px > 0:
         gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
@@ -550,10 +544,10 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
         kept = keep(len(made[0]))  # drawn once: crops and IDs keep the same rows
         return tuple(array[kept] for array in made)
     config = config or SynthConfig()
-    chosen = crosspoint_centre_markers(gt, spec, CROSSPOINT_CROP, config.crosspoint_bend)
+    chosen = crosspoint_centre_markers(gt, spec, CROSSPOINT_CROP)
     if keep is not None:
         chosen = chosen[keep(len(chosen))]
-    return crosspoint_crops(image, gt.select(chosen), spec, CROSSPOINT_CROP, config.crosspoint_bend)
+    return crosspoint_crops(image, gt.select(chosen), spec, CROSSPOINT_CROP)
 
 
 class ShardDataset(_Items, Dataset):
@@ -628,17 +622,16 @@ def open_shard_part(part: Path, task: str) -> dict[str, np.ndarray]:
 
 
 def shard_bend_problem(root: str | Path, meta: dict, bend: bool, task: str = "recognizer") -> str | None:
-    """Why a shard folder's crops of a crop `task` do not suit a network whose crops are `bend`
-    (`SynthConfig.recognizer_bend` or `crosspoint_bend`, False for folders written before the
-    options), or None (also for the localizer, which cuts no crops)."""
-    if task == "localizer":
+    """Why a shard folder's recognizer crops do not suit a recognizer whose crops are `bend`
+    (`SynthConfig.recognizer_bend`, False for folders written before the option), or None (also for
+    the other tasks, whose crops are never bent)."""
+    if task != "recognizer":
         return None
-    name = "recognizer" if task == "recognizer" else "crosspoint"
-    written = bool(meta["synth"].get(f"{name}_bend", False))
+    written = bool(meta["synth"].get("recognizer_bend", False))
     if written == bend:
         return None
-    return (f"{root}: {name} crops {'bent' if written else 'through the homography'}, but the network's are "
-            f"{'bent' if bend else 'not'}; write shards {'with' if bend else 'without'} --{name}-bend")
+    return (f"{root}: recognizer crops {'bent' if written else 'through the homography'}, but the network's are "
+            f"{'bent' if bend else 'not'}; write shards {'with' if bend else 'without'} --recognizer-bend")
 
 
 def read_shard_meta(root: str | Path) -> dict:

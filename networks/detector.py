@@ -25,8 +25,7 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        crop shifted four ways, the five predictions averaged); visible = sigmoid > `visibility_threshold`;
        the visible crosspoints near a cubic field fitted to them take its value
        (`smooth_crosspoints_px`); crop (x, y) mapped to image pixels through the inverse crop
-       homography (for a network trained on bent crops, `CrosspointLocalizer.bend`: crops cut through
-       the bent map and mapped back through it), and those outside the image hidden.
+       homography, and those outside the image hidden.
 
 All crops of one call go through the recognizer and crosspoint networks in batches of `batch_size`,
 under `torch.inference_mode()`, on `device` (uint8 crops are moved there and normalised there).
@@ -73,7 +72,7 @@ from networks.homography import (
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks.models import CELL, normalize
-from networks.tasks import model_bend, reads_modules
+from networks.tasks import reads_modules
 
 
 @dataclass(frozen=True)
@@ -138,9 +137,7 @@ class DetectorConfig:
       pixels left, right, up and down (cut anew from the image, the crop homography composed with the
       shift), and each crosspoint's position is the mean of the five predictions moved back, its
       visibility the mean probability: averaging out noise that depends on where the crosspoint falls
-      on the pixel grid, at five times the stage's cost.  None (the default): one pass.  Not for a
-      crosspoint network whose crops are bent (`CrosspointLocalizer.bend`): the shift composes with
-      the crop homography only.
+      on the pixel grid, at five times the stage's cost.  None (the default): one pass.
     """
 
     presence_threshold: float = 0.5
@@ -340,9 +337,6 @@ class Detector:
         if k != spec.crosspoints_per_side:
             raise ValueError(f"Detector: the crosspoint localizer has {k} crosspoints per side, the pattern "
                              f"{spec.crosspoints_per_side}")
-        if config.crosspoint_shift_px is not None and model_bend(crosspoints):
-            raise ValueError("Detector: crosspoint_shift_px shifts homography crops, but the crosspoint network's "
-                             "crops are bent (it was trained with crosspoint_bend); leave crosspoint_shift_px None")
         self.layout = None
         if tables:
             for t, table in enumerate(tables):
@@ -497,7 +491,6 @@ class Detector:
         visible = np.zeros((len(image_index), k, k), dtype=bool)
         crop = self.crosspoints.crop
         step = self.config.crosspoint_shift_px
-        bend = model_bend(self.crosspoints)  # cut and mapped back as it was trained
         shifts = np.zeros((1, 2)) if step is None else step * np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]])
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):
@@ -505,7 +498,7 @@ class Detector:
                 crop_xy, probability = 0.0, 0.0
                 for shift in shifts:
                     points = shifted_points(self.spec, crop, points_px[part], shift) if shift.any() else points_px[part]
-                    crops = unwarp_markers(images, image_index[part], points, self.spec, crop, bend)
+                    crops = unwarp_markers(images, image_index[part], points, self.spec, crop)
                     output = self.crosspoints(self._to_device(crops), references).float().cpu().numpy()
                     crop_xy = crop_xy + output[:, 1:].transpose(0, 2, 3, 1) + shift
                     with np.errstate(over="ignore"):
@@ -514,7 +507,7 @@ class Detector:
                 visible[part] = probability / len(shifts) > self.config.visibility_threshold
                 if self.config.smooth_crosspoints_px is not None:
                     crop_xy = smooth_crosspoints(crop_xy, visible[part], self.config.smooth_crosspoints_px)
-                xy[part] = crop_to_image(self.spec, crop, points_px[part], crop_xy, bend)
+                xy[part] = crop_to_image(self.spec, crop, points_px[part], crop_xy)
         for i in np.unique(image_index):
             pick = image_index == i
             height, width = images[i].shape[:2]

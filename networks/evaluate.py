@@ -141,9 +141,8 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
     (B, K, K, 2) image pixels, all when `gt/<name>.npz` exists.  Localizer batches hold one image each.
     crop: the crosspoint crops' (a network's `crop`); other than the reference's, whose crops the
     samples store, they are cut from the images with their ground truth (`crosspoint_crops`).
-    bend: the network's crops are bent (a `MarkerRecognizer`'s or `CrosspointLocalizer`'s `bend`): cut
-    from the images with their ground truth (`recognizer_crops` or `crosspoint_crops` with bend=True;
-    the samples store homography crops)."""
+    bend: the recognizer's crops are bent (a `MarkerRecognizer`'s `bend`): cut from the images with
+    their ground truth (`recognizer_crops` with bend=True; the samples store homography crops)."""
     root = Path(root)
     codebook = generate_codebook(spec) if task == "crosspoints" else None
     for entry in split_entries(root, split):
@@ -188,15 +187,13 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
                 if len(pick) == len(arrays["marker_id"]) and np.array_equal(gt.marker_id[pick], arrays["marker_id"]):
                     arrays["full"] = gt.status[pick] == 2
         else:
-            if crop == CROSSPOINT_CROP and not bend:
+            if crop == CROSSPOINT_CROP:
                 made = tuple(samples[key] for key in SAMPLE_KEYS["crosspoints"])
             elif gt is None:
-                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which "
-                                 f"{'a bent' if bend else f'a {crop.size_px} x {crop.size_px}'} crosspoint crop is "
-                                 "cut with (the samples store 112 x 112 homography crops)")
+                raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a {crop.size_px} x "
+                                 f"{crop.size_px} crosspoint crop is cut with (the samples store 112 x 112 crops)")
             else:
-                made = crosspoint_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, crop,
-                                        bend)
+                made = crosspoint_crops(read_png(root / entry["image"]) if image is None else image, gt, spec, crop)
             arrays = crosspoint_arrays(spec, codebook, *made, crop=crop)
             if gt is not None:
                 arrays["points_px"], arrays["gt_xy_image"] = crosspoint_crop_points(gt, spec, made[1], gt_path, crop)
@@ -235,10 +232,9 @@ class _Results:
     """Accumulates one task's predictions, ground truth and loss over batches."""
 
     def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float,
-                 crop: CropSpec = CROSSPOINT_CROP, bend: bool = False, decoder: CodeDecoder | None = None) -> None:
+                 crop: CropSpec = CROSSPOINT_CROP, decoder: CodeDecoder | None = None) -> None:
         self.task, self.spec, self.radius_px, self.threshold, self.crop = task, spec, radius_px, threshold, crop
         self.decoder = decoder  # a module reader's: its logits ranked as codebook IDs
-        self.bend = bend  # crosspoints: the crops are bent, and their points map back through the bent map
         self.samples = 0
         self.loss: dict[str, float] = {}
         self.store: dict[str, list] = {}
@@ -270,8 +266,8 @@ class _Results:
                       gt_visible=batch["visible"].numpy(), gt_xy=batch["xy"].numpy())
             if "points_px" in batch and self.spec is not None:
                 points = np.asarray(batch["points_px"], dtype=np.float64)
-                self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy, self.bend),
-                          smoothed_image=crop_to_image(self.spec, self.crop, points, smoothed, self.bend),
+                self._add(pred_image=crop_to_image(self.spec, self.crop, points, pred_xy),
+                          smoothed_image=crop_to_image(self.spec, self.crop, points, smoothed),
                           gt_image=np.asarray(batch["gt_xy_image"]), side=marker_side_px(points))
 
     def result(self) -> dict:
@@ -338,7 +334,7 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
         codes, decoder = module_targets(codebook).to(device), CodeDecoder(codebook, device=device)
     was_training = model.training
     model.eval()
-    results = {t: _Results(task, spec, radius_px, t, model_crop(model), model_bend(model), decoder) for t in thresholds}
+    results = {t: _Results(task, spec, radius_px, t, model_crop(model), decoder) for t in thresholds}
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):

@@ -15,13 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from assets.geometry import apply_homography, fit_homography, invert_3x3
-from assets.pattern import (CropSpec, PatternSpec, bent_crop_points, crop_homography, crop_localization_px,
+from assets.pattern import (CropSpec, PatternSpec, crop_homography, crop_localization_px,
                             localization_rc)
 
-def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop_xy: np.ndarray,
-                  bend: bool = False) -> np.ndarray:
-    """Map crop pixels back to image pixels through the inverse of each marker's crop homography, or
-    (bend: crops cut through `assets.pattern.bent_crop_map`) through its bent map.
+def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop_xy: np.ndarray) -> np.ndarray:
+    """Map crop pixels back to image pixels through the inverse of each marker's crop homography.
 
     points_px (N, 5, 2) image pixels (the points the crops were unwarped with); crop_xy (N, ..., 2)
     crop pixels of `crop`.  Returns (N, ..., 2) float64 image pixels.
@@ -34,8 +32,6 @@ def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop
     n = len(points_px)
     if n == 0:
         return np.zeros(crop_xy.shape)
-    if bend:
-        return bent_crop_points(spec, crop, points_px, crop_xy)
     to_image = invert_3x3(crop_homography(spec, crop, points_px))
     return apply_homography(to_image, crop_xy.reshape(n, -1, 2)).reshape(crop_xy.shape)
 

@@ -207,17 +207,12 @@ class CrosspointLocalizer(nn.Module):
     ``canonical_px`` (2, K, K) from `assets.pattern.crop_crosspoints_px`), so the output is absolute
     crop pixels but the regression starts at the right place (an offset of 0 is a flat,
     fronto-parallel marker).
-    bend: its crops are cut through `assets.pattern.bent_crop_map` (`TrainConfig.crosspoint_bend`), so
-    its crosspoints map back to the image through that map: whoever cuts its crops and maps its
-    output (the Detector, `networks.evaluate`) reads it here.
     """
 
-    def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25,
-                 bend: bool = False) -> None:
+    def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25) -> None:
         super().__init__()
         k = crosspoints_per_side
         self.crop = CROSSPOINT_CROP
-        self.bend = bool(bend)
         size = CROSSPOINT_CROP.size_px // 4  # feature size after the decoder's up-convolution
         if not 1 <= k <= size:
             raise ValueError(f"CrosspointLocalizer: crosspoints_per_side must be in 1..{size}, got {k}")

@@ -205,8 +205,6 @@ def main(argv: list[str] | None = None) -> int:
                        "SynthConfig.recognizer_partial)")
     write.add_argument("--recognizer-bend", action="store_true", help="recognizer: crops through the bent crop "
                        "map that follows curved cloth (SynthConfig.recognizer_bend; default: the homography)")
-    write.add_argument("--crosspoint-bend", action="store_true", help="crosspoints: crops through the bent crop "
-                       "map, targets through its inverse (SynthConfig.crosspoint_bend; default: the homography)")
     write.add_argument("--images-per-part", type=int, default=64)
     write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
     write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
@@ -226,8 +224,6 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(recognizer_partial=False)
         if args.recognizer_bend:
             config = config.replace(recognizer_bend=True)
-        if args.crosspoint_bend:
-            config = config.replace(crosspoint_bend=True)
         if args.pattern is not None:
             spec = PatternSpec.load(args.pattern)
         else:

@@ -63,7 +63,7 @@ from networks.config import without_removed
 
 #: `SynthConfig` fields that measurements removed (docs/journal/2026-11-28-crop-options-removed.md):
 #: name -> the only value a saved config (a shard folder's shards.json) may still carry
-SYNTH_REMOVED_FIELDS: dict[str, object] = {"crosspoint_margin_cells": 2}
+SYNTH_REMOVED_FIELDS: dict[str, object] = {"crosspoint_margin_cells": 2, "crosspoint_bend": False}
 
 _GEOMETRY, _IDS, _LIGHT, _OCCLUDERS, _BACKGROUND, _CAMERA = range(6)
 _SKIN_RGB = np.array([[224, 172, 140], [198, 134, 102], [141, 85, 60], [92, 58, 40], [240, 200, 175]], np.float32)
@@ -95,7 +95,6 @@ class SynthConfig:
     visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones
     (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).  recognizer_bend:
     recognizer crops through `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`).
-    crosspoint_bend: crosspoint crops through it, targets through its inverse (`TrainConfig.crosspoint_bend`).
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -128,7 +127,6 @@ class SynthConfig:
     crop_jitter_px: float = 0.0
     recognizer_partial: bool = True
     recognizer_bend: bool = False
-    crosspoint_bend: bool = False
 
     def __post_init__(self) -> None:
         w, h = self.image_size

@@ -39,11 +39,10 @@ BATCH_KEYS = {
 
 
 def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None,
-                recognizer_bend: bool = False, crosspoint_bend: bool = False, recognizer_classes: str = "garment",
+                recognizer_bend: bool = False, recognizer_classes: str = "garment",
                 modules_per_side: int = 12) -> nn.Module:
     """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file;
-    recognizer_bend, crosspoint_bend: the recognizer's or the crosspoint network's crops are bent
-    (`TrainConfig.recognizer_bend`, `crosspoint_bend`); recognizer_classes "modules"
+    recognizer_bend: the recognizer's crops are bent (`TrainConfig.recognizer_bend`); recognizer_classes "modules"
     (`TrainConfig.recognizer_classes`): the recognizer is a `MarkerModuleReader` of the pattern's
     `modules_per_side`, otherwise a `MarkerRecognizer` of `num_ids` classes."""
     if task == "localizer":
@@ -54,13 +53,13 @@ def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrai
         return MarkerRecognizer(num_ids, pretrained=pretrained, bend=recognizer_bend)
     if task == "crosspoints":
         return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side,
-                                   bend=crosspoint_bend)
+)
     raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
 
 
 def model_bend(model: nn.Module) -> bool:
-    """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a `MarkerRecognizer`'s or
-    `CrosspointLocalizer`'s `bend`; False for the localizer, which cuts none."""
+    """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a recognizer's `bend`;
+    False for the other networks, whose crops never are."""
     return bool(getattr(model, "bend", False))
 
 

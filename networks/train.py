@@ -227,7 +227,6 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     jitter = config.crop_jitter_px if task != "localizer" else 0.0
     partial = config.recognizer_partial and task == "recognizer"
     bend = config.recognizer_bend and task == "recognizer"
-    crosspoint_bend = config.crosspoint_bend and task == "crosspoints"
 
     def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
               stored: bool = True, crop_jitter_px: float = 0.0) -> Dataset:
@@ -235,8 +234,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
             synth_config = None if task == "localizer" else SynthConfig(image_size=(256, 256), centred=True,
                                                                          crop_jitter_px=crop_jitter_px,
                                                                          recognizer_partial=partial,
-                                                                         recognizer_bend=bend,
-                                                                         crosspoint_bend=crosspoint_bend)
+                                                                         recognizer_bend=bend)
             return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
                                 augment=with_augment, marker_ids=marker_ids)
         dataset = ShardDataset(shards, task, with_augment, spec, seed)
@@ -250,7 +248,7 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
             raise ValueError(f"{shards}: recognizer crops of {'whole and partial' if written_partial else 'whole'} "
                              f"markers, but this run's recognizer_partial is {partial}; write shards "
                              f"{'without' if partial else 'with'} --whole-markers-only")
-        if problem := shard_bend_problem(shards, dataset.meta, bend or crosspoint_bend, task):
+        if problem := shard_bend_problem(shards, dataset.meta, bend, task):
             raise ValueError(problem)
         if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
                                                   else np.arange(spec.num_ids), marker_ids).all():
@@ -270,9 +268,9 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
                                crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
-                               decode_ahead=True, recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
+                               decode_ahead=True, recognizer_bend=bend)
     val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px,
-                          recognizer_bend=bend, crosspoint_bend=crosspoint_bend)
+                          recognizer_bend=bend)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
             raise ValueError(f"{root}: the {split} split has no {task} samples")
@@ -402,7 +400,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
     torch.manual_seed(config.seed)
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained,
-                        recognizer_bend=config.recognizer_bend, crosspoint_bend=config.crosspoint_bend,
+                        recognizer_bend=config.recognizer_bend,
                         recognizer_classes=config.recognizer_classes,
                         modules_per_side=spec.modules_per_side).to(device)
     if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
@@ -581,7 +579,6 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "view_warp": False if args.no_view_warp else None,
                  "localizer_marker_px": args.localizer_marker_px,
                  "recognizer_bend": True if args.recognizer_bend else None,
-                 "crosspoint_bend": True if args.crosspoint_bend else None,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -633,11 +630,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="recognizer: cut its crops through the bent crop map that follows curved cloth "
                         "(assets.pattern.bent_crop_map), not the homography; the checkpoint carries it and the "
                         "Detector and networks.evaluate cut so for it; shards need the same")
-    parser.add_argument("--crosspoint-bend", action="store_true",
-                        help="crosspoints: cut its crops through the bent crop map, targets through its inverse "
-                        "(assets.pattern.bent_crop_inverse); the checkpoint carries it, and the Detector and "
-                        "networks.evaluate cut so for it and map its crosspoints back through the map; shards need "
-                        "the same")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
                         "markers with a visible centre too; shards need the same: networks.synth write "

@@ -374,31 +374,3 @@ def test_the_bent_recognizer_run_differs_from_the_main_one_only_in_its_bent_crop
         recognizer_bend=True)
 
 
-def test_the_bent_crosspoint_run_differs_from_the_main_one_only_in_its_bent_crops_and_chains_in_its_place(
-        bench, tmp_path, garment_dataset, init_folder):
-    """crosspoints_bent: the main crosspoint run's config and shards with bent crops; its held-out shards
-    are bent; its homography --init is measured on the main run's samples; it stands in for the main
-    crosspoint run in a chain."""
-    import torch
-    from networks.checkpoint import read_checkpoint
-
-    bent, main = bench.run_config("crosspoints_bent", 1, 2, {}), bench.run_config(bench.MAIN["crosspoints"], 1, 2, {})
-    assert bent.crosspoint_bend and not main.crosspoint_bend and bent == main.replace(crosspoint_bend=True)
-    assert bench.shard_config("crosspoints_bent") == bench.shard_config(bench.RUNS[bench.MAIN["crosspoints"]][4]).replace(
-        crosspoint_bend=True)
-    assert bench.RUNS["crosspoints_bent"][:4] == bench.RUNS[bench.MAIN["crosspoints"]][:4]
-    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["crosspoints_jitter", "crosspoints_bent"])
-    assert json.loads((folders["crosspoints_bent"] / "shards.json").read_text())["synth"]["crosspoint_bend"]
-    saved = read_checkpoint(init_folder / "crosspoints_rendered.pt")  # the run's last.pt: the same weights, bent
-    saved["config"] = {**saved["config"], "crosspoint_bend": True}
-    trained = tmp_path / "crosspoints_bent" / "run" / "last.pt"
-    trained.parent.mkdir(parents=True)
-    torch.save(saved, trained)
-    init = {**bench.init_weights(init_folder), "crosspoints_bent": str(init_folder / "crosspoints_rendered.pt")}
-    measured = bench.evaluate_synthesized(tmp_path, folders, "cpu",
-                                          {k: v for k, v in init.items() if k.startswith("crosspoints")})
-    assert set(measured) == {"crosspoints_bent", "crosspoints_rendered, its --init",
-                             "crosspoints_bent, its --init (on crosspoints_jitter's samples)"}
-    assert measured["crosspoints_bent"]["samples"] > 0
-    paths = bench.main_checkpoints(tmp_path, init)
-    assert bench.stand_ins(tmp_path, paths) == {"crosspoints_bent in place of crosspoints_rendered": [*paths[:2], trained]}

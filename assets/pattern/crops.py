@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from assets.geometry import apply_homography, fit_homography, invert_3x3
+from assets.geometry import apply_homography, fit_homography
 from assets.pattern.raster import cell_weights, composite, line_coverage
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import localization_rc
@@ -107,68 +107,6 @@ def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray
     with np.errstate(invalid="ignore", divide="ignore"):
         mapped = mapped[..., :2] / mapped[..., 2:]
     out = (mapped + weights @ fields).reshape(len(points), *shape)
-    return out[0] if single else out
-
-
-def bent_crop_points(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray,
-                     crop_xy: np.ndarray) -> np.ndarray:
-    """Crop -> image through `bent_crop_map` for each marker's own crop points (a network's crosspoints
-    in a bent crop), where `bent_crop_map` maps one set of crop points for every marker.
-
-    localization_px: (5, 2) or (N, 5, 2) as for `bent_crop_map`; crop_xy: (..., 2) for one marker or
-    (N, ..., 2), continuous crop coordinates.  Returns image coordinates of crop_xy's shape."""
-    points, single = _five_points(localization_px)
-    xy, shape = _marker_points(points, single, crop_xy, "crop")
-    canonical = crop_localization_px(spec, crop)
-    corners, fields = _bend_parts(spec, crop, points)
-    mapped = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1) @ np.swapaxes(corners, -1, -2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        image = mapped[..., :2] / mapped[..., 2:]
-    out = (image + _bend_weights((xy - canonical[0]) / (canonical[4] - canonical[0])) @ fields).reshape(shape)
-    return out[0] if single else out
-
-
-def bent_crop_inverse(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray, image_xy: np.ndarray,
-                      iterations: int = 12, tolerance_px: float = 1e-6) -> np.ndarray:
-    """Image -> crop coordinates through `bent_crop_map`: the crop point each image point comes from,
-    by Newton's method from the corners' homography inverse (the map's Jacobian in closed form).
-
-    localization_px: (5, 2) or (N, 5, 2) as for `bent_crop_map`; image_xy: (..., 2) for one marker or
-    (N, ..., 2), continuous image coordinates (NaN stays NaN).  Returns crop coordinates of their
-    shape; NaN where the last Newton step is still longer than `tolerance_px` crop pixels (a fold the
-    map cannot describe: its Jacobian is singular there)."""
-    points, single = _five_points(localization_px)
-    target, shape = _marker_points(points, single, image_xy, "image")
-    n = len(points)
-    canonical = crop_localization_px(spec, crop)
-    scale = 1.0 / (canonical[4] - canonical[0])  # crop px -> x, y of the bend's weights
-    corners, fields = _bend_parts(spec, crop, points)
-    inverse = invert_3x3(corners)  # no LAPACK: its threads stall after torch has run (assets.geometry)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        xy = apply_homography(inverse, target)  # the start: the displacement left out
-        step = np.full_like(xy, np.inf)
-        for _ in range(iterations):
-            homogeneous = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
-            mapped = homogeneous @ np.swapaxes(corners, -1, -2)  # (N, P, 3)
-            w = mapped[..., 2:]
-            image = mapped[..., :2] / w
-            # d(image)/d(crop) of the homography: (row_i[:2] - image_i row_3[:2]) / w
-            jacobian = (corners[:, None, :2, :2] - image[..., :, None] * corners[:, None, 2:, :2]) / w[..., None]
-            u = (xy - canonical[0]) * scale  # the weights' x, y
-            residual = image + _bend_weights(u) @ fields - target
-            # d(displacement)/d(crop x) = scale_x (-x f_dome - 2 x f_x), and the same in y with f_y
-            jacobian[..., 0] -= (scale[0] * u[..., :1]) * (fields[:, None, 0] + 2.0 * fields[:, None, 1])
-            jacobian[..., 1] -= (scale[1] * u[..., 1:]) * (fields[:, None, 0] + 2.0 * fields[:, None, 2])
-            j00, j01, j10, j11 = jacobian[..., 0, 0], jacobian[..., 0, 1], jacobian[..., 1, 0], jacobian[..., 1, 1]
-            det = j00 * j11 - j01 * j10  # a 2 x 2 solve by Cramer's rule (NaN where singular)
-            det = np.where(np.abs(det) > 1e-12, det, np.nan)
-            step = np.stack([j11 * residual[..., 0] - j01 * residual[..., 1],
-                             j00 * residual[..., 1] - j10 * residual[..., 0]], axis=-1) / det[..., None]
-            xy = xy - step
-            if np.nanmax(np.abs(step), initial=0.0) <= 0.01 * tolerance_px:  # converged everywhere it can
-                break
-    xy[~(np.linalg.norm(step, axis=-1) <= tolerance_px)] = np.nan  # not converged (NaN steps included)
-    out = xy.reshape(shape)
     return out[0] if single else out
 
 

@@ -41,7 +41,6 @@ from assets.pattern.crops import (
     CROSSPOINT_CROP,
     RECOGNIZER_CROP,
     CropSpec,
-    bent_crop_inverse,
     crop_homography,
     crop_localization_px,
     unwarp,
@@ -230,7 +229,6 @@ def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec,
 
 def crosspoint_crops(
     image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP,
-    bend: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Crosspoint localizer samples for the markers of `crosspoint_markers`.
 
@@ -239,22 +237,20 @@ def crosspoint_crops(
     positions in crop pixels (the crop's homography applied to the projected crosspoints; NaN off
     the fabric) and visible (N, K, K) bool: the crosspoint is visible in the image and its xy lies
     in the crop, [0, S] x [0, S] (a visible crosspoint of a curved marker can fall outside; the
-    network cannot see it there).  bend: the crops are cut through `bent_crop_map` and xy are the
-    projected crosspoints through its inverse (`bent_crop_inverse`; NaN where it has none), for a
-    network trained on crops that follow curved cloth; the markers are the same."""
+    network cannot see it there)."""
     image = _image(image, gt)
     if gt.crosspoints_px.shape[1] != spec.crosspoints_per_side:
         raise ValueError(f"spec has {spec.crosspoints_per_side} crosspoints per side, the ground truth "
                          f"{gt.crosspoints_px.shape[1]}")
     completed = completed_points(gt)
     pick, homography = crosspoint_markers(gt, spec, completed=completed, crop=crop)
-    crops = _unwarp(image, spec, crop, completed[pick], bend)
-    xy, inside = _crop_targets(spec, crop, completed[pick], homography, gt.crosspoints_px[pick], bend)
+    crops = _unwarp(image, spec, crop, completed[pick])
+    xy, inside = _crop_targets(crop, homography, gt.crosspoints_px[pick])
     return crops, gt.marker_id[pick], xy.astype(np.float32), gt.crosspoint_visible[pick] & inside
 
 
-def crosspoint_centre_markers(gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP,
-                              bend: bool = False) -> np.ndarray:
+def crosspoint_centre_markers(gt: ImageGroundTruth, spec: PatternSpec, crop: CropSpec = CROSSPOINT_CROP
+                              ) -> np.ndarray:
     """Indices into `gt` of the markers `crosspoint_crops` cuts (in its order) whose centre crosspoint
     is visible in their crop: the crops the Detector gets (the localizer finds those markers), found
     without cutting any, so a caller that keeps a few of them cuts only those
@@ -262,23 +258,17 @@ def crosspoint_centre_markers(gt: ImageGroundTruth, spec: PatternSpec, crop: Cro
     completed = completed_points(gt)
     pick, homography = crosspoint_markers(gt, spec, completed=completed, crop=crop)
     c = spec.crosspoints_per_side // 2
-    _, inside = _crop_targets(spec, crop, completed[pick], homography, gt.crosspoints_px[pick, c:c + 1, c:c + 1],
-                              bend)
+    _, inside = _crop_targets(crop, homography, gt.crosspoints_px[pick, c:c + 1, c:c + 1])
     return pick[gt.crosspoint_visible[pick, c, c] & inside[:, 0, 0]]
 
 
-def _crop_targets(spec: PatternSpec, crop: CropSpec, points: np.ndarray, homography: np.ndarray,
-                  projected: np.ndarray, bend: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Crosspoints (N, A, B, 2) image pixels in the crops of markers with five points (N, 5, 2) and crop
-    homographies (N, 3, 3) (bend: through `bent_crop_inverse`): (xy float64 crop pixels, NaN off the
-    fabric or where the inverse has none; inside (N, A, B) bool, xy within [0, S] x [0, S])."""
+def _crop_targets(crop: CropSpec, homography: np.ndarray, projected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Crosspoints (N, A, B, 2) image pixels in the crops of markers with crop homographies (N, 3, 3):
+    (xy float64 crop pixels, NaN off the fabric; inside (N, A, B) bool, xy within [0, S] x [0, S])."""
     shape = projected.shape
-    flat = projected.astype(np.float64).reshape(len(points), int(np.prod(shape[1:-1])), 2)
+    flat = projected.astype(np.float64).reshape(len(homography), int(np.prod(shape[1:-1])), 2)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        if bend and len(points):
-            xy = bent_crop_inverse(spec, crop, points, flat).reshape(shape)
-        else:
-            xy = apply_homography(homography, flat).reshape(shape)
+        xy = apply_homography(homography, flat).reshape(shape)
         inside = ((xy >= 0) & (xy <= crop.size_px)).all(axis=-1)
     return xy, inside
 

@@ -169,25 +169,3 @@ def test_a_corner_off_the_fabric_is_completed_from_the_marker_s_crosspoints():
     assert np.isfinite(moved[1]).all() and 0 < np.abs(moved[1] - points[1]).max() < 3
 
 
-def test_bent_crosspoint_crops_put_each_target_where_the_bent_map_sends_it_to_its_crosspoint():
-    """bend: the crop is cut through `bent_crop_map` and each visible crosspoint's target is the crop
-    point the map sends onto it.  A marker curved as the map bends (its centre 1.8 px off its corners'
-    homography, so the five points fit none) gets its canonical targets exactly, where the homography
-    crop is cells off; a flat marker has the same targets both ways."""
-    from assets.pattern import bent_crop_map
-
-    canonical = crop_crosspoints_px(SPEC, CROSSPOINT_CROP)
-    five = flat_marker()[localization_rc(SPEC)[:, 0], localization_rc(SPEC)[:, 1]].astype(np.float64)
-    five[0] += [1.5, -1.0]
-    curved = bent_crop_map(SPEC, CROSSPOINT_CROP, five, canonical)
-    gt = ground_truth(np.stack([flat_marker(), curved]), np.ones((2, K, K), bool))
-    image = np.random.default_rng(0).integers(0, 256, (256, 256, 3), dtype=np.uint8)
-    plane = crosspoint_crops(image, gt, SPEC)
-    bent = crosspoint_crops(image, gt, SPEC, bend=True)
-    assert list(bent[1]) == list(plane[1]) == [0, 1] and bent[0].shape == plane[0].shape
-    np.testing.assert_allclose(bent[2][0], plane[2][0], atol=1e-3)  # flat: the same targets
-    assert np.array_equal(bent[3][0], plane[3][0])
-    np.testing.assert_allclose(bent[2][1], canonical, atol=1e-3)  # curved as the map bends: canonical
-    assert bent[3][1].all()
-    assert np.median(np.linalg.norm(plane[2][1] - canonical, axis=-1)) > 1.0  # crop px; a cell is 4
-    assert not np.array_equal(bent[0][1], plane[0][1])  # cut through another map

@@ -7,9 +7,7 @@ from assets.pattern import (
     CROSSPOINT_CROP,
     PatternSpec,
     RECOGNIZER_CROP,
-    bent_crop_inverse,
     bent_crop_map,
-    bent_crop_points,
     crop_crosspoints_px,
     crop_homography,
     crop_localization_px,
@@ -113,56 +111,3 @@ def test_the_bent_crop_map_follows_a_marker_wrapped_round_a_cylinder():
         bent_crop_map(spec, crop, points[:4])
 
 
-def test_the_bent_crop_inverse_undoes_the_map_on_a_cylinder_and_a_flat_marker():
-    """Image -> crop through the bent map: every crop point the map sends somewhere comes back to
-    within 1e-9 px (on the cylinder above and on a flat marker seen in perspective, where it is the
-    homography's inverse); NaN stays NaN; the shapes follow the map's."""
-    spec = PatternSpec()
-    crop = CROSSPOINT_CROP
-
-    def project(uv: np.ndarray) -> np.ndarray:  # the cylinder of the test above, in this crop's pixels
-        x, y = uv[..., 0] / 112, uv[..., 1] / 112 - 0.5
-        angle = 1.2 * x / 1.5
-        depth = 6.0 + 1.5 * (1.0 - np.cos(angle))
-        return np.stack([400.0 + 600.0 * 1.5 * np.sin(angle) / depth, 300.0 + 600.0 * y / depth], axis=-1)
-
-    grid = crop_crosspoints_px(spec, crop)
-    bent_markers = project(crop_localization_px(spec, crop))
-    camera = np.array([[0.8, 0.25, 40.0], [-0.1, 0.7, 60.0], [2.5e-4, 4e-4, 1.0]])
-    flat = apply_homography(camera, crop_localization_px(spec, crop))
-    points = np.stack([bent_markers, flat])
-    crop_points = np.random.default_rng(1).uniform(0, 112, (2, 7, 3, 2))
-    image_points = bent_crop_map(spec, crop, points, crop_points[0])  # (2, 7, 3, 2): one set through each map
-    image_points[1] = bent_crop_map(spec, crop, points[1], crop_points[1])
-    back = bent_crop_inverse(spec, crop, points, image_points)
-    assert back.shape == crop_points.shape and np.abs(back - crop_points).max() < 1e-9
-    # a flat marker: the homography's inverse
-    seen = apply_homography(camera, grid)
-    assert np.abs(bent_crop_inverse(spec, crop, flat, seen) - grid).max() < 1e-9
-    # one marker's points, NaN among them
-    some = bent_crop_map(spec, crop, bent_markers, grid).copy()
-    some[3, 4] = np.nan
-    back = bent_crop_inverse(spec, crop, bent_markers, some)
-    assert np.isnan(back[3, 4]).all() and np.abs(np.delete(back.reshape(-1, 2), 3 * 25 + 4, 0)
-                                                 - np.delete(grid.reshape(-1, 2), 3 * 25 + 4, 0)).max() < 1e-9
-    with pytest.raises(ValueError, match="image points must have shape"):
-        bent_crop_inverse(spec, crop, points, image_points[0])
-
-
-def test_bent_crop_points_map_each_markers_own_crop_points_as_the_bent_map_does():
-    """Per-marker crop points through the bent map: each marker's equal `bent_crop_map`'s for that
-    marker alone, and `bent_crop_inverse` brings them back; one marker's (5, 2) keeps its shape."""
-    spec, crop = PatternSpec(), CROSSPOINT_CROP
-    canonical = crop_localization_px(spec, crop)
-    rng = np.random.default_rng(4)
-    camera = np.array([[0.8, 0.25, 40.0], [-0.1, 0.7, 60.0], [2.5e-4, 4e-4, 1.0]])
-    points = apply_homography(camera, canonical)[None] + rng.normal(0, 2.0, (3, 5, 2))  # not one homography
-    crop_xy = rng.uniform(0, 112, (3, 25, 25, 2))
-    image = bent_crop_points(spec, crop, points, crop_xy)
-    assert image.shape == crop_xy.shape
-    for k in range(3):
-        assert np.abs(image[k] - bent_crop_map(spec, crop, points[k], crop_xy[k])).max() < 1e-9
-    assert np.abs(bent_crop_inverse(spec, crop, points, image) - crop_xy).max() < 1e-8
-    assert np.abs(bent_crop_points(spec, crop, points[0], canonical) - points[0]).max() < 1e-9  # the five exactly
-    with pytest.raises(ValueError, match="crop points must have shape"):
-        bent_crop_points(spec, crop, points, crop_xy[:2])

@@ -249,31 +249,6 @@ def test_bent_recognizer_crops_are_cut_through_the_bent_map(folder):
         RenderedDataset(folder, "train", "crosspoints", recognizer_bend=True)
 
 
-def test_bent_crosspoint_crops_are_cut_through_the_bent_map_with_targets_through_its_inverse(folder):
-    """crosspoint_bend: each item is `crosspoint_crops(bend=True)` of its marker, the same markers as the
-    stored crops', its targets other than the homography's."""
-    bent = RenderedDataset(folder, "train", "crosspoints", crosspoint_bend=True)
-    exact = RenderedDataset(folder, "train", "crosspoints")
-    assert len(bent) == len(exact) > 2
-    moved = []
-    for i in range(len(bent)):
-        image_index, k = (int(v) for v in bent._index[i])
-        entry = bent.entries[image_index]
-        image = cv2.imread(str(folder / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1]
-        gt = ImageGroundTruth.load(folder / entry["gt"]).select(bent._sources[image_index]["pick"][k:k + 1])
-        crops, _, xy, visible = crosspoint_crops(image, gt, SPEC, CROSSPOINT_CROP, bend=True)
-        item = bent[i]
-        assert np.array_equal(item["crop"].permute(1, 2, 0).numpy(), crops[0])
-        assert torch.equal(item["reference"], exact[i]["reference"])  # the same marker's reference
-        assert np.array_equal(item["visible"].numpy(), visible[0])
-        shown = visible[0]
-        assert np.allclose(item["xy"].numpy()[shown], xy[0][shown])
-        moved.append(np.abs(item["xy"].numpy()[shown] - exact[i]["xy"].numpy()[shown]).max(initial=0.0))
-    assert max(moved) > 0.05  # the renders' markers are curved: the bent targets are not the homography's
-    with pytest.raises(ValueError, match="crosspoint_bend is for the crosspoint network"):
-        RenderedDataset(folder, "train", "recognizer", crosspoint_bend=True)
-
-
 def test_per_image_marker_work_is_done_once_when_the_dataset_is_made_and_stale_samples_are_refused_then(
         folder, tmp_path, monkeypatch):
     import networks.data as data

@@ -14,7 +14,6 @@ from assets.pattern import (
     RECOGNIZER_CROP,
     MarkerTable,
     PatternSpec,
-    bent_crop_map,
     crop_crosspoints_px,
     generate_codebook,
     reference_textures,
@@ -421,42 +420,6 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         assert np.array_equal(a.marker_id, b.marker_id) and np.array_equal(a.points_px, b.points_px)
     with pytest.raises(ValueError, match=r"images\[1\]: expected uint8"):
         detector([small, small.astype(np.float32)])
-
-
-def test_a_crosspoint_network_trained_on_bent_crops_gets_them_and_maps_its_output_back_through_the_bend(
-        codebook, table, scene):
-    """A crosspoint network with `bend` (its decoder at zero: each crosspoint at its canonical crop
-    position) is read through the bent map: the image crosspoints are the bent map's of the canonical
-    grid, which differ from the homography's where the centre is off the corners' homography (moved
-    2 px here); its output is the network's on `unwarp(bend=True)` crops.  The shift averaging,
-    which composes with the homography only, is refused for it."""
-    image, points, _ = scene
-    points = points.copy()
-    points[:, 0] += [2.0, -1.5]
-    localizer, recognizer, _ = _networks(0)
-    bent = CrosspointLocalizer(bend=True)
-    with torch.no_grad():
-        bent.decoder.out.weight.zero_()
-        bent.decoder.out.bias.zero_()
-    detector = Detector(localizer, recognizer, bent, SPEC, tables=[table], codebook=codebook)
-    m = len(points)
-    xy, _ = detector.locate_crosspoints([image], np.zeros(m, np.int64), points, table.marker_ids)
-    grid = crop_crosspoints_px(SPEC, CROSSPOINT_CROP)
-    assert np.abs(xy - bent_crop_map(SPEC, CROSSPOINT_CROP, points, grid)).max() < 1e-3
-    flat = crop_to_image(SPEC, CROSSPOINT_CROP, points, np.broadcast_to(grid, (m, *grid.shape)))
-    assert np.abs(xy - flat).max() > 0.5
-    torch.manual_seed(5)  # a decoder that reads its crop: the network's output on the bent crops
-    torch.nn.init.normal_(bent.decoder.out.weight, std=0.05)
-    raw = Detector(localizer, recognizer, bent, SPEC, tables=[table], codebook=codebook,
-                   config=DetectorConfig(smooth_crosspoints_px=None))
-    xy, _ = raw.locate_crosspoints([image], np.zeros(m, np.int64), points, table.marker_ids)
-    crops = unwarp_markers([image], np.zeros(m, np.int64), points, SPEC, CROSSPOINT_CROP, True)
-    with torch.inference_mode():
-        out = bent(raw._to_device(crops), raw._to_device(raw.references(table.marker_ids))).float().numpy()
-    expected = bent_crop_map(SPEC, CROSSPOINT_CROP, points[:1], out[0, 1:].transpose(1, 2, 0))[0]
-    assert np.abs(xy[0] - expected).max() < 1e-3 and np.abs(out[0, 1:].transpose(1, 2, 0) - grid).max() > 0.1
-    with pytest.raises(ValueError, match="crosspoint_shift_px shifts homography crops"):
-        Detector(localizer, recognizer, bent, SPEC, config=DetectorConfig(crosspoint_shift_px=0.5))
 
 
 def test_a_recognizer_trained_on_bent_crops_gets_bent_crops(codebook, table, scene):

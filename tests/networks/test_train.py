@@ -15,12 +15,11 @@ import pytest
 import torch
 
 from assets.fileio import save_npz
-from assets.pattern import CROSSPOINT_CROP, PatternSpec
+from assets.pattern import PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.config import REMOVED_FIELDS, TrainConfig
 from networks.data import RenderedDataset
-from networks.evaluate import _Results, evaluate, folder_batches
-from networks.homography import crop_to_image
+from networks.evaluate import evaluate, folder_batches
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
@@ -395,38 +394,6 @@ def test_a_bent_recognizer_trains_evaluates_and_loads_on_bent_crops(dataset, tmp
         _config("crosspoints", recognizer_bend=True)
 
 
-def test_a_bent_crosspoint_network_trains_evaluates_and_loads_on_bent_crops(dataset, tmp_path):
-    """--crosspoint-bend: the checkpoint carries it; its datasets cut bent crops; evaluation cuts them
-    from the images, and its targets map back through the bent map onto the true image crosspoints."""
-    out = tmp_path / "bent"
-    assert main(["crosspoints", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
-                 "--num-workers", "0", "--crosspoint-bend", "--device", "cpu"]) == 0
-    model, config, _ = load_checkpoint(out / "last.pt", expected_task="crosspoints")
-    assert config.crosspoint_bend and model.bend and not config.recognizer_bend
-    rendered, val = make_datasets(config, dataset, SPEC)
-    assert rendered.crosspoint_bend and val.crosspoint_bend
-    bent = next(iter(folder_batches("crosspoints", dataset, "test", SPEC, batch_size=64, bend=True)))
-    stored = next(iter(folder_batches("crosspoints", dataset, "test", SPEC, batch_size=64)))
-    assert torch.equal(bent["reference"], stored["reference"]) and not torch.equal(bent["crop"], stored["crop"])
-    shown = bent["visible"].numpy()
-    back = crop_to_image(SPEC, CROSSPOINT_CROP, bent["points_px"].numpy(), bent["xy"].numpy().astype(np.float64),
-                         bend=True)
-    assert shown.sum() > 100 and np.abs(back[shown] - bent["gt_xy_image"].numpy()[shown]).max() < 1e-3
-    metrics = evaluate(out / "last.pt", dataset, split="test", device="cpu")
-    assert metrics["samples"] == len(bent["xy"]) and metrics["image_error_px"]["count"] > 0
-    # predictions at the targets: no image error through the bent map, some through the homography
-    perfect = torch.cat([torch.where(bent["visible"], 20.0, -20.0)[:, None], bent["xy"].permute(0, 3, 1, 2)], dim=1)
-    errors = {}
-    for bend in (True, False):
-        results = _Results("crosspoints", SPEC, 2.0, 0.5, CROSSPOINT_CROP, bend)
-        results.update(perfect, torch.tensor(0.0), {}, bent)
-        errors[bend] = results.result()["image_error_px"]["median"]
-    assert errors[True] < 1e-3 < errors[False]
-    _refuses_homography_shards(config, dataset, tmp_path)
-    with pytest.raises(ValueError, match="crosspoint_bend is for the crosspoint network"):
-        _config("recognizer", crosspoint_bend=True)
-
-
 def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_validation(dataset, tmp_path):
     """The logged training and validation totals are the reference's 100 times the visibility BCE plus
     the MSE."""
@@ -445,7 +412,7 @@ def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_
 
 #: per removed TrainConfig field: (task, a value other than the product's)
 REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0), "marker_shrink": ("recognizer", 0.5),
-                        "crosspoint_margin_cells": ("crosspoints", 4)}
+                        "crosspoint_margin_cells": ("crosspoints", 4), "crosspoint_bend": ("crosspoints", True)}
 
 
 @pytest.mark.parametrize("name", sorted(REMOVED_FIELDS))
