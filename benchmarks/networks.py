@@ -21,9 +21,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    whole-marker recognizer read them 0.37 right) train until the budget's end.
    Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops,
    recognizer_jitter (jittered crops of whole markers only), crosspoints_jitter (the main
-   crosspoint run's crops at synth weight 0.75: which mix trains it best), localizer_22px (the main
-   localizer's config with the renders read shrunk so markers measure 22 px, `RUN_MARKER_PX`, as the
-   Detector's automatic scale shows them; chained in its place at that scale), localizer_upright
+   crosspoint run's crops at synth weight 0.75: which mix trains it best), localizer_upright
    (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
    renders' are), recognizer_small (the main recognizer's config on synthesized markers from 10 px,
    `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_bent (the main recognizer's config
@@ -137,8 +135,6 @@ RUNS = {
     "localizer_mix": ("localizer", 0.0, None, 3, "localizer"),
     "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2, "localizer"),
     "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2, "localizer"),
-    # the main localizer's config with rendered images read shrunk to RUN_MARKER_PX, for its whole schedule
-    "localizer_22px": ("localizer", 0.5, None, 3, "localizer"),
     # the main localizer's config on synthesized markers turned as the renders' are (`SHARD_SYNTH`)
     "localizer_upright": ("localizer", 0.5, None, 3, "localizer_upright"),
     "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
@@ -160,9 +156,6 @@ RUNS = {
     # crop costs a worker more than a shard's (decoded ahead, about 5 ms against 1.7): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
 }
-#: runs that read the rendered images shrunk so their markers measure this many pixels
-#: (`TrainConfig.localizer_marker_px`), the size the Detector's automatic scale shows them at
-RUN_MARKER_PX = {"localizer_22px": 22.0}
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_rendered"}
 #: the jittered runs' crops are cut from five points jittered by this (pixels,
 #: standard deviation; `SynthConfig.crop_jitter_px`): the localizer's corners are about 1.2 px off at
@@ -454,15 +447,12 @@ def main_checkpoints(out: Path, init: dict[str, str] | None = None) -> list[Path
 
 
 def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[str, str],
-               init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
-               init_lr: float | None = None) -> TrainConfig:
+               init: dict[str, str] | None = None, init_lr: float | None = None) -> TrainConfig:
     """The `networks.train` config of run `name`: from `init`'s checkpoint of it at peak `init_lr`
-    (default: LR), else from `pretrained` (or scratch) at LR;
-    `localizer_marker_px` for the localizer runs without their own (`RUN_MARKER_PX`)."""
+    (default: LR), else from `pretrained` (or scratch) at LR."""
     task, synth_weight, _, _, folder = RUNS[name]
     start = (init or {}).get(name)
     lr = init_lr if start and init_lr is not None else LR
-    marker_px = RUN_MARKER_PX.get(name, localizer_marker_px) if task == "localizer" else None
     steps, batch = SCHEDULE[task]
     if max_steps:  # smoke runs: a few steps of tiny batches
         steps, batch = min(steps, max_steps), 2
@@ -472,14 +462,12 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        recognizer_partial=SHARDS[folder][3],
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
                        checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
-                       localizer_marker_px=marker_px,
                        recognizer_bend=run_crop(name) and task == "recognizer")
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,
               names: list[str], final: bool = False, ddp: bool = False, pretrained: dict[str, str] | None = None,
-              init: dict[str, str] | None = None, localizer_marker_px: float | None = None,
-              init_lr: float | None = None) -> dict[str, dict]:
+              init: dict[str, str] | None = None, init_lr: float | None = None) -> dict[str, dict]:
     """Start (or continue) every unfinished run of `names`, all at once on the GPUs (`placement`; one
     after another on the CPU), each for at most `seconds`; `final`: the main runs fit their schedules
     to end within this call (`--fit-time-limit`).  Returns per run its steps, planned steps, wall time
@@ -503,8 +491,7 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         task = RUNS[name][0]
         folder = out / name
         folder.mkdir(parents=True, exist_ok=True)
-        run_config(name, workers[name], max_steps, pretrained or {}, init, localizer_marker_px, init_lr
-                   ).save(folder / "config.in.json")
+        run_config(name, workers[name], max_steps, pretrained or {}, init, init_lr).save(folder / "config.in.json")
         launcher = [sys.executable]
         if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
             launcher += ["-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(ranks[name])]
@@ -626,8 +613,7 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
     garment's tables: the defaults; without the neighbours' ID votes (`DetectorConfig.vote_ids`, the
     baseline of that step); without crosspoint smoothing (`DetectorConfig.smooth_crosspoints_px`, the
     network's raw outputs); with the cut threshold (`max_layout_residual_cells`) at the 1 cell it was
-    before; and with the comparison runs on exact crops, and the localizers trained on shrunk images
-    (`stand_ins`), in place of the main runs, where they exist;
+    before; and with the comparison runs on exact crops in place of the main runs, where they exist;
     keyed by a label of the variant (`variants` False: the defaults alone); `config`: DetectorConfig
     fields set in every variant."""
     paths = main_checkpoints(out, init)
@@ -643,7 +629,6 @@ def evaluate_chain(out: Path, test: Path, device: str, smoke: bool = False, init
             chains["crosspoints on exact crops"] = ([paths[0], paths[1], exact[1]], {})
         if exact[0].exists() and exact[1].exists():
             chains["both on exact crops"] = ([paths[0], *exact], {})
-        chains.update({label: (checkpoints, {}) for label, checkpoints in stand_ins(out, paths).items()})
     return {label: chain_metrics(checkpoints, test, device, smoke, **config, **overrides)
             for label, (checkpoints, overrides) in chains.items()}
 
@@ -657,20 +642,6 @@ def chain_metrics(checkpoints: list[Path], view: Path, device: str, smoke: bool 
     detector = load_detector(*checkpoints, view, device=device,
                              config=DetectorConfig(**(SMOKE_DETECTOR if smoke else {}), **config))
     return evaluate_detector(detector, view, split="heldout", progress=False)
-
-
-def stand_ins(out: Path, paths: list[Path]) -> dict[str, list[Path]]:
-    """The comparison runs trained in `out` that stand in for a main run of the chain `paths`
-    (localizer, recognizer, crosspoints), by a chain label, each with `paths` with that one network
-    replaced: the localizers of RUN_MARKER_PX (in a Detector at the automatic scale, the scale they
-    trained at)."""
-    slots = {name: 0 for name in RUN_MARKER_PX}
-    chains = {}
-    for name, slot in slots.items():
-        last = out / name / "run" / "last.pt"
-        if last.exists():
-            chains[f"{name} in place of {MAIN[RUNS[name][0]]}"] = [*paths[:slot], last, *paths[slot + 1:]]
-    return chains
 
 
 def evaluate_threshold(out: Path, rendered: Path, device: str, init: dict[str, str] | None = None) -> dict:
@@ -724,8 +695,7 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     each network's `networks.evaluate` metrics, the chain with its defaults, and the recognizer's top-1
     given the true points by group and marker size (`partial_ids.top1`).  The chain runs three times:
     with the localizer at full size, at 512 / the image side (the scale of the renders it trained on,
-    as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None);
-    at that scale also with each of `stand_ins` in place of its main run."""
+    as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None)."""
     from networks.evaluate_detector import load_detector
 
     from foreshortening import rendered_pairs
@@ -743,10 +713,6 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
         chosen = chain["localizer_scale"]
         label = f"{scale:.2g}" if scale is not None else f"auto ({chosen['min']:.2f}-{chosen['max']:.2f})"
         chains[f"localizer scale {label}"] = chain
-    for label, checkpoints in stand_ins(out, paths).items():
-        chain = chain_metrics(checkpoints, view, device, smoke)
-        chosen = chain["localizer_scale"]
-        chains[f"{label}, scale auto ({chosen['min']:.2f}-{chosen['max']:.2f})"] = chain
     return {"images": len(pairs), "checkpoints": [str(p) for p in paths], "metrics": metrics,
             "detector": chains, "recognizer_top1": recognizer_top1}
 
@@ -831,10 +797,6 @@ def main() -> None:
     parser.add_argument("--synth-weight", action="append", default=[], metavar="RUN=W",
                         help="run RUN's share of synthesized samples for this call (repeatable; 0: renders alone), "
                         "e.g. crosspoints_jitter=0")
-    parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
-                        help="the localizer runs read rendered images shrunk so their markers measure this many "
-                        "pixels, as the Detector's automatic scale shows them (TrainConfig.localizer_marker_px; "
-                        f"the runs of {', '.join(RUN_MARKER_PX)} keep their own)")
     parser.add_argument("--init-lr", type=float, help="peak learning rate of the runs that start from --init "
                         f"(default {LR:g}, as from scratch)")
     parser.add_argument("--init", type=Path, help="a folder of slim checkpoints <run>.pt (an earlier call's "
@@ -889,7 +851,7 @@ def main() -> None:
     init = init_weights(args.init, names + list(MAIN.values()))
     training = train_all(args.out, rendered, args.device, args.cores,
                          deadline - time.monotonic() - RESERVE_S - START_S, args.max_steps, names, args.final,
-                         args.ddp, pretrained, init, args.localizer_marker_px, args.init_lr)
+                         args.ddp, pretrained, init, args.init_lr)
     train_s = time.perf_counter() - t0
     gpu = f"{torch.cuda.device_count()} x {torch.cuda.get_device_name()}" if torch.cuda.is_available() else "no GPU"
     result = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.node()}, {gpu}, "

@@ -32,8 +32,7 @@ TASK_DEFAULTS: dict[str, dict[str, int]] = {
     "crosspoints": {"steps": 50_000, "batch_size": 64},
 }
 
-#: the marker sides (pixels) a localizer scale may aim at (`TrainConfig.localizer_marker_px`,
-#: `networks.DetectorConfig.localizer_marker_px`, `networks.data.RenderedDataset` marker_px)
+#: the marker sides (pixels) a localizer scale may aim at (`networks.DetectorConfig.localizer_marker_px`)
 MARKER_PX_RANGE = (4.0, 256.0)
 
 #: `TrainConfig` fields that measurements removed (docs/journal/2026-11-28-crop-options-removed.md):
@@ -43,6 +42,7 @@ REMOVED_FIELDS: dict[str, object] = {
     "marker_shrink": 0.0,
     "crosspoint_margin_cells": 2,
     "crosspoint_bend": False,
+    "localizer_marker_px": None,
 }
 
 
@@ -148,10 +148,7 @@ class TrainConfig:
     marker the localizer finds; validation stays on whole markers.  The ninth GPU run's measurement
     made it the default: partial markers read right 0.63 -> 0.76 on renders, 0.77 -> 0.92 on a
     capture, whole ones 0.952 -> 0.963.  False: the reference's crops, whole markers only (and what
-    a saved config without the field trained on).  localizer_marker_px (localizer): rendered images
-    are read shrunk so their markers' median side is this many pixels, the size the Detector's
-    automatic scale shows them at (`networks.DetectorConfig.localizer_marker_px`, 22; the renders'
-    `RenderedDataset` marker_px); None: at their own scale, as the reference.
+    a saved config without the field trained on).
     recognizer_bend (recognizer): its crops (training, evaluation and the Detector's) are cut through
     `assets.pattern.bent_crop_map`, which follows curved cloth (the centre on its own point), not
     the least-squares homography of the five points; shards must have been written with the same
@@ -185,7 +182,6 @@ class TrainConfig:
     crop_jitter_px: float = 0.0
     view_warp: bool = True
     recognizer_partial: bool = True
-    localizer_marker_px: float | None = None
     recognizer_bend: bool = False
 
     def __post_init__(self) -> None:
@@ -210,9 +206,6 @@ class TrainConfig:
             problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
-        if self.localizer_marker_px is not None and (problem := marker_px_problem("localizer_marker_px",
-                                                                                   self.localizer_marker_px)):
-            problems.append(problem + " (or None)")
         if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
             problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
         if not isinstance(self.recognizer_bend, bool):

@@ -53,9 +53,8 @@ from assets.pattern.observation import (ImageGroundTruth, completed_points, cros
 from assets.pattern.spec import PatternSpec
 from networks.augment import Augment, ViewWarp, warp_image
 from networks.checkpoint import codebook_hash
-from networks.config import TASKS, marker_px_problem
+from networks.config import TASKS
 from networks.decoded import DecodedArrays
-from networks.homography import auto_localizer_scale
 from networks.models import CELL
 from networks.synth import PatternSynthesizer, SynthConfig
 
@@ -198,11 +197,6 @@ class RenderedDataset(_Items, Dataset):
     (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
     recognizer_bend (recognizer): crops cut anew through `assets.pattern.bent_crop_map` (curved
     cloth) instead of the crop homography.
-    marker_px (localizer): each image is read shrunk (area resampling, to whole cells) so that the
-    median side of its fully visible markers is this many pixels, as the Detector's automatic scale
-    shows it (`networks.homography.auto_localizer_scale`: never enlarged), its cell targets made anew
-    from the ground-truth points; crops and view warps are then taken from it.  None: the renders'
-    own scale.
     decode_ahead: what an item reads of its image from disk is decoded once for every image of the
     split, when the dataset is made, into a memory-mapped file the workers share (`networks.decoded`;
     a split too large for its limit is read per item as without): the localizer's image and cells;
@@ -212,7 +206,7 @@ class RenderedDataset(_Items, Dataset):
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
-                 partial_markers: bool = False, marker_px: float | None = None,
+                 partial_markers: bool = False,
                  decode_ahead: bool = False, recognizer_bend: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
@@ -236,10 +230,6 @@ class RenderedDataset(_Items, Dataset):
         if recognizer_bend and task != "recognizer":
             raise ValueError(f"recognizer_bend is for the recognizer's crops, not the {task} task's")
         self.recognizer_bend = bool(recognizer_bend)
-        if marker_px is not None and task != "localizer":
-            raise ValueError(f"marker_px is for the localizer's images, not the {task} task's")
-        if marker_px is not None and (problem := marker_px_problem("marker_px", marker_px)):
-            raise ValueError(problem)
         self._decoded: DecodedArrays | None = None
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
@@ -247,7 +237,7 @@ class RenderedDataset(_Items, Dataset):
         if not self.entries:
             raise ValueError(f"{self.root}: no images in split {split!r}")
         needed = ["samples"] + (["image"] if task == "localizer" or self._cut_anew else []) + \
-            (["gt"] if view_warp or marker_px or self._cut_anew else [])
+            (["gt"] if view_warp or self._cut_anew else [])
         missing = [e.get(k, f"{e.get('name')} has no {k!r} entry") for e in self.entries for k in needed
                    if k not in e or not (self.root / e[k]).is_file()]
         if missing:
@@ -259,15 +249,11 @@ class RenderedDataset(_Items, Dataset):
         # before DataLoader workers fork: done per worker and image, it starved the tenth GPU run (a
         # mixed batch draws its rendered items from random images, so the workers' caches rarely hit)
         self._sources: list[dict[str, np.ndarray]] = []
-        quiet = len(self.entries) < (50 if self._cut_anew or view_warp or marker_px else 1000)
+        quiet = len(self.entries) < (50 if self._cut_anew or view_warp else 1000)
         entries = tqdm(range(len(self.entries)), desc=f"index {split} {task}", disable=quiet)
         if task == "localizer":
             self._index = np.stack([np.arange(len(self.entries)), np.zeros(len(self.entries), np.int64)], axis=1)
-            self._markers = {i: self._warp_markers(i) for i in entries} if view_warp or marker_px else {}
-            #: per image, the scale it is read at (`marker_px`)
-            self._scales = [auto_localizer_scale(self._markers[i]["points_px"][self._markers[i]["status"] == 2], 1.0,
-                                                 marker_px, min_markers=1) for i in range(len(self.entries))] \
-                if marker_px else [1.0] * len(self.entries)
+            self._markers = {i: self._warp_markers(i) for i in entries} if view_warp else {}
         else:
             key = _CROP_KEYS[task][1]
             if self._cut_anew:
@@ -303,10 +289,9 @@ class RenderedDataset(_Items, Dataset):
             width, height = self.crop_size((w, h))
             view = None if self.view_warp is None else self.view_warp.homography(self._rng(index, _VIEW), (w, h),
                                                                                  (width, height))
-            if view is not None:  # the targets: the source's points through the shrink (marker_px), then the view
+            if view is not None:  # the targets: the source's points through the view
                 return self._item(index, image=warp_image(image, view, (width, height)),
-                                  cells=self._warped_cells(image_index, view @ arrays.get("shrink", np.eye(3)),
-                                                           (width, height)))
+                                  cells=self._warped_cells(image_index, view, (width, height)))
             if self.crop_px is not None:
                 rng = self._rng(index, 3)
                 i0, j0 = (int(rng.integers(0, n + 1)) for n in ((h - height) // CELL, (w - width) // CELL))
@@ -342,22 +327,14 @@ class RenderedDataset(_Items, Dataset):
 
     def _arrays(self, image_index: int) -> dict[str, np.ndarray]:
         """One image's arrays as its items use them (`_read`'s, from the file decoded ahead when there
-        is one), kept in a small per-worker cache: the localizer's image and cells (shrunk for
-        marker_px), a crop task's stored crops, or what crops cut anew are cut from (`_marker_source`
+        is one), kept in a small per-worker cache: the localizer's image and cells, a crop task's
+        stored crops, or what crops cut anew are cut from (`_marker_source`
         with the image, and for crosspoints its markers' `ImageGroundTruth` as "gt")."""
         if image_index in self._cache:
             self._cache.move_to_end(image_index)
             return self._cache[image_index]
         arrays = self._read(image_index) if self._decoded is None else self._decoded[image_index]
-        if self.task == "localizer":
-            h, w = arrays["image"].shape[:2]
-            scale = self._scales[image_index]
-            if scale < 1.0:  # shrunk to whole cells: the targets from the points moved by the same factors
-                size = tuple(max(CELL, int(round(side * scale)) // CELL * CELL) for side in (w, h))
-                shrink = np.diag([size[0] / w, size[1] / h, 1.0])
-                arrays = {"image": cv2.resize(arrays["image"], size, interpolation=cv2.INTER_AREA),
-                          "cells": self._warped_cells(image_index, shrink, size), "shrink": shrink}
-        elif self._cut_anew:
+        if self._cut_anew and self.task != "localizer":
             source = self._sources[image_index]
             if self.task == "crosspoints":
                 gt = {name[len(_GT):]: array for name, array in arrays.items() if name.startswith(_GT)}

@@ -264,13 +264,11 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
                 synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size, stored=False))
     root = _dataset_root(data)
     view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
-    marker_px = config.localizer_marker_px if task == "localizer" else None
     rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
                                crop_px=config.image_size if task == "localizer" else None,
-                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial, marker_px=marker_px,
+                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial,
                                decode_ahead=True, recognizer_bend=bend)
-    val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, marker_px=marker_px,
-                          recognizer_bend=bend)
+    val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, recognizer_bend=bend)
     for split, dataset in (("train", rendered), ("val", val)):
         if len(dataset) == 0:
             raise ValueError(f"{root}: the {split} split has no {task} samples")
@@ -577,7 +575,6 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
                  "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "view_warp": False if args.no_view_warp else None,
-                 "localizer_marker_px": args.localizer_marker_px,
                  "recognizer_bend": True if args.recognizer_bend else None,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
@@ -623,9 +620,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="train without augmentation (photometric, and the localizer's view warp)")
     parser.add_argument("--no-view-warp", action="store_true",
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
-    parser.add_argument("--localizer-marker-px", type=float, metavar="PX",
-                        help="localizer: read rendered images shrunk so their markers measure this many pixels, "
-                        "as the Detector's automatic scale shows them (22); default: their own scale")
     parser.add_argument("--recognizer-bend", action="store_true",
                         help="recognizer: cut its crops through the bent crop map that follows curved cloth "
                         "(assets.pattern.bent_crop_map), not the homography; the checkpoint carries it and the "

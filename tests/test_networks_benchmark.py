@@ -274,57 +274,31 @@ def test_an_extra_heldout_folder_is_evaluated_on_every_image(bench, tmp_path, ga
     assert "| recognizer (step 0).top1 |" in printed
 
 
-def test_localizer_marker_px_reaches_the_localizer_runs_only(bench):
-    assert bench.run_config("localizer_mix", 1, 2, {}, None, 22.0).localizer_marker_px == 22.0
-    assert bench.run_config("crosspoints_jitter", 1, 2, {}, None, 22.0).localizer_marker_px is None
-    assert bench.run_config("localizer_mix", 1, 2, {}).localizer_marker_px is None  # the renders' own scale
-
-
-def test_the_22px_localizer_keeps_its_marker_size_and_runs_from_init_take_lr_or_init_lr(bench):
-    assert bench.run_config("localizer_22px", 1, 2, {}).localizer_marker_px == 22.0
-    assert bench.run_config("localizer_22px", 1, 2, {}, None, 30.0).localizer_marker_px == 22.0
-    assert bench.run_config("localizer_mix", 1, 2, {}, None, 30.0).localizer_marker_px == 30.0
-    init = {"localizer_22px": "/weights/localizer.pt", "recognizer_partial": "/weights/recognizer_partial.pt"}
-    assert bench.run_config("localizer_22px", 1, 2, {}, init).lr == bench.LR
-    assert bench.run_config("localizer_22px", 1, 2, {}, init, init_lr=5e-5).lr == 5e-5
+def test_runs_from_init_take_lr_or_init_lr(bench):
+    init = {"localizer_upright": "/weights/localizer.pt", "recognizer_partial": "/weights/recognizer_partial.pt"}
+    assert bench.run_config("localizer_upright", 1, 2, {}, init).lr == bench.LR
+    assert bench.run_config("localizer_upright", 1, 2, {}, init, init_lr=5e-5).lr == 5e-5
     assert bench.run_config("localizer_mix", 1, 2, {}, init, init_lr=5e-5).lr == bench.LR  # from scratch
     assert bench.run_config("recognizer_partial", 1, 2, {}, init).lr == bench.LR
     assert bench.run_config("recognizer_partial", 1, 2, {}, init, init_lr=1e-5).lr == 1e-5
     assert bench.run_config("crosspoints_jitter", 1, 2, {}, init, init_lr=1e-5).lr == bench.LR  # from scratch
 
 
-def test_a_shrunk_localizer_run_is_chained_in_place_of_the_main_one(bench, tmp_path, garment_dataset, init_folder):
-    init = bench.init_weights(init_folder)
-    trained = tmp_path / "localizer_22px" / "run" / "last.pt"
-    trained.parent.mkdir(parents=True)
-    shutil.copy(init_folder / "localizer_mix.pt", trained)
-    label = "localizer_22px in place of localizer_mix"
-    paths = bench.main_checkpoints(tmp_path, init)
-    assert bench.stand_ins(tmp_path, paths) == {label: [trained, *paths[1:]]}
-    view = bench.heldout(garment_dataset, tmp_path, markers=2, every_split=True, name="heldout_extra")
-    extra = bench.evaluate_extra(tmp_path, view, "cpu", init, smoke=True)
-    shrunk = [key for key in extra["detector"] if key.startswith(label + ", scale auto (")]
-    assert len(shrunk) == 1 and extra["detector"][shrunk[0]]["localizer_scale"]["config"] is None
-    assert extra["detector"][shrunk[0]]["images"] == 3
-    chains = bench.evaluate_chain(tmp_path, view, "cpu", smoke=True, init=init)
-    assert label in chains and chains[label]["images"] == 3 and "defaults" in chains
-
-
 def test_runs_and_their_init_are_measured_on_held_out_synthesized_samples(bench, tmp_path, garment_dataset,
                                                                           init_folder, capsys):
     folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_mix", "recognizer_partial",
-                                                                       "localizer_22px"])
+                                                                       "localizer_synth"])
     assert set(folders) == {"localizer", "recognizer_partial"}  # one folder for both localizer runs
     meta = json.loads((folders["localizer"] / "shards.json").read_text())
     assert meta["synth"]["seed"] == bench.SYNTH_HELDOUT[1] != bench.SynthConfig().seed  # not the training samples
-    trained = tmp_path / "localizer_22px" / "run" / "last.pt"
+    trained = tmp_path / "localizer_synth" / "run" / "last.pt"
     trained.parent.mkdir(parents=True)
     shutil.copy(init_folder / "localizer_mix.pt", trained)
     init = {k: v for k, v in bench.init_weights(init_folder).items() if k != "crosspoints_rendered"}
     measured = bench.evaluate_synthesized(tmp_path, folders, "cpu", init)
-    assert set(measured) == {"localizer_22px", "localizer_mix, its --init", "recognizer_partial, its --init"}
+    assert set(measured) == {"localizer_synth", "localizer_mix, its --init", "recognizer_partial, its --init"}
     assert all(m["split"] == "shards" and m["samples"] > 0 for m in measured.values())
-    assert measured["localizer_22px"]["all"] == measured["localizer_mix, its --init"]["all"]  # the same weights
+    assert measured["localizer_synth"]["all"] == measured["localizer_mix, its --init"]["all"]  # the same weights
     bench._print_metrics(measured)
     assert "| recognizer_partial, its --init (step 0).top1 |" in capsys.readouterr().out
 
@@ -334,7 +308,7 @@ def test_the_upright_localizer_run_draws_its_own_shards_with_markers_near_uprigh
     assert bench.shard_config("localizer").upright_probability == bench.SynthConfig().upright_probability < 1.0
     assert bench.shard_config("localizer_upright", 5).seed == 5
     assert bench.shard_config("crosspoints_jitter").crop_jitter_px == bench.CROP_JITTER_PX
-    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_22px", "localizer_upright"])
+    folders = bench.synth_heldout(tmp_path, garment_dataset, 1, True, ["localizer_synth", "localizer_upright"])
     assert set(folders) == {"localizer", "localizer_upright"}
     meta = json.loads((folders["localizer_upright"] / "shards.json").read_text())
     assert meta["synth"]["upright_probability"] == 1.0 and meta["synth"]["seed"] == bench.SYNTH_HELDOUT[1]

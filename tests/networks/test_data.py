@@ -19,7 +19,6 @@ from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops,
                                         recognizer_markers)
 from networks.augment import Augment, ViewWarp, warp_image
-from networks.homography import auto_localizer_scale, marker_side_px
 from networks.data import (_VIEW, MixedDataset, RenderedDataset, SynthDataset, dataset_spec, garment_marker_ids,
                            synth_crops)
 from networks.synth import PatternSynthesizer, SynthConfig
@@ -437,80 +436,17 @@ def test_mixed_dataset_draws_in_proportion_to_the_weights(codebook):
         MixedDataset([a, SynthDataset("recognizer", SPEC, 2, 0, config=config, codebook=codebook)], [1, 1], 10, 0)
 
 
-def test_marker_px_reads_each_image_at_the_detectors_automatic_scale(folder):
-    """The localizer's images shrunk (area resampling, to whole cells) so that their fully visible
-    markers' median side becomes marker_px, as `auto_localizer_scale` picks the Detector's scale; the
-    cell targets are the ground-truth points moved by the same factors; never enlarged."""
-    entries = _entries(folder, "train")
-    full = [g.points_px[g.status == 2] for g in (ImageGroundTruth.load(folder / e["gt"]) for e in entries)]
-    sides = [np.median(marker_side_px(f)) if len(f) else np.nan for f in full]
-    assert sum(len(f) > 0 for f in full) >= 3
-    target = np.nanmin(sides) / 2  # every image with a whole marker shrinks, the smallest markers' by half
-    data = RenderedDataset(folder, "train", "localizer", seed=5, marker_px=target)
-    plain = RenderedDataset(folder, "train", "localizer", seed=5)
-    large = RenderedDataset(folder, "train", "localizer", seed=5, marker_px=np.nanmax(sides) * 2)
-    warp = ViewWarp(probability=1.0, scale=(0.8, 1.25), rotation_deg=20.0, squeeze=0.6)
-    warped = RenderedDataset(folder, "train", "localizer", seed=5, marker_px=target, view_warp=warp, crop_px=64)
-    found = 0
-    grid = np.stack(np.meshgrid(np.arange(24), np.arange(16)), axis=-1) * 8.0
-    for i, entry in enumerate(entries):
-        gt = ImageGroundTruth.load(folder / entry["gt"])
-        scale = auto_localizer_scale(gt.points_px[gt.status == 2], 1.0, target, min_markers=1)
-        if len(full[i]):
-            assert scale == pytest.approx(target / sides[i]) and scale <= 0.5 + 1e-9
-        else:
-            assert scale == 1.0  # an image without a whole marker keeps its size
-        size = tuple(max(8, int(round(side * scale)) // 8 * 8) for side in (192, 128))
-        item = data[i]
-        png = cv2.imread(str(folder / entry["image"]))[:, :, ::-1]
-        assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), cv2.resize(png, size, interpolation=cv2.INTER_AREA))
-        cells = item["cells"].numpy()
-        assert cells.shape == (size[1] // 8, size[0] // 8, 11)
-        present = cells[..., 0] > 0
-        factors = np.array([size[0] / 192, size[1] / 128])
-        moved = gt.points_px * factors
-        centres = moved[:, 0]
-        inside = ((centres >= 0) & (centres < size)).all(axis=1) & gt.point_visible[:, 0] & (gt.status > 0)
-        assert present.sum() == inside.sum() > 0
-        points = cells[present][:, 1:].reshape(-1, 5, 2) + grid[: size[1] // 8, : size[0] // 8][present][:, None, :]
-        for p in points:
-            assert (np.nanmax(np.abs(moved[inside] - p), axis=(1, 2)) < 1e-3).sum() == 1
-        assert all(torch.equal(large[i][k], plain[i][k]) for k in ("image", "cells"))  # markers already smaller
-        # a view warp is drawn on the shrunk image, and its targets follow both
-        out = warped.crop_size(size)  # at most 64 x 64, cut from the shrunk image
-        view = warp.homography(np.random.default_rng([5, 0, i, _VIEW]), size, out)
-        item = warped[i]
-        shrunk = cv2.resize(png, size, interpolation=cv2.INTER_AREA)
-        assert np.array_equal(item["image"].permute(1, 2, 0).numpy(), warp_image(shrunk, view, out))
-        seen = apply_homography(view, moved)
-        inside = ((seen[:, 0] >= 0) & (seen[:, 0] < out)).all(axis=1) & gt.point_visible[:, 0] & (gt.status > 0)
-        cells = item["cells"].numpy()
-        present = cells[..., 0] > 0
-        assert present.sum() == inside.sum()
-        for p in cells[present][:, 1:].reshape(-1, 5, 2) + grid[: out[1] // 8, : out[0] // 8][present][:, None, :]:
-            assert (np.nanmax(np.abs(seen[inside] - p), axis=(1, 2)) < 1e-3).sum() == 1
-        found += int(present.sum())
-    assert found > 0
-    with pytest.raises(ValueError, match="marker_px"):
-        RenderedDataset(folder, "train", "recognizer", marker_px=22.0)
-    with pytest.raises(ValueError, match=r"marker_px must be in \[4, 256\] pixels"):
-        RenderedDataset(folder, "train", "localizer", marker_px=1000.0)
-
-
 def test_localizer_images_decoded_ahead_give_the_items_read_per_image(folder, tmp_path):
     """decode_ahead changes where the images come from, not the items: plain, cropped with a view
-    warp and augmentation, shrunk to a marker size; also in a copy pickled as a worker gets it, and
+    warp and augmentation; also in a copy pickled as a worker gets it, and
     with the PNGs gone once the dataset is made."""
     moved = shutil.copytree(folder, tmp_path / "dataset")
     gone = RenderedDataset(moved, "train", "localizer", seed=3, decode_ahead=True)
     shutil.rmtree(moved / "images")
     for i in range(len(gone)):
         assert torch.equal(gone[i]["image"], RenderedDataset(folder, "train", "localizer", seed=3)[i]["image"])
-    entries = _entries(folder, "train")
-    full = [g.points_px[g.status == 2] for g in (ImageGroundTruth.load(folder / e["gt"]) for e in entries)]
-    target = np.nanmin([np.median(marker_side_px(f)) if len(f) else np.nan for f in full]) / 2
     warp = ViewWarp(probability=0.5)
-    for settings in ({}, {"crop_px": 96, "view_warp": warp, "augment": Augment()}, {"marker_px": target}):
+    for settings in ({}, {"crop_px": 96, "view_warp": warp, "augment": Augment()}):
         read = RenderedDataset(folder, "train", "localizer", seed=3, **settings)
         ahead = RenderedDataset(folder, "train", "localizer", seed=3, decode_ahead=True, **settings)
         worker = pickle.loads(pickle.dumps(ahead))

@@ -18,7 +18,6 @@ from assets.fileio import save_npz
 from assets.pattern import PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.config import REMOVED_FIELDS, TrainConfig
-from networks.data import RenderedDataset
 from networks.evaluate import evaluate, folder_batches
 from networks.models import normalize
 from networks.shards import write_shards
@@ -243,20 +242,6 @@ def test_the_localizer_trains_on_shards_mixed_with_rendered_crops(dataset, tmp_p
               progress=False)
 
 
-def test_the_localizer_trains_on_renders_read_at_the_detectors_scale(dataset, tmp_path):
-    """--localizer-marker-px: the rendered training and validation images are read shrunk so their
-    markers measure that many pixels (`RenderedDataset` marker_px); the config carries it."""
-    out = tmp_path / "run"
-    _config("localizer", image_size=64, steps=2).save(tmp_path / "config.json")
-    assert main(["localizer", "--data", str(dataset), "--out", str(out), "--device", "cpu", "--quiet",
-                 "--config", str(tmp_path / "config.json"), "--localizer-marker-px", "8"]) == 0
-    assert read_checkpoint(out / "last.pt")["config"]["localizer_marker_px"] == 8.0
-    val = RenderedDataset(dataset, "val", "localizer", marker_px=8.0)
-    assert val[0]["image"].shape[1] < 128 and val[0]["cells"].shape[0] == val[0]["image"].shape[1] // 8  # shrunk
-    with pytest.raises(ValueError, match="localizer_marker_px"):
-        _config("localizer", localizer_marker_px=2.0)
-
-
 def test_the_schedule_fits_the_time_limit(dataset, tmp_path, caplog):
     """A run planned far too long, fitted to a few seconds (twice: early, then at the steady rate): it
     finishes its (shortened) schedule inside the limit with the learning rate decayed to its floor,
@@ -412,7 +397,8 @@ def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_
 
 #: per removed TrainConfig field: (task, a value other than the product's)
 REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0), "marker_shrink": ("recognizer", 0.5),
-                        "crosspoint_margin_cells": ("crosspoints", 4), "crosspoint_bend": ("crosspoints", True)}
+                        "crosspoint_margin_cells": ("crosspoints", 4), "crosspoint_bend": ("crosspoints", True),
+                        "localizer_marker_px": ("localizer", 22.0)}
 
 
 @pytest.mark.parametrize("name", sorted(REMOVED_FIELDS))
