@@ -26,22 +26,18 @@ def run_cli(action: Callable[[], object], failures: tuple[type[Exception], ...] 
 
 def add_crosspoint_options(parser: argparse.ArgumentParser, smooth_default: float, prefix: str = "") -> None:
     """The Detector's crosspoint-stage options, as every CLI that runs it names them:
-    --smooth-crosspoints PX, --no-smooth-crosspoints, --crosspoint-shift PX (`crosspoint_options`
-    reads them back).  prefix: put before each help text (e.g. "networks mode: ")."""
+    --smooth-crosspoints PX, --no-smooth-crosspoints (`crosspoint_options` reads them back).
+    prefix: put before each help text (e.g. "networks mode: ")."""
     parser.add_argument("--smooth-crosspoints", type=float, default=smooth_default, metavar="PX",
                         help=f"{prefix}move each marker's visible crosspoints within this many crop pixels of a "
                         "cubic field fitted to them onto it (DetectorConfig.smooth_crosspoints_px; default %(default)s)")
     parser.add_argument("--no-smooth-crosspoints", action="store_true",
                         help=f"{prefix}the crosspoint network's raw outputs, unsmoothed (the reference's)")
-    parser.add_argument("--crosspoint-shift", type=float, metavar="PX",
-                        help=f"{prefix}also read each crosspoint crop shifted by PX crop pixels four ways and average "
-                        "the five (DetectorConfig.crosspoint_shift_px; 5x the stage's cost; default: one pass)")
 
 
 def crosspoint_options(args: argparse.Namespace) -> dict[str, float | None]:
-    """{smooth_crosspoints_px, crosspoint_shift_px} of `add_crosspoint_options`' parsed arguments."""
-    return {"smooth_crosspoints_px": None if args.no_smooth_crosspoints else args.smooth_crosspoints,
-            "crosspoint_shift_px": args.crosspoint_shift}
+    """{smooth_crosspoints_px} of `add_crosspoint_options`' parsed arguments."""
+    return {"smooth_crosspoints_px": None if args.no_smooth_crosspoints else args.smooth_crosspoints}
 
 
 def parse_neighbour_fit(text: str) -> tuple[float | None, int]:

@@ -58,7 +58,7 @@ def without_removed(data: dict, removed: dict[str, object], source: str) -> dict
 
 #: the crop pixels within which the Detector moves a crosspoint onto its marker's smooth field by
 #: default (`networks.DetectorConfig.smooth_crosspoints_px`), and the largest crop-pixel setting of the
-#: crosspoint stage (smoothing tolerance, shift) that is accepted
+#: crosspoint stage (its smoothing tolerance) that is accepted
 SMOOTH_CROSSPOINTS_PX, MAX_CROP_SETTING_PX = 0.5, 8.0
 
 

@@ -21,8 +21,7 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        pattern (`networks.neighbours.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
     5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the
-       reference texture of its ID -> Crosspoint Localizer (with `crosspoint_shift_px`, also on the
-       crop shifted four ways, the five predictions averaged); visible = sigmoid > `visibility_threshold`;
+       reference texture of its ID -> Crosspoint Localizer; visible = sigmoid > `visibility_threshold`;
        the visible crosspoints near a cubic field fitted to them take its value
        (`smooth_crosspoints_px`); crop (x, y) mapped to image pixels through the inverse crop
        homography, and those outside the image hidden.
@@ -67,7 +66,6 @@ from networks.homography import (
     inside_image,
     layout_residual,
     points_from_crosspoints,
-    shifted_points,
     smooth_crosspoints,
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
@@ -133,11 +131,6 @@ class DetectorConfig:
       -> 0.372 px (test split) and 0.525 -> 0.505 px (val), on exact synthesized crops 0.339 -> 0.300
       px, and the 8-camera capture's error median 0.180 -> 0.166 mm at the same coverage and p95
       (`benchmarks/RESULTS.md`).
-    crosspoint_shift_px: the crosspoint network also reads each marker's crop shifted by this many crop
-      pixels left, right, up and down (cut anew from the image, the crop homography composed with the
-      shift), and each crosspoint's position is the mean of the five predictions moved back, its
-      visibility the mean probability: averaging out noise that depends on where the crosspoint falls
-      on the pixel grid, at five times the stage's cost.  None (the default): one pass.
     """
 
     presence_threshold: float = 0.5
@@ -161,12 +154,10 @@ class DetectorConfig:
     grow_min_visible: float = 0.3
     grow_rounds: int = 1
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
-    crosspoint_shift_px: float | None = None
     recognizer_bend: bool | None = None
 
     def __post_init__(self) -> None:
-        problems = [problem for name in ("smooth_crosspoints_px", "crosspoint_shift_px")
-                    if (problem := crop_px_problem(name, getattr(self, name)))]
+        problems = [problem] if (problem := crop_px_problem("smooth_crosspoints_px", self.smooth_crosspoints_px)) else []
         if self.grow_rounds < 1:
             problems.append(f"grow_rounds must be >= 1, got {self.grow_rounds}")
         if not 1 <= self.grow_min_neighbours <= 8 or not 0 <= self.grow_min_visible <= 1:
@@ -490,21 +481,14 @@ class Detector:
         xy = np.zeros((len(image_index), k, k, 2), dtype=np.float32)
         visible = np.zeros((len(image_index), k, k), dtype=bool)
         crop = self.crosspoints.crop
-        step = self.config.crosspoint_shift_px
-        shifts = np.zeros((1, 2)) if step is None else step * np.array([[0, 0], [-1, 0], [1, 0], [0, -1], [0, 1]])
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):
                 references = self._to_device(self.references(marker_id[part]))
-                crop_xy, probability = 0.0, 0.0
-                for shift in shifts:
-                    points = shifted_points(self.spec, crop, points_px[part], shift) if shift.any() else points_px[part]
-                    crops = unwarp_markers(images, image_index[part], points, self.spec, crop)
-                    output = self.crosspoints(self._to_device(crops), references).float().cpu().numpy()
-                    crop_xy = crop_xy + output[:, 1:].transpose(0, 2, 3, 1) + shift
-                    with np.errstate(over="ignore"):
-                        probability = probability + 1.0 / (1.0 + np.exp(-output[:, 0]))
-                crop_xy = (crop_xy / len(shifts)).astype(np.float32)
-                visible[part] = probability / len(shifts) > self.config.visibility_threshold
+                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, crop)
+                output = self.crosspoints(self._to_device(crops), references).float().cpu().numpy()
+                crop_xy = output[:, 1:].transpose(0, 2, 3, 1)
+                with np.errstate(over="ignore"):
+                    visible[part] = 1.0 / (1.0 + np.exp(-output[:, 0])) > self.config.visibility_threshold
                 if self.config.smooth_crosspoints_px is not None:
                     crop_xy = smooth_crosspoints(crop_xy, visible[part], self.config.smooth_crosspoints_px)
                 xy[part] = crop_to_image(self.spec, crop, points_px[part], crop_xy)

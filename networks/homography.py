@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from assets.geometry import apply_homography, fit_homography, invert_3x3
-from assets.pattern import (CropSpec, PatternSpec, crop_homography, crop_localization_px,
-                            localization_rc)
+from assets.pattern import CropSpec, PatternSpec, crop_homography, localization_rc
+
 
 def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop_xy: np.ndarray) -> np.ndarray:
     """Map crop pixels back to image pixels through the inverse of each marker's crop homography.
@@ -34,14 +34,6 @@ def crop_to_image(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, crop
         return np.zeros(crop_xy.shape)
     to_image = invert_3x3(crop_homography(spec, crop, points_px))
     return apply_homography(to_image, crop_xy.reshape(n, -1, 2)).reshape(crop_xy.shape)
-
-
-def shifted_points(spec: PatternSpec, crop: CropSpec, points_px: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """The five points (N, 5, 2) whose crop is the crop of `points_px` (N, 5, 2) moved by `shift` (2,)
-    crop pixels: crop'(u) = crop(u + shift), so a position found at u' in crop' is u' + shift in crop."""
-    points_px = np.asarray(points_px, dtype=np.float64)
-    moved = crop_localization_px(spec, crop) + np.asarray(shift, dtype=np.float64)
-    return crop_to_image(spec, crop, points_px, np.broadcast_to(moved, points_px.shape))
 
 
 #: `smooth_crosspoints`: the polynomial's degree (3 measured best on exact synthesized and rendered crops:

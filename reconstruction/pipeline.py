@@ -37,7 +37,7 @@ from assets.cameras import MAX_IMAGE_PIXELS, Camera
 from assets.fileio import load_json, safe_name, save_json
 from assets.garments import Template, load_template
 from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX,
-                             crop_px_problem, keep_own_problem, neighbour_fit_problem)
+                             crop_px_problem, keep_own_problem, neighbour_fit_problem, without_removed)
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,6 @@ class RunSettings:
     ones are added); grow_rounds: networks mode,
     `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before);
     smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off);
-    crosspoint_shift_px: networks mode, `networks.DetectorConfig.crosspoint_shift_px` (None: one pass);
     keep_own_cells: networks mode, `networks.DetectorConfig.keep_own_cells` (None: a marker counted as
     cut takes all five points from its neighbours' estimate); neighbour_sigma_sides, neighbour_degree:
     networks mode, the same of `networks.DetectorConfig` (None and 0: one homography over the
@@ -87,7 +86,6 @@ class RunSettings:
     grow_missing: bool = True
     grow_rounds: int = 1
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
-    crosspoint_shift_px: float | None = None
     keep_own_cells: float | None = KEEP_OWN_CELLS
     neighbour_sigma_sides: float | None = NEIGHBOUR_SIGMA_SIDES
     neighbour_degree: int = NEIGHBOUR_DEGREE
@@ -105,9 +103,8 @@ class RunSettings:
             raise ValueError(f"localizer_scale must be in (0, 4] or None (chosen per view), got {self.localizer_scale}")
         if self.initial_shape and not Path(self.initial_shape).is_file():
             raise ValueError(f"initial shape {self.initial_shape}: no such file")
-        for name in ("smooth_crosspoints_px", "crosspoint_shift_px"):
-            if problem := crop_px_problem(name, getattr(self, name)):
-                raise ValueError(problem)
+        if problem := crop_px_problem("smooth_crosspoints_px", self.smooth_crosspoints_px):
+            raise ValueError(problem)
         if problem := keep_own_problem(self.keep_own_cells):
             raise ValueError(problem)
         if problem := neighbour_fit_problem(self.neighbour_sigma_sides, self.neighbour_degree):
@@ -133,6 +130,14 @@ class RunSettings:
 #: bent with the cloth it was one homography over the neighbourhood
 BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None, "keep_own_cells": None,
           "neighbour_sigma_sides": None, "neighbour_degree": 0}
+#: settings that measurements removed, with the only value a run.json may still name (what the
+#: product now does): None, one crosspoint pass (docs/journal/2026-11-28-crop-options-removed.md)
+RUN_REMOVED_FIELDS: dict[str, object] = {"crosspoint_shift_px": None}
+
+
+def _recorded(path: Path) -> dict:
+    """run.json at `path` without the removed settings; one naming another value is refused by name."""
+    return without_removed(load_json(path), RUN_REMOVED_FIELDS, str(path))
 
 
 def start(out: str | Path, settings: RunSettings) -> Path:
@@ -144,8 +149,9 @@ def start(out: str | Path, settings: RunSettings) -> Path:
     path = out / "run.json"
     if path.exists():
         # a folder written before a setting existed holds that setting's default
+        recorded = _recorded(path)
         saved = {**{f.name: f.default for f in fields(RunSettings) if f.default is not MISSING}, **BEFORE,
-                 **load_json(path), "checkpoints": list(load_json(path).get("checkpoints", ()))}
+                 **recorded, "checkpoints": list(recorded.get("checkpoints", ()))}
         if saved != record:
             differ = sorted(k for k in set(saved) | set(record) if saved.get(k) != record.get(k))
             raise ValueError(f"{path}: this folder was made with other settings ({', '.join(differ)}); "
@@ -159,7 +165,7 @@ def settings_of(out: str | Path) -> RunSettings:
     path = Path(out) / "run.json"
     if not path.is_file():
         raise ValueError(f"{out}: not a reconstruction folder (no run.json); run `detect` or `run` first")
-    data = {**BEFORE, **load_json(path)}
+    data = {**BEFORE, **_recorded(path)}
     data["checkpoints"] = tuple(data.get("checkpoints", ()))
     try:
         return RunSettings(**data)
@@ -216,7 +222,6 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
                 config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
                                         grow_rounds=settings.grow_rounds,
                                         smooth_crosspoints_px=settings.smooth_crosspoints_px,
-                                        crosspoint_shift_px=settings.crosspoint_shift_px,
                                         keep_own_cells=settings.keep_own_cells,
                                         neighbour_sigma_sides=settings.neighbour_sigma_sides,
                                         neighbour_degree=settings.neighbour_degree)

@@ -31,7 +31,6 @@ from networks.homography import (
     layout_residual,
     marker_side_px,
     points_from_crosspoints,
-    shifted_points,
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks import homography as homography_module
@@ -472,38 +471,6 @@ def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, 
     hidden = ~raw.crosspoint_visible & ~smoothed.crosspoint_visible & ~at_edge
     moved = np.linalg.norm(smoothed.crosspoints_px - raw.crosspoints_px, axis=-1)
     assert seen.sum() > 100 and (moved[seen] > 1e-3).mean() > 0.2 and np.allclose(moved[hidden], 0.0)
-
-
-def test_shifted_points_cut_the_crop_moved_by_the_shift(scene):
-    """crop'(u) = crop(u + shift): at whole-pixel shifts the crops agree pixel for pixel inside."""
-    image, points, _ = scene
-    crop = CROSSPOINT_CROP
-    crops = unwarp_markers([image], np.zeros(len(points), np.int64), points, SPEC, crop)
-    for sx, sy in ((2, 0), (0, -2), (3, 1)):
-        moved = unwarp_markers([image], np.zeros(len(points), np.int64),
-                               shifted_points(SPEC, crop, points, np.array([sx, sy])), SPEC, crop)
-        inner = slice(4, crop.size_px - 4)
-        shifted = crops[:, 4 + sy:crop.size_px - 4 + sy, 4 + sx:crop.size_px - 4 + sx]
-        assert np.abs(moved[:, inner, inner].astype(int) - shifted.astype(int)).max() <= 1, (sx, sy)
-
-
-def test_shift_averaging_reads_five_crops_and_keeps_the_true_positions(codebook, table, scene):
-    """crosspoint_shift_px: five passes of the crosspoint network, whose outputs moved back to the
-    unshifted crop still give the true crosspoints (a network answering canonical positions)."""
-    image, points, crosspoints = scene
-    localizer, recognizer, network = _networks(0)
-    with torch.no_grad():
-        network.decoder.out.weight.zero_()
-        network.decoder.out.bias.copy_(torch.tensor([5.0, 0.0, 0.0]))  # visible, at canonical positions
-    calls = []
-    network.register_forward_hook(lambda module, inputs, output: calls.append(len(output)))
-    config = DetectorConfig(crosspoint_shift_px=2.0)
-    detector = Detector(localizer, recognizer, network, SPEC, tables=[table], codebook=codebook, config=config)
-    xy, visible = detector.locate_crosspoints([image], np.zeros(len(points), np.int64), points, table.marker_ids)
-    assert calls == [len(points)] * 5
-    assert np.abs(xy - crosspoints).max() < 1e-3 and visible.all()
-    with pytest.raises(ValueError, match="crosspoint_shift_px must be in"):
-        DetectorConfig(crosspoint_shift_px=0.0)
 
 
 def test_later_rounds_of_growth_only_add_markers(detector, scene):

@@ -175,12 +175,25 @@ def test_the_neighbour_fit_is_a_recorded_setting_older_folders_fitted_one_homogr
                             bad={"neighbour_sigma_sides": 0.0}, match="width > 0")
 
 
-def test_crosspoint_shift_is_a_recorded_setting_off_by_default(tmp_path):
-    """--crosspoint-shift PX reaches run.json; a folder made before the setting read one pass, the default."""
+def test_a_folder_made_with_the_removed_crosspoint_shift_off_resumes_and_one_with_it_on_is_refused(tmp_path):
+    """run.json files naming crosspoint_shift_px (removed) load at None, its former default, and resume
+    with today's settings; one naming a shift is refused by the field's name.  The option is gone."""
+    from reconstruction import pipeline
     from reconstruction.__main__ import build_parser
 
-    args = build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
-                                      "--crosspoint-shift", "1.5"])
-    assert args.crosspoint_shift == 1.5
-    _check_recorded_setting(tmp_path, "crosspoint_shift_px", default=None, other=1.5, before=None,
-                            bad={"crosspoint_shift_px": -1.0}, match="crosspoint_shift_px must be in")
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
+                                   "--crosspoint-shift", "1.5"])
+    checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
+    plain = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
+    for value in (None, 1.5):
+        out = pipeline.start(tmp_path / f"shift_{value}", plain)
+        record = json.loads((out / "run.json").read_text())
+        (out / "run.json").write_text(json.dumps({**record, "crosspoint_shift_px": value}))
+        if value is None:
+            assert pipeline.settings_of(out) == plain
+            pipeline.start(out, plain)
+        else:
+            for call in (lambda: pipeline.settings_of(out), lambda: pipeline.start(out, plain)):
+                with pytest.raises(ValueError, match=r"run.json: crosspoint_shift_px is 1.5, an option removed"):
+                    call()
