@@ -65,7 +65,6 @@ from networks.homography import (
     crop_to_image,
     inside_image,
     layout_residual,
-    points_from_crosspoints,
     smooth_crosspoints,
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
@@ -120,10 +119,7 @@ class DetectorConfig:
       centre, a fold, too oblique) are placed by at least `grow_min_neighbours` of them
       (`networks.neighbours.predict_missing`), get their layout ID and go through the crosspoint
       network; one is kept when at least `grow_min_visible` of its crosspoints (a share of K x K)
-      are visible.  They are flagged `partial`, with `id_support` -1.  `grow_rounds` > 1 grows again
-      from the markers placed so far: each later round also places markers by the cut and grown ones
-      whose own visible crosspoints give their pose (`networks.homography.points_from_crosspoints`),
-      reaching markers with fewer than `grow_min_neighbours` fully observed neighbours.
+      are visible.  They are flagged `partial`, with `id_support` -1.
     smooth_crosspoints_px: each marker's visible crosspoints within this many crop pixels of a cubic
       field fitted to them (in its crop, `networks.homography.smooth_crosspoints`) take the field's
       value, averaging out the network's noise while folds keep theirs; None: off (the network's raw
@@ -152,14 +148,11 @@ class DetectorConfig:
     grow_missing: bool = True
     grow_min_neighbours: int = 2
     grow_min_visible: float = 0.3
-    grow_rounds: int = 1
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     recognizer_bend: bool | None = None
 
     def __post_init__(self) -> None:
         problems = [problem] if (problem := crop_px_problem("smooth_crosspoints_px", self.smooth_crosspoints_px)) else []
-        if self.grow_rounds < 1:
-            problems.append(f"grow_rounds must be >= 1, got {self.grow_rounds}")
         if not 1 <= self.grow_min_neighbours <= 8 or not 0 <= self.grow_min_visible <= 1:
             problems.append(f"grow_min_neighbours must be in 1..8 and grow_min_visible in [0, 1], got "
                             f"{self.grow_min_neighbours}, {self.grow_min_visible}")
@@ -551,18 +544,6 @@ class Detector:
             found.append((np.full(len(ids), i, np.int64), ids, points, conf))
         return tuple(np.concatenate(arrays) for arrays in zip(*found))
 
-    def grow_from_placed(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
-                         marker_id: np.ndarray, confidence: np.ndarray, partial: np.ndarray,
-                         crosspoints_px: np.ndarray, visible: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """A later round of growth (`config.grow_rounds`): as `grow`, with the cut and grown (`partial`)
-        markers whose visible crosspoints (N, K, K, 2), (N, K, K) give their pose
-        (`networks.homography.points_from_crosspoints`) among the sources, placed so."""
-        posed_points, posed = points_from_crosspoints(self.spec, crosspoints_px, visible)
-        trusted = partial & posed
-        sources = np.where(trusted[:, None, None], posed_points, points_px)
-        return self.grow(images, image_index, sources, marker_id, confidence, partial & ~trusted)
-
     def __call__(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """Detect the markers of every image: images uint8 (H, W, 3) -> one `Detections` per image."""
         return self.detect(images)[0]
@@ -600,7 +581,7 @@ class Detector:
         confidence = (presence * probability).astype(np.float32)
         points, partial = self.complete_partial(images, image_index, points, marker_id, confidence)
         detected = len(image_index)
-        # the first round of growth goes through the crosspoint network with the detections, in one pass
+        # the grown markers go through the crosspoint network with the detections, in one pass
         grown = self.grow(images, image_index, points, marker_id, confidence, partial)
         image_index, marker_id, points, confidence, partial, support = _joined(
             (image_index, marker_id, points, confidence, partial, support), _grown_markers(grown, support.dtype))
@@ -608,23 +589,9 @@ class Detector:
         crosspoints_px, visible = self.locate_crosspoints(images, image_index, points, marker_id)
         keep = np.ones(len(image_index), bool)
         keep[detected:] = visible[detected:].mean(axis=(1, 2)) >= self.config.grow_min_visible
-        markers = tuple(a[keep] for a in (image_index, marker_id, points, confidence, partial, support,
-                                          crosspoints_px, visible))
+        image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = (
+            a[keep] for a in (image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible))
         lap("crosspoints")
-        for _ in range(1, self.config.grow_rounds if self.layout is not None and self.config.grow_missing else 1):
-            image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = markers
-            grown = self.grow_from_placed(images, image_index, points, marker_id, confidence, partial,
-                                          crosspoints_px, visible)
-            lap("complete")
-            if not len(grown[0]):
-                break
-            found = self.locate_crosspoints(images, grown[0], grown[2], grown[1])
-            keep = found[1].mean(axis=(1, 2)) >= self.config.grow_min_visible
-            markers = _joined(markers, tuple(a[keep] for a in (*_grown_markers(grown, support.dtype), *found)))
-            lap("crosspoints")
-            if not keep.any():
-                break
-        image_index, marker_id, points, confidence, partial, support, crosspoints_px, visible = markers
 
         result = []
         for i in range(len(images)):

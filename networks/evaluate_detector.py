@@ -143,9 +143,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-grow", action="store_true",
                         help="do not add the markers the localizer missed next to fully observed ones "
                              "(default: grow them, DetectorConfig.grow_missing)")
-    parser.add_argument("--grow-rounds", type=int, default=defaults.grow_rounds, metavar="N",
-                        help="rounds of growth, each later one also from the markers placed before "
-                             "(default %(default)s)")
     add_crosspoint_options(parser, defaults.smooth_crosspoints_px)
     parser.add_argument("--presence-threshold", type=float, default=defaults.presence_threshold, metavar="P",
                         help="localizer presence probability above which a cell holds a marker centre "
@@ -168,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
                                                 max_layout_residual_cells=args.max_layout_residual,
                                                 **completion_options(args),
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
-                                                grow_rounds=args.grow_rounds, **crosspoint_options(args)),
+                                                **crosspoint_options(args)),
                                  args.batch_size)
         metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
         metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),

@@ -178,30 +178,6 @@ def _masked_normalise(points: np.ndarray, weight: np.ndarray, count: np.ndarray)
     return t, (points - centre[:, None]) * scale[:, None, None]
 
 
-def points_from_crosspoints(spec: PatternSpec, crosspoints_px: np.ndarray, visible: np.ndarray, min_count: int = 8
-                            ) -> tuple[np.ndarray, np.ndarray]:
-    """Markers' five localization points from their own visible crosspoints.
-
-    crosspoints_px (N, K, K, 2) image pixels, visible (N, K, K) bool.  The homography from the marker's
-    crosspoint grid (col, row) to the image is fitted to its visible crosspoints and applied to the
-    grid positions of centre, TL, TR, BL, BR: where a marker was placed by others (grown, or completed
-    from its neighbours), this is its pose as the image shows it.  Returns (points (N, 5, 2) float64,
-    ok (N,) bool: at least `min_count` visible crosspoints spanning two rows and two columns)."""
-    crosspoints_px = np.asarray(crosspoints_px, dtype=np.float64)
-    visible = np.asarray(visible, dtype=bool)
-    n, k = len(visible), spec.crosspoints_per_side
-    row, col = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-    grid = np.stack([col, row], axis=-1).reshape(1, k * k, 2).astype(np.float64)
-    h = fit_homography_masked(np.broadcast_to(grid, (n, k * k, 2)), crosspoints_px.reshape(n, k * k, 2),
-                              visible.reshape(n, k * k))
-    rc = localization_rc(spec)
-    with np.errstate(invalid="ignore", divide="ignore"):  # NaN homographies: fewer than 4 crosspoints seen
-        points = apply_homography(h, np.broadcast_to(rc[:, ::-1].astype(np.float64), (n, 5, 2)))
-    spans = visible.any(axis=2).sum(axis=1) >= 2, visible.any(axis=1).sum(axis=1) >= 2  # rows, columns
-    ok = (visible.sum(axis=(1, 2)) >= min_count) & spans[0] & spans[1] & np.isfinite(points).all(axis=(1, 2))
-    return points, ok
-
-
 #: `auto_localizer_scale` measures the markers' size when there are at least this many
 AUTO_MIN_MARKERS = 8
 

@@ -81,9 +81,6 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--no-grow", action="store_true",
                        help="networks mode: do not add the markers the localizer missed next to fully observed "
                        "ones (default: add them; they raise the captured fraction, at a higher error p95)")
-        p.add_argument("--grow-rounds", type=int, default=1, metavar="N",
-                       help="networks mode: rounds of growth, each later one from the markers placed before "
-                       "(default %(default)s)")
         add_crosspoint_options(p, SMOOTH_CROSSPOINTS_PX, prefix="networks mode: ")
         add_completion_options(p, KEEP_OWN_CELLS, (NEIGHBOUR_SIGMA_SIDES, NEIGHBOUR_DEGREE), prefix="networks mode: ")
         p.add_argument("--initial-shape", help="a penetration-free garment shape npz (positions, meta.level_mm) "
@@ -147,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
                                             checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
                                             initial_shape=str(Path(initial).resolve()) if initial else "",
                                             localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
-                                            grow_rounds=args.grow_rounds, **crosspoint_options(args),
+                                            **crosspoint_options(args),
                                             **completion_options(args))
             pipeline.start(args.out, settings)
             frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress,

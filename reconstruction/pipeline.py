@@ -66,8 +66,7 @@ class RunSettings:
     networks mode, `networks.DetectorConfig.localizer_scale` (0.5 when the views' markers are 32 to
     64 px across; None, the default: chosen per view); grow_missing: networks mode,
     `networks.DetectorConfig.grow_missing` (the markers the localizer missed next to fully observed
-    ones are added); grow_rounds: networks mode,
-    `networks.DetectorConfig.grow_rounds` (later rounds grow from the markers placed before);
+    ones are added);
     smooth_crosspoints_px: networks mode, `networks.DetectorConfig.smooth_crosspoints_px` (None: off);
     keep_own_cells: networks mode, `networks.DetectorConfig.keep_own_cells` (None: a marker counted as
     cut takes all five points from its neighbours' estimate); neighbour_sigma_sides, neighbour_degree:
@@ -84,7 +83,6 @@ class RunSettings:
     initial_shape: str = ""
     localizer_scale: float | None = None
     grow_missing: bool = True
-    grow_rounds: int = 1
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
     keep_own_cells: float | None = KEEP_OWN_CELLS
     neighbour_sigma_sides: float | None = NEIGHBOUR_SIGMA_SIDES
@@ -97,8 +95,6 @@ class RunSettings:
             raise ValueError("the networks mode needs three checkpoints: localizer, recognizer, crosspoints")
         if self.level_mm <= 0:
             raise ValueError(f"level_mm must be > 0, got {self.level_mm}")
-        if self.grow_rounds < 1:
-            raise ValueError(f"grow_rounds must be >= 1, got {self.grow_rounds}")
         if self.localizer_scale is not None and not 0 < self.localizer_scale <= 4:
             raise ValueError(f"localizer_scale must be in (0, 4] or None (chosen per view), got {self.localizer_scale}")
         if self.initial_shape and not Path(self.initial_shape).is_file():
@@ -131,8 +127,8 @@ class RunSettings:
 BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None, "keep_own_cells": None,
           "neighbour_sigma_sides": None, "neighbour_degree": 0}
 #: settings that measurements removed, with the only value a run.json may still name (what the
-#: product now does): None, one crosspoint pass (docs/journal/2026-11-28-crop-options-removed.md)
-RUN_REMOVED_FIELDS: dict[str, object] = {"crosspoint_shift_px": None}
+#: product now does): one round of growth, one crosspoint pass (docs/journal/2026-11-28-crop-options-removed.md)
+RUN_REMOVED_FIELDS: dict[str, object] = {"grow_rounds": 1, "crosspoint_shift_px": None}
 
 
 def _recorded(path: Path) -> dict:
@@ -220,7 +216,6 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
             if detector is None:  # the garment's tables: its IDs only, and cut markers from their neighbours
                 tables = load_template(settings.template).layout.tables()
                 config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
-                                        grow_rounds=settings.grow_rounds,
                                         smooth_crosspoints_px=settings.smooth_crosspoints_px,
                                         keep_own_cells=settings.keep_own_cells,
                                         neighbour_sigma_sides=settings.neighbour_sigma_sides,

@@ -30,7 +30,6 @@ from networks.homography import (
     fit_homography_masked,
     layout_residual,
     marker_side_px,
-    points_from_crosspoints,
 )
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks import homography as homography_module
@@ -253,23 +252,6 @@ def test_missed_markers_are_placed_by_their_full_neighbours(table, scene):
     assert len(predict_missing(layout, ids[seen], points[seen], np.zeros(4, bool), confidence, IMAGE_SIZE)[0]) == 0
 
 
-def test_a_marker_s_pose_is_recovered_from_its_visible_crosspoints(scene):
-    """Markers placed by others get their five points from the crosspoints the network sees: exact
-    from a corner patch of one marker, refused from too few or from one row."""
-    _, points, crosspoints = scene
-    k = SPEC.crosspoints_per_side
-    visible = np.zeros((len(points), k, k), bool)
-    visible[0, :3, :4] = True  # 12 crosspoints in a corner: the centre and far corners are extrapolated
-    visible[1, 2, :] = True  # one row
-    visible[2, :2, :2] = True  # 4 crosspoints: below min_count
-    visible[3] = True
-    blurred = np.where(visible[..., None], crosspoints, np.nan)  # hidden crosspoints are not read
-    posed, ok = points_from_crosspoints(SPEC, blurred, visible)
-    assert ok.tolist() == [True, False, False, True, False, False]
-    assert np.abs(posed[ok] - points[ok]).max() < 1e-6
-    assert points_from_crosspoints(SPEC, blurred, visible, min_count=4)[1][2]
-
-
 def test_vote_ids_restores_ids_that_the_neighbours_contradict(table, scene):
     _, points, _ = scene
     layout = MarkerLayout.from_tables([table], SPEC.num_ids)
@@ -473,26 +455,6 @@ def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, 
     assert seen.sum() > 100 and (moved[seen] > 1e-3).mean() > 0.2 and np.allclose(moved[hidden], 0.0)
 
 
-def test_later_rounds_of_growth_only_add_markers(detector, scene):
-    """The chain with three rounds of growth keeps every marker of one round and its crosspoints (a
-    later round places markers the earlier ones did not), with consistent arrays."""
-    images = [np.ascontiguousarray(scene[0][200:296, 200:328]), np.ascontiguousarray(scene[0][150:300, 150:330])]
-    saved = detector.config
-    one = detector(images)
-    detector.config = dataclasses.replace(saved, grow_rounds=3)
-    try:
-        three = detector(images)
-    finally:
-        detector.config = saved
-    k = SPEC.crosspoints_per_side
-    for a, b in zip(one, three):
-        n = len(b)
-        assert n >= len(a) and b.crosspoints_px.shape == (n, k, k, 2) and b.partial.shape == (n,)
-        assert np.array_equal(b.marker_id[:len(a)], a.marker_id)
-        assert np.allclose(b.crosspoints_px[:len(a)], a.crosspoints_px, atol=1e-3)
-        assert (b.id_support[len(a):] == -1).all() and b.partial[len(a):].all()  # grown markers
-
-
 def test_detections_save_load_round_trip(tmp_path, detector, scene):
     image = np.ascontiguousarray(scene[0][200:264, 260:324])
     detections = detector([image])[0]
@@ -575,33 +537,6 @@ def test_detector_grows_missed_markers_of_each_image(detector, table, scene):
         detector.config = saved
     with pytest.raises(ValueError, match="grow_min_neighbours"):
         DetectorConfig(grow_min_neighbours=0)
-
-
-def test_a_later_round_grows_from_the_markers_placed_before(detector, table, scene):
-    """Only 7 and 10 (the left column of 7 8 9 / 10 11 12) were fully observed: the first round places
-    8 and 11; the second places 9 and 12 by 8 and 11, posed by their own crosspoints (two and
-    three columns of them), and not where the grown markers' crosspoints were not seen."""
-    _, points, crosspoints = scene
-    ids = table.marker_ids.astype(np.int64)
-    image = np.zeros((IMAGE_SIZE[1], IMAGE_SIZE[0], 3), np.uint8)
-    confidence = np.ones(2)
-    first = detector.grow([image], np.zeros(2, np.int64), points[[0, 3]], ids[[0, 3]], confidence, np.zeros(2, bool))
-    assert first[1].tolist() == ids[[1, 4]].tolist()
-    k = SPEC.crosspoints_per_side
-    visible = np.zeros((4, k, k), bool)
-    visible[2, :, :2] = visible[3, :, :3] = True  # the grown markers' left columns
-    # the grown markers as the first round left them: their points a little off, their crosspoints true
-    placed = np.concatenate([points[[0, 3]], first[2] + 0.7])
-    ids4, partial = ids[[0, 3, 1, 4]], np.array([False, False, True, True])
-    second = detector.grow_from_placed([image], np.zeros(4, np.int64), placed, ids4, np.ones(4), partial,
-                                       crosspoints[[0, 3, 1, 4]], visible)
-    assert second[1].tolist() == ids[[2, 5]].tolist()
-    assert np.abs(second[2] - points[[2, 5]]).max() < 1e-6
-    unseen = detector.grow_from_placed([image], np.zeros(4, np.int64), placed, ids4, np.ones(4), partial,
-                                       crosspoints[[0, 3, 1, 4]], np.zeros_like(visible))
-    assert unseen[1].tolist() == []  # 8 and 11 are no sources: 9 and 12 have no fully observed neighbour
-    with pytest.raises(ValueError, match="grow_rounds"):
-        DetectorConfig(grow_rounds=0)
 
 
 def test_detector_checks_its_inputs(codebook, table):

@@ -40,11 +40,10 @@ def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capt
     argv = ["detect", "--views", str(capture_folder), "--cameras", str(capture_folder / "cameras.json"),
             "--template", str(capture_folder / "template.npz"), "--out", str(out), "--device", "cpu",
             "--checkpoints", *_checkpoints(tmp_path, template.layout.spec), "--localizer-scale", "0.25",
-            "--grow-rounds", "2", "--quiet"]
+            "--quiet"]
     assert main(argv) == 0
     assert json.loads((out / "run.json").read_text())["localizer_scale"] == 0.25
     assert json.loads((out / "run.json").read_text())["grow_missing"] is True  # the default; --no-grow: False
-    assert json.loads((out / "run.json").read_text())["grow_rounds"] == 2
     assert json.loads((out / "run.json").read_text())["smooth_crosspoints_px"] == 0.5  # the default
     cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
     found = []
@@ -131,7 +130,7 @@ def test_growth_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
     """`--no-grow` goes to run.json; a folder made before growth existed (no grow_missing in its
     run.json) was made without it, so a default run there is refused and a --no-grow one resumes."""
     _check_recorded_setting(tmp_path, "grow_missing", default=True, other=False, before=False,
-                            bad={"grow_rounds": 0}, match="grow_rounds must be >= 1")
+                            bad={"level_mm": 0}, match="level_mm must be > 0")
 
 
 def test_crosspoint_smoothing_is_a_recorded_setting_and_older_folders_had_none(tmp_path):
@@ -175,25 +174,27 @@ def test_the_neighbour_fit_is_a_recorded_setting_older_folders_fitted_one_homogr
                             bad={"neighbour_sigma_sides": 0.0}, match="width > 0")
 
 
-def test_a_folder_made_with_the_removed_crosspoint_shift_off_resumes_and_one_with_it_on_is_refused(tmp_path):
-    """run.json files naming crosspoint_shift_px (removed) load at None, its former default, and resume
-    with today's settings; one naming a shift is refused by the field's name.  The option is gone."""
+def test_folders_made_with_removed_settings_at_todays_values_resume_and_others_are_refused(tmp_path):
+    """run.json files naming a removed setting (grow_rounds, crosspoint_shift_px) at the value the
+    product now uses (1, None) load and resume with today's settings; another value is refused by the
+    field's name.  The options are gone from the CLI."""
     from reconstruction import pipeline
     from reconstruction.__main__ import build_parser
 
-    with pytest.raises(SystemExit):
-        build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o",
-                                   "--crosspoint-shift", "1.5"])
+    for flag in ("--grow-rounds", "--crosspoint-shift"):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["detect", "--views", "v", "--template", "shirt", "--out", "o", flag, "2"])
     checkpoints = tuple(str(tmp_path / f"{task}.pt") for task in ("loc", "rec", "xp"))
     plain = pipeline.RunSettings(template="shirt", checkpoints=checkpoints)
-    for value in (None, 1.5):
-        out = pipeline.start(tmp_path / f"shift_{value}", plain)
-        record = json.loads((out / "run.json").read_text())
-        (out / "run.json").write_text(json.dumps({**record, "crosspoint_shift_px": value}))
-        if value is None:
-            assert pipeline.settings_of(out) == plain
-            pipeline.start(out, plain)
-        else:
-            for call in (lambda: pipeline.settings_of(out), lambda: pipeline.start(out, plain)):
-                with pytest.raises(ValueError, match=r"run.json: crosspoint_shift_px is 1.5, an option removed"):
-                    call()
+    for field, kept, other in (("grow_rounds", 1, 2), ("crosspoint_shift_px", None, 1.5)):
+        for value in (kept, other):
+            out = pipeline.start(tmp_path / f"{field}_{value}", plain)
+            record = json.loads((out / "run.json").read_text())
+            (out / "run.json").write_text(json.dumps({**record, field: value}))
+            if value == kept:
+                assert pipeline.settings_of(out) == plain
+                pipeline.start(out, plain)
+            else:
+                for call in (lambda: pipeline.settings_of(out), lambda: pipeline.start(out, plain)):
+                    with pytest.raises(ValueError, match=rf"run.json: {field} is {value}, an option removed"):
+                        call()
