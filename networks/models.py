@@ -117,7 +117,22 @@ def localizer_loss(output: torch.Tensor, cells: torch.Tensor, presence_weight: f
 
 # ---- Marker Recognizer --------------------------------------------------------------------------
 
-class MarkerRecognizer(nn.Module):
+class _CropNetwork(nn.Module):
+    """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> outputs) on
+    recognizer crops; what the ID classifier and the module reader share (their state-dict keys too)."""
+
+    def __init__(self, outputs: int, pretrained: str | Path | None, bend: bool) -> None:
+        super().__init__()
+        self.bend = bool(bend)
+        self.backbone = resnet50(num_classes=outputs)
+        _load_backbone(self.backbone, pretrained)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        _check_images(x, f"{type(self).__name__} input")
+        return self.backbone(x)
+
+
+class MarkerRecognizer(_CropNetwork):
     """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> num_ids).
 
     forward: x float (B, 3, 96, 96) normalised crops (`assets.pattern.RECOGNIZER_CROP`) -> logits
@@ -127,17 +142,10 @@ class MarkerRecognizer(nn.Module):
     """
 
     def __init__(self, num_ids: int, pretrained: str | Path | None = None, bend: bool = False) -> None:
-        super().__init__()
         if num_ids < 2:
             raise ValueError(f"MarkerRecognizer: num_ids must be >= 2, got {num_ids}")
+        super().__init__(num_ids, pretrained, bend)
         self.num_ids = num_ids
-        self.bend = bool(bend)
-        self.backbone = resnet50(num_classes=num_ids)
-        _load_backbone(self.backbone, pretrained)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        _check_images(x, "MarkerRecognizer input")
-        return self.backbone(x)
 
 
 def recognizer_loss(logits: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
@@ -148,7 +156,7 @@ def recognizer_loss(logits: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
     return F.cross_entropy(logits, ids.long())
 
 
-class MarkerModuleReader(nn.Module):
+class MarkerModuleReader(_CropNetwork):
     """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> n * n): the
     Marker Recognizer's network with one output per code module instead of one per marker ID.
 
@@ -161,17 +169,10 @@ class MarkerModuleReader(nn.Module):
     """
 
     def __init__(self, modules_per_side: int, pretrained: str | Path | None = None, bend: bool = False) -> None:
-        super().__init__()
         if modules_per_side < 2:
             raise ValueError(f"MarkerModuleReader: modules_per_side must be >= 2, got {modules_per_side}")
+        super().__init__(modules_per_side * modules_per_side, pretrained, bend)
         self.modules_per_side = modules_per_side
-        self.bend = bool(bend)
-        self.backbone = resnet50(num_classes=modules_per_side * modules_per_side)
-        _load_backbone(self.backbone, pretrained)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        _check_images(x, "MarkerModuleReader input")
-        return self.backbone(x)
 
 
 def module_loss(logits: torch.Tensor, modules: torch.Tensor) -> torch.Tensor:
