@@ -43,16 +43,16 @@ from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments.loading import load_template
 from assets.garments.markers import MarkerSurface
 from assets.motion.sources import motion_label
-from factory.dataset import (SPLITS, DatasetConfig, corner_uv, environments, fixed_camera, ground_truth_for, preview,
-                             render_job_spec, render_template, reuse_simulation, run_render_job, simulation_config,
-                             split_of_frames, variation, write_scene)
+from factory.dataset import (SPLITS, DatasetConfig, check_betas, corner_uv, environments, fixed_camera,
+                             ground_truth_for, preview, render_job_spec, render_template, reuse_simulation,
+                             run_render_job, simulation_config, split_of_frames, variation, write_scene)
 from factory.simulate import SimulationConfig, input_digests, simulate
 
 log = logging.getLogger(__name__)
 
 def _simulation_of(config: DatasetConfig, motion: str, frames: int = 1) -> SimulationConfig:
     return simulation_config(config.garment, motion, config.body, frames, config.seed, config.level_mm,
-                             config.motion_speed)
+                             config.motion_speed, config.betas)
 
 
 def _frames_of(config: DatasetConfig, transition_frames: int) -> list[int]:
@@ -118,6 +118,7 @@ def prepare(config: DatasetConfig, out: Path, shard: tuple[int, int],
         raise ValueError(f"variations must be >= 1, got {config.variations}")
     if not 0 < config.fill <= 1 or not 5 <= config.fov_deg <= 120:
         raise ValueError(f"fill must be in (0, 1] and fov_deg in [5, 120], got {config.fill} and {config.fov_deg}")
+    check_betas(config.betas, config.body)
     labels = motion_labels(config.motions)
     for motion in simulations or {}:
         if motion not in config.motions:

@@ -2,6 +2,8 @@
 
     python -m factory.dataset build --garment shirt --motions walk,run --frames 8 --variations 5 --out out/ds
     python -m factory.dataset build ... --shard 0/4          # a deterministic quarter of the images
+    python -m factory.dataset build ... --betas 0.5,0.5,0.8  # another body shape (the body's shape_names)
+    python -m factory.dataset build --recipe modules_reader --out out/datasets/modules_reader  # `factory.recipe`
     python -m factory.dataset capture --garment shirt --motion walk --frames 12 --cameras 8 --out out/cap
     python -m factory.dataset preview out/ds --out out/ds/contact_sheet.png
     python -m factory.dataset merge out/all out/ds --train out/ds_more   # more training images (`factory.merge`)
@@ -101,6 +103,8 @@ class DatasetConfig:
     garment: str
     motions: tuple[str, ...]
     body: str = "default"
+    #: the body's shape values (`BodyModel.shape_names`); None: each motion's own or the body's default
+    betas: tuple[float, ...] | None = None
     #: frames per motion, `frame_step` simulation frames (1/120 s) apart after the dressing transition
     frames: int = 8
     frame_step: int = 12
@@ -270,10 +274,32 @@ def render_job_spec(settings: RenderSettings, scene: Path, texture: Path, images
 # ---- simulations -------------------------------------------------------------------------------
 
 def simulation_config(garment: str, motion: str, body: str = "default", frames: int = 1, seed: int = 0,
-                      level_mm: int = DressingParams.level_mm, motion_speed: float = 1.0) -> SimulationConfig:
+                      level_mm: int = DressingParams.level_mm, motion_speed: float = 1.0,
+                      betas: tuple[float, ...] | None = None) -> SimulationConfig:
     """The simulation the factory makes of `motion` (`factory.simulate`'s defaults otherwise)."""
-    return SimulationConfig(garment=garment, motion=motion, body=body, frames=frames, seed=seed,
+    return SimulationConfig(garment=garment, motion=motion, body=body, frames=frames, betas=betas, seed=seed,
                             motion_speed=motion_speed, dressing=replace(DressingParams(), level_mm=level_mm))
+
+
+def check_betas(betas: str | tuple[float, ...] | None, body: str, option: str = "betas") -> tuple[float, ...] | None:
+    """`betas` (numbers, or an option's comma-separated text) as the shape values of `body`: finite
+    numbers, one per `shape_names` entry, within the body's range; None stays None (the motion's or the
+    body's own shape).  A ValueError names `option` and the body's shape values."""
+    if betas is None:
+        return None
+    model = load_body(body)
+    expected = f"{model.num_betas} comma-separated numbers ({', '.join(model.shape_names)}) for body {body!r}"
+    try:
+        values = tuple(float(v) for v in (betas.split(",") if isinstance(betas, str) else betas))
+    except (TypeError, ValueError):
+        raise ValueError(f"{option}: expected {expected}, got {betas!r}") from None
+    if len(values) != model.num_betas or not np.isfinite(values).all():
+        raise ValueError(f"{option}: expected {expected}, got {betas!r}")
+    try:
+        model.shape_coefficients(np.asarray(values))
+    except ValueError as exc:  # outside a shape grid's range
+        raise ValueError(f"{option}: {exc}") from None
+    return values
 
 
 def reuse_simulation(source: str | Path, target: Path, config: SimulationConfig) -> None:
@@ -289,7 +315,7 @@ def reuse_simulation(source: str | Path, target: Path, config: SimulationConfig)
         differ = config.differences(meta.get("config", {})) or ["the simulator's version"]
         raise ValueError(f"{source / 'sequence.npz'}: another simulation than this one's (recorded there, not here: "
                          f"{'; '.join(differ)}); give the options it was made with (--garment, --motion, --body, "
-                         "--seed, --level, --speed) or leave out --reuse-simulation")
+                         "--betas, --seed, --level, --speed) or leave out --reuse-simulation")
     for name in ("sequence.npz", "dressed.npz"):
         if (source / name).is_file() and not (target / name).exists():
             copy_file(source / name, target / name)
@@ -332,20 +358,23 @@ def capture(garment: str, motion: str, out: str | Path, frames: int = 12, first_
             cameras: int = 8, resolution: tuple[int, int] = (1920, 1080), render: RenderSettings = RenderSettings(),
             body: str = "default", radius: float = 3.0, camera_height: float = 1.3, seed: int = 0,
             progress: bool = True, simulation: str | Path | None = None, level_mm: int = DressingParams.level_mm,
-            motion_speed: float = 1.0) -> Path:
+            motion_speed: float = 1.0, betas: tuple[float, ...] | None = None) -> Path:
     """Render `frames` consecutive simulation frames from a ring of `cameras` (each fitting the garment
     in its view), with ground truth and ``contact_sheet.png``; returns the folder.  The garment is
-    simulated on template level `level_mm` with the motion at `motion_speed` (or taken from the
-    finished simulation folder `simulation`, which must be that simulation)."""
+    simulated on template level `level_mm` with the motion at `motion_speed` on the body shaped by
+    `betas` (None: the motion's or the body's own shape), or taken from the finished simulation folder
+    `simulation`, which must be that simulation."""
     out = Path(out)
+    betas = check_betas(betas, body)
     transition = int(round(SimulationConfig(garment, motion).transition_seconds * 120))
     start = transition if first_frame is None else first_frame
     picked = list(range(start, start + frames))
-    sim_config = simulation_config(garment, motion, body, picked[-1] + 1, seed, level_mm, motion_speed)
+    sim_config = simulation_config(garment, motion, body, picked[-1] + 1, seed, level_mm, motion_speed, betas)
     render = replace(render, resolution=tuple(resolution))
     # the images of a rerun join those already rendered: only a rerun of the same capture may add to them
     settings = {"simulation": sim_config.key(), "inputs": sim_config.inputs(), "frames": picked, "cameras": cameras,
-                "render": asdict(render), "radius": radius, "camera_height": camera_height, "seed": seed}
+                "render": asdict(render), "radius": radius, "camera_height": camera_height, "seed": seed,
+                "betas": betas}
     check_settings(out / "capture.json", settings)
     if simulation is not None:
         reuse_simulation(simulation, out / "sim", sim_config)
@@ -501,6 +530,9 @@ def _add_simulation_args(p: argparse.ArgumentParser) -> None:
                    help="template level (mm) the garment is simulated on (factory.simulate --level)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="built-in motions: speed multiplier (factory.simulate --speed)")
+    p.add_argument("--betas", metavar="V,V,...",
+                   help="the body's shape values, one per shape name (the default body: gender,weight,height, each "
+                   "in [0, 1]); default: the motion's own shape, else the body's default")
 
 
 def _check_sizes(args: argparse.Namespace, limits: Limits, last_frame: int, images_per_frame: tuple[str, int]) -> None:
@@ -527,14 +559,19 @@ def main(argv: list[str] | None = None) -> int:
     import factory.build  # it imports this module: imported when the CLI runs, not at import time
     import factory.merge
     from assets.cli import run_cli
+    from factory.recipe import build_recipe
 
     parser = argparse.ArgumentParser(prog="python -m factory.dataset", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     b = sub.add_parser("build", help="simulate, render and annotate a training dataset",
                        description=factory.build.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    b.add_argument("--garment", required=True)
-    b.add_argument("--motions", required=True, help="comma-separated motion names or files")
+    b.add_argument("--recipe", help="build a recipe's data (networks/recipes/NAME.toml, or a .toml file): its "
+                   "training and held-out parts, each a dataset folder under --out (`factory.recipe`); the "
+                   "recipe gives what --garment .. --texture-dpi give otherwise")
+    b.add_argument("--train-only", action="store_true", help="--recipe: its training parts only")
+    b.add_argument("--garment", help="the garment (required without --recipe)")
+    b.add_argument("--motions", help="comma-separated motion names or files (required without --recipe)")
     b.add_argument("--body", default="default")
     b.add_argument("--frames", type=int, default=DatasetConfig.frames, help="frames per motion")
     b.add_argument("--frame-step", type=int, default=DatasetConfig.frame_step, help="simulation frames between them")
@@ -557,7 +594,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="simulation frames (with their variations) per render + ground-truth task")
     b.add_argument("--reuse-simulation", action="append", default=[], metavar="MOTION=DIR",
                    help="a finished `factory.simulate` folder for a motion (repeatable), made with the same "
-                   "--garment, --body, --seed, --level and --speed")
+                   "--garment, --body, --betas, --seed, --level and --speed")
     b.add_argument("--out", type=Path, required=True)
     _add_render_args(b, "512")
     add_limit_options(b, ("pixels", "samples", "frames", "variations"))
@@ -590,7 +627,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def action() -> None:
-        if args.command == "build":
+        if args.command == "build" and args.recipe is not None:
+            if args.garment is not None or args.motions is not None:
+                raise ValueError("--recipe gives the garments and motions; leave out --garment and --motions")
+            started = time.perf_counter()
+            folders = build_recipe(args.recipe, args.out, args.shard, holdout=not args.train_only,
+                                   backend=args.backend, address=args.address, num_cpus=args.num_cpus,
+                                   shard_frames=args.shard_frames)
+            print(f"recipe {args.recipe}: {len(folders)} dataset folders in {args.out} "
+                  f"({time.perf_counter() - started:.0f} s); {args.out / 'recipe.json'} lists them")
+        elif args.command == "build":
+            if args.garment is None or args.motions is None:
+                raise ValueError("give --garment and --motions, or --recipe")
             try:
                 frame_list = tuple(int(f) for f in args.frame_list.split(",")) if args.frame_list else None
             except ValueError:
@@ -602,7 +650,8 @@ def main(argv: list[str] | None = None) -> int:
             last = max(frame_list) if frame_list else transition + args.frames * args.frame_step
             _check_sizes(args, limits_from_args(args), last, ("--variations", args.variations))
             config = DatasetConfig(garment=args.garment, motions=tuple(m for m in args.motions.split(",") if m),
-                                   body=args.body, frames=args.frames, frame_step=args.frame_step,
+                                   body=args.body, betas=check_betas(args.betas, args.body, "--betas"),
+                                   frames=args.frames, frame_step=args.frame_step,
                                    frame_list=frame_list, variations=args.variations, seed=args.seed,
                                    level_mm=args.level, motion_speed=args.speed, render=_render_settings(args),
                                    fov_deg=args.fov, fill=args.fill)
@@ -628,7 +677,8 @@ def main(argv: list[str] | None = None) -> int:
                              cameras=args.cameras, resolution=tuple(args.resolution),
                              render=_render_settings(args), body=args.body, radius=args.radius,
                              camera_height=args.height, seed=args.seed, simulation=args.reuse_simulation,
-                             level_mm=args.level, motion_speed=args.speed)
+                             level_mm=args.level, motion_speed=args.speed,
+                             betas=check_betas(args.betas, args.body, "--betas"))
             print(f"capture in {folder}: cameras.json, garment.npz, {args.cameras} camera folders; "
                   f"contact sheet {folder / 'contact_sheet.png'}")
         elif args.command == "merge":

@@ -175,6 +175,10 @@ def test_a_capture_frames_the_garment_in_every_camera_and_its_files_agree(tmp_pa
             np.testing.assert_array_equal(saved.marker_id, again.marker_id[kept])
             np.testing.assert_allclose(saved.points_px, again.points_px[kept], atol=1e-4)
     assert (out / "contact_sheet.png").is_file()
+    assert json.loads((out / "capture.json").read_text())["betas"] is None
+    with pytest.raises(ValueError, match="other settings or inputs \\(betas, simulation differ\\)"):
+        capture("shirt", "walk", out, frames=2, first_frame=3, cameras=3, resolution=(96, 64), render=TINY,
+                progress=False, simulation=sim, betas=(0.5, 0.5, 0.65))
 
 
 def _finished_simulation(folder: Path, config) -> Path:
@@ -240,3 +244,63 @@ def test_a_smaller_fill_shows_smaller_markers_and_a_bad_one_is_refused(tmp_path,
     assert main(["build", "--garment", "shirt", "--motions", "walk", "--fill", "1.5", "--out", str(tmp_path / "bad")]) == 1
     assert "fill must be in (0, 1]" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_dataset_records_its_betas_and_refuses_a_rerun_with_others(tmp_path):
+    from factory.build import _check_config
+
+    plain, shaped = tmp_path / "plain", tmp_path / "shaped"
+    plain.mkdir(), shaped.mkdir()
+    _check_config(plain, _config())
+    _check_config(shaped, _config(betas=(0.2, 0.4, 0.9)))
+    assert json.loads((plain / "config.json").read_text())["betas"] is None
+    assert json.loads((shaped / "config.json").read_text())["betas"] == [0.2, 0.4, 0.9]
+    _check_config(shaped, _config(betas=(0.2, 0.4, 0.9)))  # the same settings: taken up
+    for folder, other in ((plain, (0.2, 0.4, 0.9)), (shaped, None), (shaped, (0.2, 0.4, 1.0))):
+        with pytest.raises(ValueError, match=r"other settings.*'betas'"):
+            _check_config(folder, _config(betas=other))
+    saved = json.loads((plain / "config.json").read_text())
+    del saved["betas"]  # a folder made before the option
+    (plain / "config.json").write_text(json.dumps(saved))
+    _check_config(plain, _config())
+    with pytest.raises(ValueError, match="'betas'"):
+        _check_config(plain, _config(betas=(0.2, 0.4, 0.9)))
+    with pytest.raises(ValueError, match=r"betas: expected 3 comma-separated numbers"):
+        build(_config(betas=(0.5, 0.5)), tmp_path / "short", progress=False)
+    assert not (tmp_path / "short").exists()
+
+
+def test_every_simulation_of_a_dataset_and_a_capture_is_made_on_its_betas(tmp_path, capsys):
+    from dataclasses import replace
+
+    from factory.build import _simulation_of
+    from factory.dataset import main
+
+    config = replace(_config(betas=(0.2, 0.4, 0.9)), motions=("walk", "run"))
+    assert {_simulation_of(config, motion).betas for motion in config.motions} == {(0.2, 0.4, 0.9)}
+    assert _simulation_of(config, "walk").key() != _simulation_of(_config(), "walk").key()
+    assert _simulation_of(_config(), "walk").betas is None  # the motion's own shape, else the body's default
+
+    made = _finished_simulation(tmp_path, simulation_config("skirt", "walk", frames=3))
+    for argv in (["capture", "--motion", "walk", "--reuse-simulation", str(made)],
+                 ["build", "--motions", "walk", "--reuse-simulation", f"walk={made}"]):
+        out = tmp_path / argv[0]
+        assert main(argv + ["--garment", "skirt", "--betas", "0.2,0.4,0.9", "--out", str(out)]) == 1
+        assert "betas: None, not [0.2, 0.4, 0.9]" in capsys.readouterr().err
+        assert not (out / "sim").exists()
+
+
+@pytest.mark.parametrize("command", [["build", "--motions", "walk"], ["capture", "--motion", "walk"]])
+@pytest.mark.parametrize("betas, problem", [("0.5,0.5", "comma-separated numbers (gender, weight, height)"),
+                                            ("0.5,heavy,0.5", "comma-separated numbers (gender, weight, height)"),
+                                            ("nan,0.5,0.5", "comma-separated numbers (gender, weight, height)"),
+                                            ("0.5,0.5,1.4", "height=1.4 is outside [0, 1]")])
+def test_betas_that_do_not_fit_the_body_are_refused_before_anything_is_written(tmp_path, capsys, command, betas,
+                                                                               problem):
+    from factory.dataset import main
+
+    out = tmp_path / "out"
+    assert main(command + ["--garment", "shirt", "--betas", betas, "--out", str(out)]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("error: --betas: ") and problem in error, error
+    assert not out.exists()
