@@ -40,7 +40,7 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import ConcatDataset, Dataset
 from tqdm import tqdm
 
 from assets.fileio import load_json, load_npz, save_npz
@@ -629,6 +629,23 @@ def read_shard_meta(root: str | Path) -> dict:
 def shard_parts(root: str | Path) -> list[Path]:
     """The finished parts of a shard folder, in order (unfinished ones are *.tmp folders)."""
     return sorted(p for p in Path(root).glob("part_*") if p.is_dir() and p.suffix != ".tmp")
+
+
+class JoinedDataset(ConcatDataset):
+    """Datasets of one task as one, item after item (a recipe's dataset folders); `set_epoch` reaches
+    each of them."""
+
+    def __init__(self, datasets: Sequence[Dataset]):
+        super().__init__(datasets)
+        tasks = {getattr(d, "task", None) for d in self.datasets}
+        if len(tasks) != 1:
+            raise ValueError(f"JoinedDataset: datasets of different tasks {sorted(map(str, tasks))}")
+        self.task = tasks.pop()
+
+    def set_epoch(self, epoch: int) -> None:
+        for d in self.datasets:
+            if hasattr(d, "set_epoch"):
+                d.set_epoch(epoch)
 
 
 class MixedDataset(Dataset):

@@ -83,12 +83,13 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
 # ---- a factory dataset folder, read directly -------------------------------------------------------
 
 def split_entries(root: str | Path, split: str) -> list[dict]:
-    """The manifest entries (one dict per finished image) of `split` in a factory dataset folder."""
+    """The manifest entries (one dict per finished image) of `split` in a factory dataset folder
+    ("all": every image, as for a held-out garment's folder, which no network trained on)."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such dataset folder")
     entries = read_manifest(root)
-    chosen = [e for e in entries if e["split"] == split]
+    chosen = [e for e in entries if split in ("all", e["split"])]
     if not chosen:
         splits = sorted({str(e["split"]) for e in entries})
         raise ValueError(f"{root / 'manifest.jsonl'}: no images in split {split!r} "
@@ -400,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--checkpoint", type=Path, required=True, help="a checkpoint of networks.train (best.pt)")
     parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder (manifest.jsonl), or "
                         "a shard folder of synthesized samples (shards.json; every item, no --split)")
-    parser.add_argument("--split", default="test", help="train, val or test (default test)")
+    parser.add_argument("--split", default="test", help="train, val, test or all (default test)")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
     parser.add_argument("--batch-size", type=int, default=32, help="crops per batch (localizer: one image)")
     parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX,

@@ -6,9 +6,10 @@
     python -m networks.train crosspoints --data out/ds --out runs/xp --resume --time-limit 540
     python -m networks.train localizer --data out/ds --synth-weight 0.5 --shards shards/loc --out runs/loc
     python -m networks.train recognizer --data my_capture_ds --out runs/rec_ft --init runs/rec/best.pt --steps 5000
+    python -m networks.train --recipe modules_reader --data out/datasets/modules_reader --out runs/reader
 
-Data: `--data DIR` is a factory dataset folder (train split for training, val split for
-validation), mixed with synthesized samples at `--synth-weight`; `--data synth` trains and validates on
+Data: `--data DIR [DIR ...]` are factory dataset folders (their train splits joined for training,
+their val splits for validation), mixed with synthesized samples at `--synth-weight`; `--data synth` trains and validates on
 the synthesizer alone.  Synthesized training samples come from the synthesizer on the fly, or from a
 shard folder written before (`--shards`, `python -m networks.synth write`; validation stays on the
 rendered val split, or on the fly).  The garment (`--garment`, default the dataset's template.npz)
@@ -23,6 +24,12 @@ first batch and the first finished step),
 `best.pt` (the lowest validation loss).  `--resume` continues from `last.pt` with the same model,
 optimizer, learning-rate schedule, step, data order and random state; the run's saved config is the
 base and flags given on the command line override it.
+
+`--recipe NAME` trains a network of a recipe file (`networks.recipe`): the recipe's table is the
+config (flags given still override it, and the run folder's `recipe.json` records the recipe, its
+file's SHA-256 and what the flags changed), `--data` is the folder `factory.dataset build --recipe`
+made (checked to be this recipe's data; its training parts are the data), and a recipe starting from
+stored weights fetches them (or checks the `--init` file given against the manifest).
 
 Batches follow a fixed order (`StepOrder`): step s takes positions s*B .. (s+1)*B - 1 of a sequence of
 epochs, each an order of the training set seeded by (seed, epoch), and every item is itself seeded by
@@ -52,15 +59,17 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
+from assets.fileio import load_json, save_json
 from assets.pattern import PatternSpec, generate_codebook
 from networks.augment import Augment, ViewWarp
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
 from networks.codes import module_targets
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
-from networks.data import (MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids,
+from networks.data import (JoinedDataset, MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids,
                            shard_bend_problem)
 from networks.evaluate import evaluate_model, resolve_device
+from networks.recipe import check_data_folder, load_recipe, stored_init
 from networks.synth import SynthConfig
 from networks.tasks import autocast, build_model, forward
 from networks.workers import one_thread, worker_context
@@ -203,21 +212,50 @@ def lr_factor(step: int, config: TrainConfig) -> float:
     return config.min_lr_ratio + (1 - config.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
 
 
-def training_spec(data: str | Path, pattern: str | Path | None = None) -> PatternSpec:
-    """The pattern to train on: the `pattern` JSON file, else the dataset's own (`template.npz`),
-    else the default `PatternSpec()` (synthetic data)."""
+#: what `data` is throughout: "synth", one factory dataset folder, or several (a recipe's parts)
+Data = str | Path | list[Path] | tuple[Path, ...]
+
+
+def data_folders(data: Data) -> list[Path]:
+    """The factory dataset folders of `data` ([] for "synth"); each must exist."""
+    if isinstance(data, (list, tuple)):
+        folders = [Path(d) for d in data]
+        if not folders:
+            raise ValueError("no dataset folders given")
+    elif str(data) == "synth":
+        return []
+    else:
+        folders = [Path(data)]
+    for root in folders:
+        _dataset_root(root)
+    return folders
+
+
+def _describe(data: Data) -> str:
+    folders = data_folders(data)
+    return "synth" if not folders else ", ".join(str(f) for f in folders)
+
+
+def training_spec(data: Data, pattern: str | Path | None = None) -> PatternSpec:
+    """The pattern to train on: the `pattern` JSON file, else the datasets' own (`template.npz`; several
+    folders must share it), else the default `PatternSpec()` (synthetic data)."""
     if pattern is not None:
         return PatternSpec.load(pattern)
-    if str(data) != "synth" and (Path(data) / "template.npz").is_file():
-        return dataset_spec(data)
-    log.info("no pattern given and none in %s: training on the default PatternSpec()", data)
+    specs = [(root, dataset_spec(root)) for root in data_folders(data) if (root / "template.npz").is_file()]
+    for root, spec in specs[1:]:
+        if spec.to_dict() != specs[0][1].to_dict():
+            raise ValueError(f"{root}: printed with another pattern than {specs[0][0]} (template.npz layout_json.spec); "
+                             "train on folders of one pattern, or give --pattern")
+    if specs:
+        return specs[0][1]
+    log.info("no pattern given and none in %s: training on the default PatternSpec()", _describe(data))
     return PatternSpec()
 
 
-def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shards: str | Path | None = None,
+def make_datasets(config: TrainConfig, data: Data, spec: PatternSpec, shards: str | Path | None = None,
                   marker_ids: np.ndarray | None = None) -> tuple[Dataset, Dataset]:
-    """(training set, validation set) of `config.task` from a factory dataset folder and/or the
-    synthesizer (`data` == "synth"); synthesized training samples from the shard folder `shards` when
+    """(training set, validation set) of `config.task` from factory dataset folders (their train and
+    val splits joined) and/or the synthesizer (`data` == "synth"); synthesized training samples from the shard folder `shards` when
     given; marker_ids: the IDs to synthesize (default all); see the module docstring."""
     task = config.task
     augment = Augment() if config.augment else None
@@ -259,19 +297,22 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
                              f"trains on {list(image_size)} (image_size)")
         return dataset
 
-    if str(data) == "synth":
+    folders = data_folders(data)
+    if not folders:
         return (synth(length, config.seed, augment, size, crop_jitter_px=jitter),
                 synth(config.val_samples, config.seed + VAL_SEED_OFFSET, None, size, stored=False))
-    root = _dataset_root(data)
     view_warp = ViewWarp() if task == "localizer" and config.augment and config.view_warp else None
-    rendered = RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed,
-                               crop_px=config.image_size if task == "localizer" else None,
-                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial,
-                               decode_ahead=True, recognizer_bend=bend)
-    val = RenderedDataset(root, "val", task, spec=spec, seed=config.seed, recognizer_bend=bend)
-    for split, dataset in (("train", rendered), ("val", val)):
-        if len(dataset) == 0:
-            raise ValueError(f"{root}: the {split} split has no {task} samples")
+    parts = {"train": [], "val": []}
+    for k, root in enumerate(folders):  # each folder its own seed: their items k do not share draws
+        parts["train"].append(RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed + k,
+                                              crop_px=config.image_size if task == "localizer" else None,
+                                              crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial,
+                                              decode_ahead=True, recognizer_bend=bend))
+        parts["val"].append(RenderedDataset(root, "val", task, spec=spec, seed=config.seed, recognizer_bend=bend))
+        for split in parts:
+            if len(parts[split][-1]) == 0:
+                raise ValueError(f"{root}: the {split} split has no {task} samples")
+    rendered, val = (parts[s][0] if len(folders) == 1 else JoinedDataset(parts[s]) for s in ("train", "val"))
     if task == "localizer":  # synthesized images take the size of the rendered crops, so batches can mix them
         height, width = rendered[0]["image"].shape[1:]
         size = (width, height)
@@ -284,28 +325,32 @@ def make_datasets(config: TrainConfig, data: str | Path, spec: PatternSpec, shar
     return rendered, val
 
 
-def _dataset_root(data: str | Path) -> Path:
+def _dataset_root(data: Data) -> Path:
     root = Path(data)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such dataset folder (give a factory dataset folder or 'synth')")
     return root
 
 
-def run_marker_ids(config: TrainConfig, data: str | Path, garment: str | Path | None) -> tuple[np.ndarray | None,
-                                                                                            np.ndarray | None]:
+def run_marker_ids(config: TrainConfig, data: Data, garment: str | Path | None) -> tuple[np.ndarray | None,
+                                                                                  np.ndarray | None]:
     """(the garment's marker IDs or None, the recognizer's class IDs or None for the whole codebook).
-    The garment is `garment` (a dataset folder or template.npz), else the dataset's template.npz; a
-    module reader ("modules") learns from every codebook ID unless `garment` is given."""
+    The garment is `garment` (a dataset folder or template.npz), else the datasets' garments (the
+    union of their template.npz IDs); a module reader ("modules") learns from every codebook ID unless
+    `garment` is given."""
     reads_modules = config.task == "recognizer" and config.recognizer_classes == "modules"
-    if garment is None and not reads_modules and str(data) != "synth" \
-            and (_dataset_root(data) / "template.npz").is_file():
-        garment = data
-    ids = garment_marker_ids(garment) if garment is not None else None
+    if garment is not None:
+        ids = garment_marker_ids(garment)
+    elif not reads_modules:
+        garments = [root for root in data_folders(data) if (root / "template.npz").is_file()]
+        ids = np.unique(np.concatenate([garment_marker_ids(root) for root in garments])) if garments else None
+    else:
+        ids = None
     if config.task != "recognizer" or config.recognizer_classes != "garment":
         return ids, None
     if ids is None:
         raise ValueError(f"recognizer_classes 'garment' needs the garment whose marker IDs are the classes: "
-                         f"{data} has no template.npz; pass --garment (a factory dataset folder or its "
+                         f"{_describe(data)} has no template.npz; pass --garment (a factory dataset folder or its "
                          "template.npz) or --recognizer-ids codebook or modules")
     return ids, ids
 
@@ -325,11 +370,12 @@ def _check_resume(saved: dict, config: TrainConfig, path: Path) -> None:
                          f"{', '.join(RESUMABLE_CHANGES)} may change; use a new --out")
 
 
-def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | torch.device | None = None,
+def train(config: TrainConfig, data: Data, out: str | Path, device: str | torch.device | None = None,
           resume: bool = False, spec: PatternSpec | None = None, until_step: int | None = None,
           time_limit_s: float | None = None, progress: bool = True, shards: str | Path | None = None,
           garment: str | Path | None = None, ranks: Ranks | None = None, fit_to_time_limit: bool = False) -> dict:
-    """Train `config.task` on `data` (a factory dataset folder or "synth") into the run folder `out`.
+    """Train `config.task` on `data` (factory dataset folders, one or a list, or "synth") into the run
+    folder `out`.
 
     shards: a shard folder of `config.task` (`networks.shards`) to draw the synthesized training
     samples from.  garment: a factory dataset folder or template.npz whose marker IDs are
@@ -365,7 +411,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, device: str | 
             leave()
 
 
-def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.device, resume: bool,
+def _train(config: TrainConfig, data: Data, out: Path, device: torch.device, resume: bool,
            spec: PatternSpec | None, until_step: int | None, time_limit_s: float | None, progress: bool,
            shards: str | Path | None, garment: str | Path | None, ranks: Ranks, fit_to_time_limit: bool) -> dict:
     entered = time.monotonic()
@@ -434,8 +480,9 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
 
     stop = min(config.steps, until_step) if until_step is not None else config.steps
     sequence = StepOrder(train_set, config.steps * config.batch_size, config.seed,
-                         shuffle=isinstance(train_set, (RenderedDataset, ShardDataset)),
-                         chunk=32 if isinstance(train_set, RenderedDataset) and config.task != "localizer" else 1)
+                         shuffle=isinstance(train_set, (RenderedDataset, ShardDataset, JoinedDataset)),
+                         chunk=32 if isinstance(train_set, (RenderedDataset, JoinedDataset))
+                         and config.task != "localizer" else 1)
     batches = RankBatches(step, stop, config.batch_size, ranks)
     # own generators: creating a loader draws a seed, which must not disturb the global random state
     loader = data_loader(sequence, config.num_workers, batch_sampler=batches, pin_memory=device.type == "cuda",
@@ -453,7 +500,7 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
             return
         save_checkpoint(path, config.task, model, config, spec, optimizer if with_optimizer else None,
                         scheduler if with_optimizer else None, step, val_metrics or {},
-                        extra={"best_val_loss": best_val, "data": str(data),
+                        extra={"best_val_loss": best_val, "data": _describe(data),
                                "shards": None if shards is None else str(shards),
                                "recognizer_ids": None if class_ids is None else class_ids.tolist()})
 
@@ -557,14 +604,17 @@ def _train(config: TrainConfig, data: str | Path, out: Path, device: torch.devic
             "steps": config.steps}
 
 
-def _config_from_args(args: argparse.Namespace) -> TrainConfig:
-    """Saved run config (--resume), else --config, else the task's defaults; then the flags given."""
+def _config_from_args(args: argparse.Namespace, recipe_config: TrainConfig | None = None) -> TrainConfig:
+    """Saved run config (--resume), else --config or the recipe's, else the task's defaults; then the
+    flags given."""
     last = args.out / "last.pt"
     if args.resume and last.exists():
         saved = read_checkpoint(last)
         base = TrainConfig.from_dict(saved["config"], source=f"{last}:config")
     elif args.config is not None:
         base = TrainConfig.load(args.config)
+    elif recipe_config is not None:
+        base = recipe_config
     else:
         base = TrainConfig(task=args.task)
     if base.task != args.task:
@@ -584,13 +634,55 @@ def _config_from_args(args: argparse.Namespace) -> TrainConfig:
     return base.replace(**overrides)
 
 
+def _recipe_run(args: argparse.Namespace) -> tuple[TrainConfig, Data, dict]:
+    """--recipe: (the run's config, its data, the record saved as the run folder's recipe.json).  The
+    recipe's network is the base config; flags given still override it, and the record lists what
+    they changed."""
+    recipe = load_recipe(args.recipe)
+    args.task, network = recipe.network(args.task)
+    if args.config is not None:
+        raise ValueError("--recipe and --config both give the config; use one")
+    if network.data == "synth":
+        if args.data not in (None, ["synth"]):
+            raise ValueError(f"{recipe.path}: its {args.task} trains on the synthesizer alone; leave out --data")
+        data: Data = "synth"
+    else:
+        if args.data is None or len(args.data) != 1:
+            raise ValueError(f"{recipe.path}: its {args.task} trains on the recipe's renders; give --data, the "
+                             f"folder `python -m factory.dataset build --recipe {recipe.name}` made")
+        data = check_data_folder(recipe, args.data[0])
+    init = None if args.resume and (args.out / "last.pt").exists() else \
+        stored_init(network, args.task, args.init, args.out / "init")
+    args.init = None
+    config = _config_from_args(args, network.config.replace(init=None if init is None else str(init.resolve())))
+    record = recipe.record(args.task)
+    mine = network.config.to_dict()
+    record["changed"] = {k: v for k, v in config.to_dict().items() if k != "init" and v != mine[k]}
+    return config, data, record
+
+
+def _save_recipe_record(out: Path, record: dict) -> None:
+    """Write `out`/recipe.json; a run folder of another recipe, or of another version of its file, is refused."""
+    path = out / "recipe.json"
+    if path.is_file():
+        old = load_json(path)
+        if (old.get("recipe"), old.get("file_sha256")) != (record["recipe"], record["file_sha256"]):
+            raise ValueError(f"{path}: a run of recipe {old.get('recipe')!r} (file {str(old.get('file_sha256'))[:12]}), "
+                             f"not of this {record['recipe']!r} ({record['file_sha256'][:12]}); use another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    save_json(path, record)
+
+
 def main(argv: list[str] | None = None) -> int:
     from assets.cli import run_cli
 
     parser = argparse.ArgumentParser(prog="python -m networks.train", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("task", choices=TASKS, help="the network to train")
-    parser.add_argument("--data", required=True, help="a factory dataset folder, or 'synth' for synthesized data only")
+    parser.add_argument("task", choices=TASKS, nargs="?", help="the network to train (with --recipe: default its only one)")
+    parser.add_argument("--recipe", help="train a recipe's network (networks/recipes/NAME.toml, or a .toml file): "
+                        "its config is the base, its data the folder factory.dataset build --recipe made")
+    parser.add_argument("--data", nargs="+", metavar="DIR", help="factory dataset folders (their train and val "
+                        "splits joined), or 'synth' for synthesized data only; with --recipe: its built data folder")
     parser.add_argument("--out", type=Path, required=True, help="run folder: config.json, log.jsonl, last.pt, best.pt")
     parser.add_argument("--config", type=Path, help="a TrainConfig JSON file (flags below override it)")
     parser.add_argument("--synth-weight", type=float, help="share of synthesized samples mixed into a dataset (0-1)")
@@ -643,9 +735,17 @@ def main(argv: list[str] | None = None) -> int:
         ranks = Ranks.from_environment()
         if not ranks.main:  # rank 0 speaks for all
             logging.getLogger().setLevel(logging.WARNING)
-        config = _config_from_args(args)
+        if args.recipe is not None:
+            config, data, record = _recipe_run(args)
+            if ranks.main:
+                _save_recipe_record(args.out, record)
+        else:
+            if args.task is None or args.data is None:
+                parser.error("give the task and --data, or --recipe")
+            config = _config_from_args(args)
+            data = args.data[0] if len(args.data) == 1 else [Path(d) for d in args.data]
         spec = PatternSpec.load(args.pattern) if args.pattern is not None else None
-        result = train(config, args.data, args.out, args.device, args.resume, spec, args.until_step,
+        result = train(config, data, args.out, args.device, args.resume, spec, args.until_step,
                        args.time_limit, progress=not args.quiet, shards=args.shards, garment=args.garment,
                        ranks=ranks, fit_to_time_limit=args.fit_time_limit)
         if not ranks.main:

@@ -51,7 +51,8 @@ def repository_root(start: str | Path | None = None) -> Path:
     return Path(_git(start, "rev-parse", "--show-toplevel").decode().strip())
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of a file's bytes, in hex."""
     digest = hashlib.sha256()
     with open(path, "rb") as stream:
         for block in iter(lambda: stream.read(1 << 20), b""):
@@ -121,7 +122,7 @@ def store(folder: str | Path, root: str | Path | None = None, source: str = "") 
 
     manifest = read_manifest(root)
     for task, path in files.items():
-        manifest["weights"][task] = {"file": path.name, "commit": orphan, "sha256": _sha256(path),
+        manifest["weights"][task] = {"file": path.name, "commit": orphan, "sha256": file_sha256(path),
                                      "bytes": path.stat().st_size, "source": source, **records[task]}
     target = root / MANIFEST
     with atomic_path(target) as tmp:
@@ -149,14 +150,14 @@ def fetch(out: str | Path, root: str | Path | None = None, tasks: tuple[str, ...
     for task in tasks:
         entry = manifest[task]
         target = out / entry["file"]
-        if not (target.is_file() and _sha256(target) == entry["sha256"]):
+        if not (target.is_file() and file_sha256(target) == entry["sha256"]):
             if subprocess.run(["git", "-C", str(root), "cat-file", "-e", f"{entry['commit']}^{{commit}}"],
                               capture_output=True).returncode != 0:
                 raise ValueError(f"{root}: lacks commit {entry['commit'][:12]} holding the {task} weights "
                                  "(a shallow clone? run git fetch --unshallow)")
             with atomic_path(target) as tmp:
                 Path(tmp).write_bytes(_git(root, "cat-file", "blob", f"{entry['commit']}:{entry['file']}"))
-                if _sha256(Path(tmp)) != entry["sha256"]:
+                if file_sha256(Path(tmp)) != entry["sha256"]:
                     raise ValueError(f"{root}: {entry['commit'][:12]}:{entry['file']} does not match the "
                                      f"manifest's SHA-256")
         written[task] = target

@@ -245,6 +245,8 @@ def test_crosspoint_errors_by_marker_size():
 def test_folder_batches_carry_consistent_ground_truth(dataset):
     entries = split_entries(dataset, "test")
     assert len(entries) == 3
+    everything = split_entries(dataset, "all")  # a held-out garment's folder: every image
+    assert len(everything) > 3 and all(e in everything for e in entries)
     with pytest.raises(ValueError, match="no images in split 'nope'.*test, train, val"):
         split_entries(dataset, "nope")
     with pytest.raises(FileNotFoundError, match="no such dataset folder"):

@@ -1,0 +1,186 @@
+"""Network recipes: the `[networks.<task>]` tables of a recipe file, as training runs.
+
+    python -m factory.dataset build --recipe modules_reader --out out/datasets/modules_reader
+    python -m networks.train --recipe modules_reader --data out/datasets/modules_reader --out runs/reader
+
+A recipe file (`networks/recipes/NAME.toml`, found by `assets.recipes`) holds a shipped network's
+whole making: `[data]`, the renders (`factory.recipe`), and per network a table of `TrainConfig`
+fields (the task is the table's name) plus two of its own::
+
+    [networks.recognizer]
+    data = "rendered"            # the recipe's training parts, mixed with the synthesizer at synth_weight;
+                                 # "synth": the synthesizer alone
+    init = "weights:recognizer"  # start from a stored network (networks/weights.json), or leave it out
+    recognizer_classes = "modules"
+    steps = 8000
+
+Fields a table leaves out take `TrainConfig`'s defaults, so the file is the whole config only
+together with the commit that reads it; a run therefore saves the recipe's name, its file's digest
+and the commit beside its config (`recipe.json` in the run folder).  A rendered run checks that its
+data folder was built from this recipe's `[data]` table (its digest in the folder's `recipe.json`),
+and an `init` from stored weights is checked against the manifest's SHA-256, so a run never starts
+from other weights or data than the recipe names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from assets.fileio import check_json_object, load_json
+from assets.recipes import read_recipe, table_digest
+from networks.config import TASKS, TrainConfig
+from networks.weights import MANIFEST, fetch, file_sha256, read_manifest
+
+#: a recipe network's sources of training data
+DATA_SOURCES = ("rendered", "synth")
+#: the prefix of an `init` that names stored weights (`networks.weights`)
+STORED = "weights:"
+#: the record `factory.dataset build --recipe` writes into its output folder
+DATA_RECORD = "recipe.json"
+
+
+@dataclass(frozen=True)
+class NetworkRecipe:
+    """One network of a recipe: its training config, where its data comes from (`DATA_SOURCES`) and
+    the stored weights it starts from (a `networks.weights` task name, or None)."""
+
+    config: TrainConfig
+    data: str = "rendered"
+    init_weights: str | None = None
+
+    @classmethod
+    def from_table(cls, task: str, table: object, source: str) -> "NetworkRecipe":
+        where = f"{source} [networks.{task}]"
+        if not isinstance(table, dict):
+            raise ValueError(f"{where}: expected a table, got {type(table).__name__}")
+        table = dict(table)
+        data = table.pop("data", "rendered")
+        if data not in DATA_SOURCES:
+            raise ValueError(f"{where}: data must be one of {', '.join(DATA_SOURCES)}, got {data!r}")
+        init = table.pop("init", None)
+        stored = None
+        if init is not None:
+            if not (isinstance(init, str) and init.startswith(STORED) and init[len(STORED):] in TASKS):
+                raise ValueError(f"{where}: init must name stored weights as '{STORED}<task>' "
+                                 f"({', '.join(TASKS)}), got {init!r}")
+            stored = init[len(STORED):]
+        if "task" in table:
+            raise ValueError(f"{where}: the table's name is the task; remove 'task'")
+        if data == "synth" and table.get("synth_weight", 1.0) != 1.0:
+            raise ValueError(f"{where}: data 'synth' trains on the synthesizer alone; synth_weight must be 1 or absent")
+        check_json_object(table, [f.name for f in dataclasses.fields(TrainConfig)], where)
+        try:  # fields left out take TrainConfig's defaults (from_dict reads old saved configs otherwise)
+            config = TrainConfig(task=task, **table)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        if data == "synth":
+            config = config.replace(synth_weight=1.0)
+        return cls(config, data, stored)
+
+    def to_table(self) -> dict:
+        """The table that reads back as this recipe (every TrainConfig field written out)."""
+        table = {k: v for k, v in self.config.to_dict().items() if k not in ("task", "init") and v is not None}
+        table["data"] = self.data
+        if self.init_weights is not None:
+            table["init"] = STORED + self.init_weights
+        return table
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A recipe file: its name, file, `[data]` table (as read; `factory.recipe` builds it) and networks."""
+
+    name: str
+    path: Path
+    data: dict | None
+    networks: dict[str, NetworkRecipe]
+
+    @property
+    def data_digest(self) -> str | None:
+        return None if self.data is None else table_digest(self.data)
+
+    def network(self, task: str | None) -> tuple[str, NetworkRecipe]:
+        """(task, its recipe): `task`, or the recipe's only network when None."""
+        if task is None:
+            if len(self.networks) != 1:
+                raise ValueError(f"{self.path}: trains {', '.join(self.networks)}; name the task to train")
+            task = next(iter(self.networks))
+        if task not in self.networks:
+            raise ValueError(f"{self.path}: no [networks.{task}] table (it trains {', '.join(self.networks)})")
+        return task, self.networks[task]
+
+    def record(self, task: str) -> dict:
+        """What a run of `task` saves beside its config: the recipe, its file's SHA-256, its tables."""
+        return {"recipe": self.name, "file_sha256": hashlib.sha256(self.path.read_bytes()).hexdigest(),
+                "data_digest": self.data_digest, "task": task, "network": self.networks[task].to_table()}
+
+
+def load_recipe(name: str | Path) -> Recipe:
+    """Read and check recipe `name` (a name in networks/recipes or a .toml path)."""
+    path, tables = read_recipe(name)
+    unknown = sorted(set(tables) - {"data", "networks", "description"})
+    if unknown:
+        raise ValueError(f"{path}: unknown table(s) {', '.join(unknown)} (a recipe has [data] and [networks.<task>])")
+    networks = tables.get("networks")
+    if not isinstance(networks, dict) or not networks:
+        raise ValueError(f"{path}: no [networks.<task>] table ({', '.join(TASKS)})")
+    if unknown := sorted(set(networks) - set(TASKS)):
+        raise ValueError(f"{path}: [networks.{unknown[0]}] is not a network ({', '.join(TASKS)})")
+    parsed = {task: NetworkRecipe.from_table(task, table, str(path)) for task, table in networks.items()}
+    rendered = [task for task, recipe in parsed.items() if recipe.data == "rendered"]
+    if rendered and "data" not in tables:
+        raise ValueError(f"{path}: {', '.join(rendered)} train(s) on renders, but the recipe has no [data] table")
+    return Recipe(path.stem, path, tables.get("data"), parsed)
+
+
+def stored_init(network: NetworkRecipe, task: str, given: str | Path | None, cache: str | Path) -> Path | None:
+    """The checkpoint a recipe network starts from: None without an `init`; else `given` (a file whose
+    SHA-256 must be the manifest's for the stored `init` weights, for a machine without the repository's
+    history), or the stored weights fetched into `cache` (`networks.weights.fetch`)."""
+    if network.init_weights is None:
+        if given is not None:
+            raise ValueError(f"the recipe's {task} starts from no stored weights; leave out --init")
+        return None
+    root = Path(__file__).resolve().parents[1]
+    manifest = read_manifest(root)["weights"]
+    entry = manifest.get(network.init_weights)
+    if entry is None:
+        raise ValueError(f"{root / MANIFEST}: no stored {network.init_weights} weights, which the recipe starts from")
+    if given is None:
+        return fetch(cache, root, (network.init_weights,))[network.init_weights]
+    given = Path(given)
+    if not given.is_file():
+        raise FileNotFoundError(f"{given}: no such checkpoint (--init)")
+    if file_sha256(given) != entry["sha256"]:
+        raise ValueError(f"{given}: not the stored {network.init_weights} weights the recipe starts from (its SHA-256 "
+                         f"differs from {root / MANIFEST}'s); fetch them with python -m networks.weights fetch")
+    return given
+
+
+def check_data_folder(recipe: Recipe, folder: str | Path) -> list[Path]:
+    """The training part folders of `folder`, a build of `recipe`'s data; refused, naming the folder, when
+    it was built from another recipe or another `[data]` table."""
+    folder = Path(folder)
+    record_path = folder / DATA_RECORD
+    if not record_path.is_file():
+        raise FileNotFoundError(f"{folder}: no {DATA_RECORD}; build the data with "
+                                f"python -m factory.dataset build --recipe {recipe.name} --out {folder}")
+    record = load_json(record_path)
+    if not isinstance(record, dict) or record.get("data_digest") != recipe.data_digest:
+        built = record.get("recipe") if isinstance(record, dict) else None
+        raise ValueError(f"{record_path}: built from recipe {built!r} with another [data] table than "
+                         f"{recipe.path}'s; rebuild it or train on the folder made from this recipe")
+    parts = record.get("parts", {}).get("train")
+    if not isinstance(parts, list) or not parts:
+        raise ValueError(f"{record_path}: lists no training parts")
+    missing = [p for p in parts if not (folder / p / "manifest.jsonl").is_file()]
+    if missing:
+        raise ValueError(f"{folder}: unfinished parts {', '.join(missing)}; run factory.dataset build --recipe "
+                         f"{recipe.name} --out {folder} again")
+    return [folder / p for p in parts]
+
+
+__all__ = ["DATA_SOURCES", "NetworkRecipe", "Recipe", "check_data_folder", "load_recipe", "stored_init"]
