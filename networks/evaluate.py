@@ -30,6 +30,7 @@ factory made the crop) and compares them with the ground-truth image crosspoints
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -50,7 +51,7 @@ from networks.config import SMOOTH_CROSSPOINTS_PX, TASKS
 from networks.data import SHARD_META, ShardDataset, shard_bend_problem
 from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
-from networks.data import dataset_spec
+from networks.data import dataset_spec, garment_marker_ids
 from networks.decode import decode_localizer
 from networks.homography import crop_to_image, marker_side_px, smooth_crosspoints
 from networks.metrics import (
@@ -233,9 +234,11 @@ class _Results:
     """Accumulates one task's predictions, ground truth and loss over batches."""
 
     def __init__(self, task: str, spec: PatternSpec | None, radius_px: float, threshold: float,
-                 crop: CropSpec = CROSSPOINT_CROP, decoder: CodeDecoder | None = None) -> None:
+                 crop: CropSpec = CROSSPOINT_CROP, decoder: CodeDecoder | None = None,
+                 candidates: torch.Tensor | None = None) -> None:
         self.task, self.spec, self.radius_px, self.threshold, self.crop = task, spec, radius_px, threshold, crop
         self.decoder = decoder  # a module reader's: its logits ranked as codebook IDs
+        self.candidates = candidates  # an ID classifier's: (num_ids,) bool, the IDs it may answer
         self.samples = 0
         self.loss: dict[str, float] = {}
         self.store: dict[str, list] = {}
@@ -256,6 +259,8 @@ class _Results:
                       gt=[cells_to_markers(c) for c in batch["cells"].numpy()], full=batch.get("gt_full"),
                       ignore=batch.get("gt_ignore"))
         elif self.task == "recognizer":
+            if self.decoder is None and self.candidates is not None:
+                output = output.masked_fill(~self.candidates.to(output.device), -math.inf)
             ranked = self.decoder.ranked(output, 5) if self.decoder is not None \
                 else torch.topk(output, min(5, output.shape[1]), dim=1).indices
             self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy(),
@@ -317,11 +322,12 @@ def evaluate_model(task: str, model: nn.Module, batches: Iterable[dict], device:
 @torch.no_grad()
 def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thresholds: Sequence[float],
                       device: str | torch.device = "cpu", spec: PatternSpec | None = None,
-                      mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX, progress: bool = False
-                      ) -> dict[float, dict]:
+                      mixed_precision: bool = True, radius_px: float = MATCH_RADIUS_PX, progress: bool = False,
+                      marker_ids: np.ndarray | None = None) -> dict[float, dict]:
     """`evaluate_model` at each of `thresholds` (presence or visibility probability) from one pass of the
     network over `batches`: {threshold: metrics}.  A module reader (`networks.tasks.reads_modules`) needs
-    `spec`: its targets and decoded IDs come from the pattern's codebook."""
+    `spec`: its targets and decoded IDs come from the pattern's codebook.  marker_ids: a recognizer
+    answers among these IDs only (a garment's, as the Detector restricts it), else among all it knows."""
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
     if not thresholds or not all(0 < t < 1 for t in thresholds):
@@ -332,10 +338,14 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
         if spec is None:
             raise ValueError("evaluate_model: a module-reading recognizer needs the pattern (spec) to decode IDs")
         codebook = generate_codebook(spec)
-        codes, decoder = module_targets(codebook).to(device), CodeDecoder(codebook, device=device)
+        codes, decoder = module_targets(codebook).to(device), CodeDecoder(codebook, marker_ids, device=device)
+    candidates = None
+    if task == "recognizer" and decoder is None and marker_ids is not None:
+        candidates = torch.zeros(spec.num_ids if spec is not None else int(np.max(marker_ids)) + 1, dtype=torch.bool)
+        candidates[torch.as_tensor(np.asarray(marker_ids, dtype=np.int64))] = True
     was_training = model.training
     model.eval()
-    results = {t: _Results(task, spec, radius_px, t, model_crop(model), decoder) for t in thresholds}
+    results = {t: _Results(task, spec, radius_px, t, model_crop(model), decoder, candidates) for t in thresholds}
     try:
         for batch in tqdm(batches, desc=f"evaluate {task}", unit="batch", disable=not progress, leave=False):
             with autocast(device, mixed_precision):
@@ -349,16 +359,20 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
 
 def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task: str | None = None,
              device: str | torch.device | None = None, batch_size: int = 32, radius_px: float = MATCH_RADIUS_PX,
-             threshold: float = 0.5, progress: bool = True) -> dict:
+             threshold: float = 0.5, progress: bool = True, garment_ids: bool = False) -> dict:
     """Evaluate the checkpoint on `split` of the factory dataset folder `data`, or on every item of a
     shard folder of synthesized samples (`networks.synth write`; `split` is then "shards"); a dict of
-    metrics with the checkpoint's task, step and the data it was measured on."""
-    return evaluate_at(checkpoint, data, [threshold], split, task, device, batch_size, radius_px, progress)[threshold]
+    metrics with the checkpoint's task, step and the data it was measured on.  garment_ids: a
+    recognizer answers among the IDs printed on the dataset's garment (its template.npz), as the
+    Detector restricts it to the garment it is given."""
+    return evaluate_at(checkpoint, data, [threshold], split, task, device, batch_size, radius_px, progress,
+                       garment_ids)[threshold]
 
 
 def evaluate_at(checkpoint: str | Path, data: str | Path, thresholds: Sequence[float], split: str = "test",
                 task: str | None = None, device: str | torch.device | None = None, batch_size: int = 32,
-                radius_px: float = MATCH_RADIUS_PX, progress: bool = True) -> dict[float, dict]:
+                radius_px: float = MATCH_RADIUS_PX, progress: bool = True, garment_ids: bool = False
+                ) -> dict[float, dict]:
     """`evaluate` at each of `thresholds`, the network run once: {threshold: metrics}."""
     device = resolve_device(device)
     model, config, saved = load_checkpoint(checkpoint, expected_task=task, device=device)
@@ -368,10 +382,16 @@ def evaluate_at(checkpoint: str | Path, data: str | Path, thresholds: Sequence[f
     batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model), model_bend(model))
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
+    marker_ids = None
+    if garment_ids:
+        if config.task != "recognizer" or not (Path(data) / "template.npz").is_file():
+            raise ValueError(f"{data}: garment IDs restrict a recognizer on a factory dataset folder with a "
+                             f"template.npz (here a {config.task} checkpoint)")
+        marker_ids = garment_marker_ids(data)
     metrics = evaluate_model_at(config.task, model, batches, thresholds, device, spec, config.mixed_precision,
-                                radius_px, progress)
+                                radius_px, progress, marker_ids)
     return {t: {"task": config.task, "checkpoint": str(checkpoint), "step": int(saved["step"]), "data": str(data),
-                "split": split, **m} for t, m in metrics.items()}
+                "split": split, "garment_ids": marker_ids is not None, **m} for t, m in metrics.items()}
 
 
 def format_table(metrics: dict) -> str:
@@ -407,6 +427,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX,
                         help="localizer: match radius between predicted and true centres, pixels")
     parser.add_argument("--threshold", type=float, default=0.5, help="presence / visibility probability threshold")
+    parser.add_argument("--garment-ids", action="store_true", help="recognizer: answer among the IDs printed on the "
+                        "dataset's garment (its template.npz), as the Detector does for the garment it is given")
     parser.add_argument("--json", type=Path, help="where to write the metrics (default: beside the checkpoint, "
                                                   "eval_<task>_<split>.json)")
     args = parser.parse_args(argv)
@@ -415,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.batch_size < 1 or not 0 < args.threshold < 1 or not args.radius > 0:
             raise ValueError("--batch-size must be >= 1, --threshold in (0, 1), --radius > 0")
         metrics = evaluate(args.checkpoint, args.data, args.split, args.task, args.device, args.batch_size,
-                           args.radius, args.threshold)
+                           args.radius, args.threshold, garment_ids=args.garment_ids)
         out = args.json or args.checkpoint.with_name(f"eval_{args.task}_{args.split}.json")
         save_json(out, metrics)
         print(format_table(metrics))

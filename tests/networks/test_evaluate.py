@@ -396,3 +396,28 @@ def test_crosspoint_results_give_the_detectors_smoothed_crosspoints_beside_the_n
     assert smoothed["median"] < 0.5 * raw["median"]
     assert metrics["smoothed"]["image_error_px"]["median"] == pytest.approx(smoothed["median"], abs=1e-4)
     assert metrics["smoothed"]["fully_visible"]["crops"] == n
+
+
+@pytest.mark.parametrize("classes", ["codebook", "modules"])
+def test_a_recognizer_restricted_to_the_garment_s_ids_answers_among_them(classes, dataset, tmp_path):
+    """--garment-ids: an ID classifier's and a module reader's answers come from the garment's IDs
+    only (the Detector's restriction), so an untrained network is right among the few IDs printed."""
+    from tests.networks.test_recipe import write_template
+
+    torch.manual_seed(3)
+    model = build_model("recognizer", SPEC.num_ids, SPEC.crosspoints_per_side, recognizer_classes=classes,
+                        modules_per_side=SPEC.modules_per_side)
+    path = save_checkpoint(tmp_path / "rec.pt", "recognizer", model,
+                           TrainConfig("recognizer", recognizer_classes=classes), SPEC, step=1)
+    seen = np.unique(np.concatenate([np.load(dataset / e["samples"])["recognizer_ids"]
+                                     for e in split_entries(dataset, "test")]))
+    assert 1 <= len(seen) <= 5
+    garment = tmp_path / "garment"
+    shutil.copytree(dataset, garment)
+    write_template(garment, SPEC, [(int(i), 1, 1) for i in seen])
+    anywhere = evaluate(path, garment, "test", task="recognizer", device="cpu", progress=False)
+    among = evaluate(path, garment, "test", task="recognizer", device="cpu", progress=False, garment_ids=True)
+    assert among["garment_ids"] and not anywhere["garment_ids"]
+    assert among["top5"] == 1.0 and among["top1"] >= anywhere["top1"]  # the true ID is always a candidate
+    with pytest.raises(ValueError, match="garment IDs restrict a recognizer on a factory dataset folder"):
+        evaluate(path, dataset, "test", task="recognizer", device="cpu", progress=False, garment_ids=True)

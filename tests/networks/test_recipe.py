@@ -165,7 +165,7 @@ def test_a_recipe_s_stored_weights_are_checked(tmp_path):
 
 
 
-def _template(folder: Path, spec: PatternSpec, panels: list[tuple[int, int, int]]) -> Path:
+def write_template(folder: Path, spec: PatternSpec, panels: list[tuple[int, int, int]]) -> Path:
     """folder/template.npz with what the networks read of a garment: its layout's spec and panels of
     (first_id, rows, cols)."""
     layout = {"spec": spec.to_dict(), "panels": [{"name": f"p{k}", "spec": {**spec.to_dict(), "rows": r, "cols": c},
@@ -176,11 +176,11 @@ def _template(folder: Path, spec: PatternSpec, panels: list[tuple[int, int, int]
 
 
 def test_joined_folders_share_one_pattern_and_their_garments_ids(tmp_path):
-    first = _template(tmp_path / "a", SPEC, [(0, 2, 2)])
-    second = _template(tmp_path / "b", SPEC, [(2, 1, 3), (40, 1, 1)])
+    first = write_template(tmp_path / "a", SPEC, [(0, 2, 2)])
+    second = write_template(tmp_path / "b", SPEC, [(2, 1, 3), (40, 1, 1)])
     assert training_spec([first, second]) == SPEC
     ids, classes = run_marker_ids(TrainConfig("recognizer", recognizer_classes="garment"), [first, second], None)
     assert ids.tolist() == classes.tolist() == [0, 1, 2, 3, 4, 40]
-    other = _template(tmp_path / "c", PatternSpec(rows=2, cols=2, num_ids=80), [(0, 1, 1)])
+    other = write_template(tmp_path / "c", PatternSpec(rows=2, cols=2, num_ids=80), [(0, 1, 1)])
     with pytest.raises(ValueError, match=f"{other}: printed with another pattern than {first}"):
         training_spec([first, other])
