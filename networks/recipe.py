@@ -10,16 +10,20 @@ fields (the task is the table's name) plus two of its own::
     [networks.recognizer]
     data = "rendered"            # the recipe's training parts, mixed with the synthesizer at synth_weight;
                                  # "synth": the synthesizer alone
-    init = "weights:recognizer"  # start from a stored network (networks/weights.json), or leave it out
     recognizer_classes = "modules"
     steps = 8000
+
+    [networks.recognizer.init]   # start from stored weights, pinned: a commit of the repository's history
+    commit = "48d0ed67..."       # (`networks.weights`), the file there and its SHA-256; or leave it out
+    file = "recognizer.pt"
+    sha256 = "c48c5c1d..."
 
 Fields a table leaves out take `TrainConfig`'s defaults, so the file is the whole config only
 together with the commit that reads it; a run therefore saves the recipe's name, its file's digest
 and the commit beside its config (`recipe.json` in the run folder).  A rendered run checks that its
 data folder was built from this recipe's `[data]` table (its digest in the folder's `recipe.json`),
-and an `init` from stored weights is checked against the manifest's SHA-256, so a run never starts
-from other weights or data than the recipe names.
+and its `init` is checked against the SHA-256 pinned in the recipe, so a run never starts from
+other weights or data than the recipe names (weights stored later do not change what it starts from).
 """
 
 from __future__ import annotations
@@ -32,24 +36,46 @@ from pathlib import Path
 from assets.fileio import check_json_object, load_json
 from assets.recipes import read_recipe, table_digest
 from networks.config import TASKS, TrainConfig
-from networks.weights import MANIFEST, fetch, file_sha256, read_manifest
+from networks.weights import fetch_blob, file_sha256
 
 #: a recipe network's sources of training data
 DATA_SOURCES = ("rendered", "synth")
-#: the prefix of an `init` that names stored weights (`networks.weights`)
-STORED = "weights:"
+#: the keys of a recipe network's `init` table: stored weights pinned in the repository's history
+INIT_KEYS = ("commit", "file", "sha256")
 #: the record `factory.dataset build --recipe` writes into its output folder
 DATA_RECORD = "recipe.json"
 
 
 @dataclass(frozen=True)
+class StoredInit:
+    """Weights a recipe network starts from: `file` of commit `commit` of the repository's history
+    (where `networks.weights store` keeps them), whose bytes have SHA-256 `sha256`."""
+
+    commit: str
+    file: str
+    sha256: str
+
+    @classmethod
+    def from_table(cls, table: object, where: str) -> "StoredInit":
+        if not isinstance(table, dict) or sorted(table) != sorted(INIT_KEYS) or \
+                not all(isinstance(v, str) and v for v in table.values()):
+            raise ValueError(f"{where}: init must be a table of {', '.join(INIT_KEYS)} (stored weights pinned in "
+                             f"the repository's history, networks/weights.json lists them), got {table!r}")
+        hexadecimal = set("0123456789abcdef")
+        if len(table["commit"]) != 40 or len(table["sha256"]) != 64 or \
+                not set(table["commit"] + table["sha256"]) <= hexadecimal:
+            raise ValueError(f"{where}: init.commit must be 40 and init.sha256 64 lowercase hex digits")
+        return cls(table["commit"], table["file"], table["sha256"])
+
+
+@dataclass(frozen=True)
 class NetworkRecipe:
     """One network of a recipe: its training config, where its data comes from (`DATA_SOURCES`) and
-    the stored weights it starts from (a `networks.weights` task name, or None)."""
+    the stored weights it starts from (or None)."""
 
     config: TrainConfig
     data: str = "rendered"
-    init_weights: str | None = None
+    init: StoredInit | None = None
 
     @classmethod
     def from_table(cls, task: str, table: object, source: str) -> "NetworkRecipe":
@@ -61,12 +87,7 @@ class NetworkRecipe:
         if data not in DATA_SOURCES:
             raise ValueError(f"{where}: data must be one of {', '.join(DATA_SOURCES)}, got {data!r}")
         init = table.pop("init", None)
-        stored = None
-        if init is not None:
-            if not (isinstance(init, str) and init.startswith(STORED) and init[len(STORED):] in TASKS):
-                raise ValueError(f"{where}: init must name stored weights as '{STORED}<task>' "
-                                 f"({', '.join(TASKS)}), got {init!r}")
-            stored = init[len(STORED):]
+        stored = None if init is None else StoredInit.from_table(init, where)
         if "task" in table:
             raise ValueError(f"{where}: the table's name is the task; remove 'task'")
         if data == "synth" and table.get("synth_weight", 1.0) != 1.0:
@@ -84,8 +105,8 @@ class NetworkRecipe:
         """The table that reads back as this recipe (every TrainConfig field written out)."""
         table = {k: v for k, v in self.config.to_dict().items() if k not in ("task", "init") and v is not None}
         table["data"] = self.data
-        if self.init_weights is not None:
-            table["init"] = STORED + self.init_weights
+        if self.init is not None:
+            table["init"] = dataclasses.asdict(self.init)
         return table
 
 
@@ -138,25 +159,22 @@ def load_recipe(name: str | Path) -> Recipe:
 
 def stored_init(network: NetworkRecipe, task: str, given: str | Path | None, cache: str | Path) -> Path | None:
     """The checkpoint a recipe network starts from: None without an `init`; else `given` (a file whose
-    SHA-256 must be the manifest's for the stored `init` weights, for a machine without the repository's
-    history), or the stored weights fetched into `cache` (`networks.weights.fetch`)."""
-    if network.init_weights is None:
+    SHA-256 must be the pinned one, for a machine without the repository's history), or the pinned
+    weights written from the history into `cache` (`networks.weights.fetch_blob`)."""
+    if network.init is None:
         if given is not None:
             raise ValueError(f"the recipe's {task} starts from no stored weights; leave out --init")
         return None
-    root = Path(__file__).resolve().parents[1]
-    manifest = read_manifest(root)["weights"]
-    entry = manifest.get(network.init_weights)
-    if entry is None:
-        raise ValueError(f"{root / MANIFEST}: no stored {network.init_weights} weights, which the recipe starts from")
+    init = network.init
     if given is None:
-        return fetch(cache, root, (network.init_weights,))[network.init_weights]
+        root = Path(__file__).resolve().parents[1]
+        return fetch_blob(root, init.commit, init.file, init.sha256, Path(cache) / init.file, f"{task} init")
     given = Path(given)
     if not given.is_file():
         raise FileNotFoundError(f"{given}: no such checkpoint (--init)")
-    if file_sha256(given) != entry["sha256"]:
-        raise ValueError(f"{given}: not the stored {network.init_weights} weights the recipe starts from (its SHA-256 "
-                         f"differs from {root / MANIFEST}'s); fetch them with python -m networks.weights fetch")
+    if file_sha256(given) != init.sha256:
+        raise ValueError(f"{given}: not the weights the recipe's {task} starts from (SHA-256 {init.sha256[:12]}..., "
+                         f"{init.commit[:12]}:{init.file}); leave out --init to write them from the history")
     return given
 
 
@@ -183,4 +201,4 @@ def check_data_folder(recipe: Recipe, folder: str | Path) -> list[Path]:
     return [folder / p for p in parts]
 
 
-__all__ = ["DATA_SOURCES", "NetworkRecipe", "Recipe", "check_data_folder", "load_recipe", "stored_init"]
+__all__ = ["DATA_SOURCES", "NetworkRecipe", "Recipe", "StoredInit", "check_data_folder", "load_recipe", "stored_init"]

@@ -9,6 +9,7 @@ and the file's SHA-256.  A clone with history (`git clone`, not `--depth`) carri
 writes them out, checked::
 
     python -m networks.checkpoint slim --int8 runs/loc/last.pt store/localizer.pt   # each task
+    cp runs/reader/recipe.json store/recognizer.recipe.json                          # trained from a recipe
     python -m networks.weights store store/ --source "eighteenth GPU run"            # commits them
     python -m networks.weights fetch --out out/weights                               # any clone
 
@@ -88,8 +89,10 @@ def store(folder: str | Path, root: str | Path | None = None, source: str = "") 
     """Commit the checkpoints `folder`/<task>.pt (any of TASKS) into the history of the repository at
     `root` (default: this package's) and record them in its manifest; returns the new manifest.
 
-    Each file must be one of our checkpoints of that task (`read_checkpoint`).  Tasks not in `folder`
-    keep their manifest entries.  Refused while anything is staged (the merge commit takes the index
+    Each file must be one of our checkpoints of that task (`read_checkpoint`).  A network trained from
+    a recipe (`networks.train --recipe`) has its run's record beside it as `folder`/<task>.recipe.json;
+    its entry then names the recipe, the recipe file's SHA-256 and the digest of the data it trained on.
+    Tasks not in `folder` keep their manifest entries.  Refused while anything is staged (the merge commit takes the index
     as it is) or when the files exceed MAX_STORE_BYTES together."""
     from networks.checkpoint import read_checkpoint
 
@@ -109,6 +112,13 @@ def store(folder: str | Path, root: str | Path | None = None, source: str = "") 
             raise ValueError(f"{path}: a {data['task']} checkpoint under the name {task}.pt")
         records[task] = {"step": int(data["step"]), "int8": bool(data.get("int8_scales")),
                          "codebook_hash": data["pattern"]["codebook_hash"]}
+        record_path = folder / f"{task}.recipe.json"
+        if record_path.is_file():
+            run = json.loads(record_path.read_text())
+            if not isinstance(run, dict) or run.get("task") != task or \
+                    not all(isinstance(run.get(k), str) for k in ("recipe", "file_sha256", "data_digest")):
+                raise ValueError(f"{record_path}: not the recipe.json of a {task} run of networks.train --recipe")
+            records[task]["recipe"] = {k: run[k] for k in ("recipe", "file_sha256", "data_digest")}
     if _git(root, "diff", "--cached", "--name-only").strip():
         raise ValueError(f"{root}: the index holds staged changes; commit or unstage them before storing weights")
 
@@ -136,6 +146,23 @@ def store(folder: str | Path, root: str | Path | None = None, source: str = "") 
     return manifest
 
 
+def fetch_blob(root: Path, commit: str, file: str, sha256: str, target: Path, what: str) -> Path:
+    """Write `commit`:`file` of the repository at `root` to `target`, checked against `sha256` (a file
+    already there with that hash is kept); `what` names the weights in errors."""
+    if target.is_file() and file_sha256(target) == sha256:
+        return target
+    if subprocess.run(["git", "-C", str(root), "cat-file", "-e", f"{commit}^{{commit}}"],
+                      capture_output=True).returncode != 0:
+        raise ValueError(f"{root}: lacks commit {commit[:12]} holding the {what} weights "
+                         "(a shallow clone? run git fetch --unshallow)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(target) as tmp:
+        Path(tmp).write_bytes(_git(root, "cat-file", "blob", f"{commit}:{file}"))
+        if file_sha256(Path(tmp)) != sha256:
+            raise ValueError(f"{root}: {commit[:12]}:{file} does not match the {what} weights' SHA-256")
+    return target
+
+
 def fetch(out: str | Path, root: str | Path | None = None, tasks: tuple[str, ...] = TASKS) -> dict[str, Path]:
     """Write the manifest's checkpoints of `tasks` to `out`/<file> from the repository's history,
     each checked against its SHA-256; {task: path}.  A file already there with the right hash is kept."""
@@ -145,23 +172,8 @@ def fetch(out: str | Path, root: str | Path | None = None, tasks: tuple[str, ...
     if missing:
         raise ValueError(f"{root / MANIFEST}: no stored weights for {', '.join(missing)}")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    written = {}
-    for task in tasks:
-        entry = manifest[task]
-        target = out / entry["file"]
-        if not (target.is_file() and file_sha256(target) == entry["sha256"]):
-            if subprocess.run(["git", "-C", str(root), "cat-file", "-e", f"{entry['commit']}^{{commit}}"],
-                              capture_output=True).returncode != 0:
-                raise ValueError(f"{root}: lacks commit {entry['commit'][:12]} holding the {task} weights "
-                                 "(a shallow clone? run git fetch --unshallow)")
-            with atomic_path(target) as tmp:
-                Path(tmp).write_bytes(_git(root, "cat-file", "blob", f"{entry['commit']}:{entry['file']}"))
-                if file_sha256(Path(tmp)) != entry["sha256"]:
-                    raise ValueError(f"{root}: {entry['commit'][:12]}:{entry['file']} does not match the "
-                                     f"manifest's SHA-256")
-        written[task] = target
-    return written
+    return {task: fetch_blob(root, manifest[task]["commit"], manifest[task]["file"], manifest[task]["sha256"],
+                             out / manifest[task]["file"], task) for task in tasks}
 
 
 def main(argv: list[str] | None = None) -> int:

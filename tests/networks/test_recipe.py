@@ -15,6 +15,7 @@ from networks.checkpoint import read_checkpoint
 from networks.recipe import NetworkRecipe, check_data_folder, load_recipe, stored_init
 from networks.config import TrainConfig
 from networks.train import main, run_marker_ids, training_spec
+from networks.weights import file_sha256, read_manifest, repository_root
 from tests.networks.test_evaluate import write_factory_dataset
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
@@ -57,7 +58,8 @@ def _recipe(tmp_path: Path, text: str, name: str = "tiny") -> Path:
 @pytest.mark.parametrize("text, problem", [
     (TINY.replace("steps = 3", "steps = 3\nlearning_rate = 1"), "unknown.*learning_rate"),
     (TINY.replace('data = "synth"', 'data = "photos"'), "data must be one of rendered, synth"),
-    (TINY.replace('data = "synth"', 'data = "synth"\ninit = "runs/x.pt"'), "init must name stored weights"),
+    (TINY.replace('data = "synth"', 'data = "synth"\ninit = "runs/x.pt"'), "init must be a table of commit, file"),
+    (TINY + '[networks.localizer.init]\ncommit = "abc"\nfile = "l.pt"\nsha256 = "00"\n', "40 and init.sha256 64"),
     (TINY.replace('data = "synth"', 'data = "synth"\nsynth_weight = 0.5'), "synth_weight must be 1"),
     (TINY.replace("steps = 3", "steps = -3"), "steps"),
     (TINY.replace("[networks.localizer]", "[networks.detector]"), r"\[networks.detector\] is not a network"),
@@ -150,20 +152,27 @@ def test_a_rendered_recipe_trains_on_its_build_s_parts_joined(tmp_path, capsys):
     assert "give --data" in capsys.readouterr().err
 
 
-def test_a_recipe_s_stored_weights_are_checked(tmp_path):
-    stored = NetworkRecipe.from_table("recognizer", {"init": "weights:recognizer"}, "t")
-    wrong = tmp_path / "recognizer.pt"
+def test_a_recipe_s_init_is_pinned_stored_weights(tmp_path):
+    entry = read_manifest(repository_root())["weights"]["localizer"]
+    pinned = {k: entry[k] for k in ("commit", "file", "sha256")}
+    network = NetworkRecipe.from_table("localizer", {"init": pinned}, "t")
+    assert network.to_table()["init"] == pinned
+    written = stored_init(network, "localizer", None, tmp_path / "cache")  # from the repository's history
+    assert written == tmp_path / "cache" / pinned["file"] and file_sha256(written) == pinned["sha256"]
+    assert stored_init(network, "localizer", written, tmp_path / "other") == written  # a carried copy is checked
+    wrong = tmp_path / "localizer.pt"
     wrong.write_bytes(b"not the stored weights")
-    with pytest.raises(ValueError, match="not the stored recognizer weights"):
-        stored_init(stored, "recognizer", wrong, tmp_path / "cache")
+    with pytest.raises(ValueError, match="not the weights the recipe's localizer starts from"):
+        stored_init(network, "localizer", wrong, tmp_path / "cache")
     with pytest.raises(FileNotFoundError, match="no such checkpoint"):
-        stored_init(stored, "recognizer", tmp_path / "none.pt", tmp_path / "cache")
-    fresh = NetworkRecipe.from_table("recognizer", {}, "t")
-    assert stored_init(fresh, "recognizer", None, tmp_path / "cache") is None
+        stored_init(network, "localizer", tmp_path / "none.pt", tmp_path / "cache")
+    elsewhere = NetworkRecipe.from_table("localizer", {"init": {**pinned, "sha256": "0" * 64}}, "t")
+    with pytest.raises(ValueError, match="does not match the localizer init weights' SHA-256"):
+        stored_init(elsewhere, "localizer", None, tmp_path / "fresh")
+    fresh = NetworkRecipe.from_table("localizer", {}, "t")
+    assert stored_init(fresh, "localizer", None, tmp_path / "cache") is None
     with pytest.raises(ValueError, match="starts from no stored weights; leave out --init"):
-        stored_init(fresh, "recognizer", wrong, tmp_path / "cache")
-
-
+        stored_init(fresh, "localizer", wrong, tmp_path / "cache")
 
 def write_template(folder: Path, spec: PatternSpec, panels: list[tuple[int, int, int]]) -> Path:
     """folder/template.npz with what the networks read of a garment: its layout's spec and panels of

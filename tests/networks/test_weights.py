@@ -92,10 +92,14 @@ def test_scale_that_fits_no_weight_is_refused(localizer, tmp_path):
 def test_store_keeps_weights_out_of_the_tree_and_a_clone_fetches_them(localizer, repo, tmp_path):
     folder = tmp_path / "store"
     slim_checkpoint(localizer[0], folder / "localizer.pt", dtype=torch.int8)
+    # the run's record of a recipe (networks.train --recipe) names the recipe and its data in the entry
+    made = {"recipe": "r", "file_sha256": "a" * 64, "data_digest": "b" * 64, "task": "localizer", "network": {}}
+    (folder / "localizer.recipe.json").write_text(json.dumps(made))
     before = _git(repo, "rev-parse", "HEAD").strip()
     manifest = store(folder, root=repo, source="a test")
     entry = manifest["weights"]["localizer"]
     assert entry["int8"] and entry["step"] == 7 and entry["source"] == "a test"
+    assert entry["recipe"] == {"recipe": "r", "file_sha256": "a" * 64, "data_digest": "b" * 64}
     # HEAD: a merge of the old HEAD and the orphan commit, whose tree is the old one plus the manifest
     parents = _git(repo, "rev-list", "--parents", "-n", "1", "HEAD").split()[1:]
     assert parents == [before, entry["commit"]]
@@ -132,6 +136,11 @@ def test_store_refuses_bad_input_and_leaves_head(localizer, repo, tmp_path):
     (junk / "crosspoints.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match=r"crosspoints\.pt: not a checkpoint"):
         store(junk, root=repo)
+    other = tmp_path / "other"
+    slim_checkpoint(localizer[0], other / "localizer.pt", dtype=torch.int8)
+    (other / "localizer.recipe.json").write_text(json.dumps({"recipe": "r", "task": "recognizer"}))
+    with pytest.raises(ValueError, match=r"localizer\.recipe\.json: not the recipe\.json of a localizer run"):
+        store(other, root=repo)
     good = tmp_path / "good"
     slim_checkpoint(localizer[0], good / "localizer.pt", dtype=torch.int8)
     (repo / "other.txt").write_text("staged\n")
