@@ -30,7 +30,7 @@ import torch  # noqa: E402
 from assets.pattern import crop_crosspoints_px  # noqa: E402
 from networks.checkpoint import checkpoint_spec, load_checkpoint  # noqa: E402
 from networks.evaluate import crosspoint_predictions, data_batches, model_crop, resolve_device  # noqa: E402
-from networks.tasks import forward, model_bend  # noqa: E402
+from networks.tasks import forward  # noqa: E402
 
 
 def rings(k: int) -> np.ndarray:
@@ -55,8 +55,7 @@ def crop_errors(checkpoint: Path, data: Path, split: str = "test", device: str |
     canonical = crop_crosspoints_px(spec, model_crop(model))
     errors, visible, displacement = [], [], []
     with torch.no_grad():
-        for batch in data_batches("crosspoints", data, split, spec, batch_size, model_crop(model),
-                                     model_bend(model)):
+        for batch in data_batches("crosspoints", data, split, spec, batch_size, model_crop(model)):
             output, _, _ = forward("crosspoints", model, batch, device)
             _, xy = crosspoint_predictions(output)
             errors.append(np.linalg.norm(xy - batch["xy"].numpy(), axis=-1))

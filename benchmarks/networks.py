@@ -24,9 +24,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    crosspoint run's crops at synth weight 0.75: which mix trains it best), localizer_upright
    (the main localizer's config on synthesized markers all near upright, `SHARD_SYNTH`, as the
    renders' are), recognizer_small (the main recognizer's config on synthesized markers from 10 px,
-   `SHARD_SYNTH`: markers under 16 px are where it errs), recognizer_bent (the main recognizer's config
-   with its crops cut through the bent crop map that follows curved cloth, rendered and synthesized,
-   `SHARD_SYNTH`; evaluated on bent crops), and
+   `SHARD_SYNTH`: markers under 16 px are where it errs), and
    the data-mix runs localizer_synth (shards only) and localizer_rendered (rendered only), which
    share the main localizer's config and stop at step COMPARE_STEPS, so all three are compared at
    that step (validation on the rendered val split, logged every VAL_EVERY steps).  A run that
@@ -146,9 +144,6 @@ RUNS = {
     # the main recognizer's config on synthesized markers from 10 px (`SHARD_SYNTH`): at 0.75 it read
     # 0.996 of the renders' fully visible markers of 16-24 px, 0.955 of 12-16 px and 0.78 under 12 px
     "recognizer_small": ("recognizer", 0.25, None, 6, "recognizer_small"),
-    # the main recognizer's config with its crops bent (`assets.pattern.bent_crop_map`, `SHARD_SYNTH`):
-    # the crop follows curved cloth, where it errs (markers off a homography by more than 4 cells)
-    "recognizer_bent": ("recognizer", 0.25, None, 6, "recognizer_bent"),
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
     # the main crosspoint run: mostly rendered crops, which beat 0.75 synthesized from the same start on
@@ -168,7 +163,6 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
           "recognizer_jitter": ("recognizer", 9600, CROP_JITTER_PX, False),
           "recognizer_partial": ("recognizer", 9600, CROP_JITTER_PX, True),
           "recognizer_small": ("recognizer", 9600, CROP_JITTER_PX, True),
-          "recognizer_bent": ("recognizer", 9600, CROP_JITTER_PX, True),
           "crosspoints": ("crosspoints", 4800, 0.0, False),
           "crosspoints_jitter": ("crosspoints", 4800, CROP_JITTER_PX, False)}
 #: shard folder -> SynthConfig fields that differ from the defaults.  localizer_upright: every marker
@@ -176,8 +170,7 @@ SHARDS = {"localizer": ("localizer", 19200, 0.0, False), "localizer_upright": ("
 #: markers are turned past 45 degrees, 4.5% of the renders' and none of the capture's).
 #: recognizer_small: markers from 10 px (the default's 16 px is the edge along the direction not foreshortened)
 SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
-               "recognizer_small": {"marker_px": (10.0, 32.0)},
-               "recognizer_bent": {"recognizer_bend": True}}
+               "recognizer_small": {"marker_px": (10.0, 32.0)}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
 #: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
@@ -329,32 +322,14 @@ def shard_config(folder: str, seed: int | None = None) -> SynthConfig:
                        **SHARD_SYNTH.get(folder, {}), **({} if seed is None else {"seed": seed}))
 
 
-def run_crop(name: str) -> bool:
-    """Whether run `name`'s crops are bent (`SynthConfig.recognizer_bend` of its shard folder)."""
-    synth = SHARD_SYNTH.get(RUNS[name][4], {})
-    return bool(synth.get("recognizer_bend", False))
-
-
 def evaluate_synthesized(out: Path, folders: dict[str, Path], device: str, init: dict[str, str] | None = None
                          ) -> dict[str, dict]:
     """Each trained run's last.pt, and each checkpoint a run started from (--init), on the held-out
-    synthesized samples of its shard folder (`synth_heldout`); an --init whose crops are cut otherwise
-    than its run's (`run_crop`: a bent recognizer started from a homography one) is measured on the
-    folder of a run that cuts them as it does, under its run's label, when there is one."""
+    synthesized samples of its shard folder (`synth_heldout`)."""
     checkpoints = {name: (name, out / name / "run" / "last.pt") for name in RUNS
                    if (out / name / "run" / "last.pt").exists()}
     for name, path in (init or {}).items():
-        task = RUNS[name][0]
-        config = TrainConfig.from_dict(read_checkpoint(path)["config"], source=f"{path}:config") \
-            if task != "localizer" else None
-        cut = None if config is None else config.recognizer_bend
-        if cut is None or cut == run_crop(name):
-            checkpoints[f"{name}, its --init"] = (name, Path(path))
-            continue
-        same = [other for other in RUNS if RUNS[other][4] in folders and RUNS[other][0] == task
-                and run_crop(other) == cut]
-        if same:
-            checkpoints[f"{name}, its --init (on {same[0]}'s samples)"] = (same[0], Path(path))
+        checkpoints[f"{name}, its --init"] = (name, Path(path))
     return {label: evaluate(path, folders[RUNS[name][4]], device=device, progress=False)
             for label, (name, path) in checkpoints.items() if RUNS[name][4] in folders}
 
@@ -461,8 +436,7 @@ def run_config(name: str, workers: int, max_steps: int | None, pretrained: dict[
                        crop_jitter_px=SHARDS[folder][2] if task != "localizer" else 0.0,
                        recognizer_partial=SHARDS[folder][3],
                        num_workers=workers, val_every=min(VAL_EVERY[task], steps), val_samples=8 if max_steps else 512,
-                       checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight,
-                       recognizer_bend=run_crop(name) and task == "recognizer")
+                       checkpoint_every=CHECKPOINT_EVERY, log_every=50, synth_weight=synth_weight)
 
 
 def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float, max_steps: int | None,

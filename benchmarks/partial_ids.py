@@ -194,9 +194,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every-image", action="store_true", help="--rendered: every image of the folder (a "
                         "held-out set such as the networks benchmark's --extra-heldout), not only its val and test")
     parser.add_argument("--by-motion", action="store_true", help="--rendered: the top-1 per motion too")
-    parser.add_argument("--recognizer-bend", choices=("trained", "on", "off"), default="trained",
-                        help="cut the recognizer's crops through the bent crop map (on), the homography (off) or as "
-                        "the recognizer was trained (DetectorConfig.recognizer_bend)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args(argv)
     from assets.garments import load_template  # needs triangle: here only, so top1 runs on the GPU machine
@@ -221,9 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             pairs = [p for p in pairs if p[0].stem in wanted]
         detector = Detector.from_checkpoints(*args.checkpoints, device=args.device,
                                              tables=load_template(template).layout.tables(),
-                                             config=DetectorConfig(localizer_scale=args.localizer_scale,
-                                                                   recognizer_bend={"on": True, "off": False}.get(
-                                                                       args.recognizer_bend)))
+                                             config=DetectorConfig(localizer_scale=args.localizer_scale))
         source = f"{label} ({len(pairs)} images)"
         records = recognized(detector, pairs)  # once: the motions' tallies are taken from the same records
         sources[source], sizes[source] = tally(records)

@@ -5,8 +5,14 @@ read with ``torch.load(path, weights_only=True)`` (no code runs on load)::
 
     {"format": "clothcapture-networks", "version": 1, "task": "localizer" | "recognizer" | "crosspoints",
      "config": TrainConfig.to_dict(), "pattern": {"spec": PatternSpec.to_dict(), "codebook_hash": sha256},
+     "crop_geometry": CropGeometry.to_dict(),
      "num_ids": int, "crosspoints_per_side": int, "model": state dict, "optimizer": state dict | None,
      "scheduler": state dict | None, "step": int, "metrics": dict, "rng": {"torch", "cuda"}, ...extra}
+
+The crop geometry (`assets.pattern.CropGeometry`: both crops and the training crops' jitter) is how
+the network's crops were cut; the rebuilt network carries it (`crops`) and the Detector cuts its crops
+so.  A checkpoint written before the record gets the one its config trained with
+(`TrainConfig.crop_geometry`).
 
 A recognizer's network follows its config's `recognizer_classes`: one output per codebook ID, or one
 per code module of the pattern's marker ("modules", `networks.models.MarkerModuleReader`).
@@ -40,7 +46,7 @@ import torch
 from torch import nn
 
 from assets.fileio import atomic_path
-from assets.pattern import PatternSpec, generate_codebook
+from assets.pattern import CropGeometry, PatternSpec, generate_codebook
 from networks.config import TASKS, TrainConfig
 from networks.tasks import build_model
 
@@ -105,6 +111,7 @@ def save_checkpoint(
         "task": task,
         "config": config.to_dict(),
         "pattern": pattern_record(spec),
+        "crop_geometry": config.crop_geometry().to_dict(),
         "num_ids": int(spec.num_ids),
         "crosspoints_per_side": int(spec.crosspoints_per_side),
         "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
@@ -232,6 +239,18 @@ def _check_record(data: dict, path: Path) -> None:
             raise ValueError(f"{path}: int8_scales[{key!r}] must hold finite scales > 0")
 
 
+def checkpoint_crop_geometry(checkpoint: dict, config: TrainConfig, source: str = "checkpoint") -> CropGeometry:
+    """How a checkpoint's network cut its crops: its "crop_geometry", else (written before the record)
+    the geometry its `config` trained with; a record whose jitter is not its config's is refused."""
+    if checkpoint.get("crop_geometry") is None:
+        return config.crop_geometry()
+    geometry = CropGeometry.from_dict(checkpoint["crop_geometry"], source=f"{source}:crop_geometry")
+    if geometry.jitter_px != config.crop_geometry().jitter_px:
+        raise ValueError(f"{source}: crop_geometry.jitter_px is {geometry.jitter_px}, but its config trained with "
+                         f"crop_jitter_px {config.crop_jitter_px}")
+    return geometry
+
+
 def check_pattern(checkpoint: dict, spec: PatternSpec, source: str = "checkpoint") -> None:
     """Raise ValueError when `spec`'s markers (appearance or codebook) differ from the checkpoint's."""
     saved = dict(checkpoint["pattern"]["spec"])
@@ -264,11 +283,12 @@ def load_checkpoint(
     if spec is not None:
         check_pattern(data, spec, source=str(path))
     modules_per_side = checkpoint_spec(data).modules_per_side  # a module reader's outputs
+    crops = checkpoint_crop_geometry(data, config, str(path))
 
     def build() -> nn.Module:
         return build_model(data["task"], data["num_ids"], data["crosspoints_per_side"],
-                           recognizer_bend=config.recognizer_bend,
-                           recognizer_classes=config.recognizer_classes, modules_per_side=modules_per_side)
+                           recognizer_classes=config.recognizer_classes, modules_per_side=modules_per_side,
+                           crops=crops)
 
     with torch.device("meta"):  # the network's shapes, nothing allocated
         _check_fit(build().state_dict(), data["model"], f"{path}: the weights do not fit the {data['task']} network")

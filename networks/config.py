@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from assets.fileio import check_json_object, load_json, save_json
+from assets.pattern.crops import MAX_CROP_JITTER_PX, CropGeometry
 
 #: the reference's weight of the visibility BCE in the crosspoint loss (`networks.models.crosspoint_loss`)
 CROSSPOINT_VISIBILITY_WEIGHT = 100.0
@@ -43,6 +44,7 @@ REMOVED_FIELDS: dict[str, object] = {
     "crosspoint_margin_cells": 2,
     "crosspoint_bend": False,
     "localizer_marker_px": None,
+    "recognizer_bend": False,
 }
 
 
@@ -139,7 +141,7 @@ class TrainConfig:
     synthesized) are cut from five points moved by Gaussian noise of this
     standard deviation (pixels), as the Detector cuts them from the localizer's points; shards must
     have been written with the same (`networks.synth write --crop-jitter`); 0: the reference's exact
-    crops.  view_warp (localizer, with augment): rendered training images are seen through a random
+    crops.  `crop_geometry()` is the run's whole crop recipe, which its checkpoints carry.  view_warp (localizer, with augment): rendered training images are seen through a random
     zoom, rotation and compression (`networks.augment.ViewWarp`) with targets made anew, against
     learning the few rendered images by heart; not in the reference, which trained on many more.
     recognizer_partial (recognizer): train on crops of partial markers with a visible centre as well
@@ -149,11 +151,6 @@ class TrainConfig:
     made it the default: partial markers read right 0.63 -> 0.76 on renders, 0.77 -> 0.92 on a
     capture, whole ones 0.952 -> 0.963.  False: the reference's crops, whole markers only (and what
     a saved config without the field trained on).
-    recognizer_bend (recognizer): its crops (training, evaluation and the Detector's) are cut through
-    `assets.pattern.bent_crop_map`, which follows curved cloth (the centre on its own point), not
-    the least-squares homography of the five points; shards must have been written with the same
-    (`networks.synth write --recognizer-bend`).  False: the reference's homography crops (and what a
-    saved config without the field trained on).
 
     A saved config may still name a field that measurements removed (`REMOVED_FIELDS`) with the value
     the product now uses; `from_dict` drops it, and refuses any other value by the field's name.
@@ -182,7 +179,6 @@ class TrainConfig:
     crop_jitter_px: float = 0.0
     view_warp: bool = True
     recognizer_partial: bool = True
-    recognizer_bend: bool = False
 
     def __post_init__(self) -> None:
         if self.task not in TASKS:
@@ -206,12 +202,8 @@ class TrainConfig:
             problems.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
         if not (isinstance(self.min_lr_ratio, (int, float)) and 0 <= self.min_lr_ratio <= 1):
             problems.append(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio!r}")
-        if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= 8):
-            problems.append(f"crop_jitter_px must be in [0, 8] pixels, got {self.crop_jitter_px!r}")
-        if not isinstance(self.recognizer_bend, bool):
-            problems.append(f"recognizer_bend must be true or false, got {self.recognizer_bend!r}")
-        elif self.recognizer_bend and self.task != "recognizer":
-            problems.append("recognizer_bend is for the recognizer's crops")
+        if not (isinstance(self.crop_jitter_px, (int, float)) and 0 <= self.crop_jitter_px <= MAX_CROP_JITTER_PX):
+            problems.append(f"crop_jitter_px must be in [0, {MAX_CROP_JITTER_PX:g}] pixels, got {self.crop_jitter_px!r}")
         if not (isinstance(self.synth_weight, (int, float)) and 0 <= self.synth_weight <= 1):
             problems.append(f"synth_weight must be in [0, 1], got {self.synth_weight!r}")
         if self.recognizer_classes not in RECOGNIZER_CLASSES:
@@ -226,6 +218,11 @@ class TrainConfig:
             problems.append("give pretrained (ImageNet backbone weights) or init (a checkpoint to start from), not both")
         if problems:
             raise ValueError("invalid TrainConfig: " + "; ".join(problems))
+
+    def crop_geometry(self) -> CropGeometry:
+        """How this run's crops are cut: the reference's crops from points jittered by crop_jitter_px
+        (the localizer's run cuts none: exact)."""
+        return CropGeometry(jitter_px=float(self.crop_jitter_px) if self.task != "localizer" else 0.0)
 
     def replace(self, **overrides: object) -> "TrainConfig":
         """A copy with `overrides` (field name -> value); None values are ignored."""

@@ -46,7 +46,7 @@ from tqdm import tqdm
 from assets.fileio import load_json, load_npz, save_npz
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
-from assets.pattern.crops import CROSSPOINT_CROP, RECOGNIZER_CROP, reference_textures, unwarp
+from assets.pattern.crops import CROSSPOINT_CROP, MAX_CROP_JITTER_PX, RECOGNIZER_CROP, CropGeometry, reference_textures, unwarp
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_centre_markers, crosspoint_crops,
                                         crosspoint_markers, localizer_targets, marker_cells, recognizer_crops,
                                         recognizer_markers, training_samples)
@@ -195,8 +195,6 @@ class RenderedDataset(_Items, Dataset):
     partial_markers (recognizer): the items are the markers of `recognizer_markers(partial=True)`
     (whole markers and partial ones with a visible centre), their crops cut from the image
     (gt/<name>.npz's points, jittered by crop_jitter_px), not the stored crops of whole markers.
-    recognizer_bend (recognizer): crops cut anew through `assets.pattern.bent_crop_map` (curved
-    cloth) instead of the crop homography.
     decode_ahead: what an item reads of its image from disk is decoded once for every image of the
     split, when the dataset is made, into a memory-mapped file the workers share (`networks.decoded`;
     a split too large for its limit is read per item as without): the localizer's image and cells;
@@ -206,8 +204,7 @@ class RenderedDataset(_Items, Dataset):
     def __init__(self, root: str | Path, split: str, task: str, augment: Augment | None = None,
                  spec: PatternSpec | None = None, seed: int = 0, cache_images: int = 32,
                  crop_px: int | None = None, crop_jitter_px: float = 0.0, view_warp: ViewWarp | None = None,
-                 partial_markers: bool = False,
-                 decode_ahead: bool = False, recognizer_bend: bool = False):
+                 partial_markers: bool = False, decode_ahead: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {', '.join(TASKS)}, got {task!r}")
         if split not in SPLITS:
@@ -217,8 +214,8 @@ class RenderedDataset(_Items, Dataset):
         if crop_px is not None and crop_px < CELL:
             raise ValueError(f"crop_px must be >= {CELL} (one localizer cell), got {crop_px}")
         self.crop_px = crop_px
-        if not 0 <= crop_jitter_px <= 8 or (crop_jitter_px > 0 and task == "localizer"):
-            raise ValueError(f"crop_jitter_px must be in [0, 8] and only for the crop tasks, got {crop_jitter_px} "
+        if not 0 <= crop_jitter_px <= MAX_CROP_JITTER_PX or (crop_jitter_px > 0 and task == "localizer"):
+            raise ValueError(f"crop_jitter_px must be in [0, {MAX_CROP_JITTER_PX:g}] and only for the crop tasks, got {crop_jitter_px} "
                              f"for the {task}")
         self.crop_jitter_px = float(crop_jitter_px)
         if view_warp is not None and task != "localizer":
@@ -227,9 +224,6 @@ class RenderedDataset(_Items, Dataset):
         if partial_markers and task != "recognizer":
             raise ValueError(f"partial_markers is for the recognizer's crops, not the {task} task's")
         self.partial_markers = bool(partial_markers)
-        if recognizer_bend and task != "recognizer":
-            raise ValueError(f"recognizer_bend is for the recognizer's crops, not the {task} task's")
-        self.recognizer_bend = bool(recognizer_bend)
         self._decoded: DecodedArrays | None = None
         self._references = {}
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
@@ -303,7 +297,7 @@ class RenderedDataset(_Items, Dataset):
                 image, points = arrays["image"], arrays["points_px"][crop]
                 if self.crop_jitter_px > 0:
                     points = points + self._rng(index, _JITTER).normal(0.0, self.crop_jitter_px, (5, 2))
-                cut = unwarp(image, self.spec, RECOGNIZER_CROP, points, self.recognizer_bend)
+                cut = unwarp(image, self.spec, RECOGNIZER_CROP, points)
                 return self._item(index, crop=cut, marker_id=arrays["recognizer_ids"][crop])
             return self._item(index, crop=arrays["recognizer_crops"][crop], marker_id=arrays["recognizer_ids"][crop])
         if self._cut_anew:
@@ -375,10 +369,8 @@ class RenderedDataset(_Items, Dataset):
 
     @property
     def _cut_anew(self) -> bool:
-        """Crops are cut from the image per item (crop jitter, partial markers, bent crops), not read
-        stored."""
-        return (self.crop_jitter_px > 0 or self.partial_markers
-                or self.recognizer_bend)
+        """Crops are cut from the image per item (crop jitter, partial markers), not read stored."""
+        return self.crop_jitter_px > 0 or self.partial_markers
 
     def _marker_source(self, image_index: int) -> dict[str, np.ndarray]:
         """What an image's crops cut anew are cut from, but its pixels: the recognizer's five points per
@@ -507,24 +499,24 @@ def synth_crops(task: str, image: np.ndarray, gt, spec: PatternSpec, config: Syn
     """The crops of a crop task from a synthetic image and its ground truth: recognizer (crops, IDs),
     crosspoints (crops, IDs, xy, visible) of the markers whose centre is seen, as the Detector will
     see them (the localizer finds those); recognizer crops of partial markers too unless
-    config.recognizer_partial is False, bent if config.recognizer_bend (config None: the defaults).
+    config.recognizer_partial is False (config None: the defaults).
     config.crop_jitter_px > 0: cut from jittered points (`ImageGroundTruth.jittered`), drawn from
     (config.seed, index).  keep: count -> the indices (sorted) of the crops to return, of the count
     there are; crosspoint crops are cut for those only (a synthetic image shows hundreds)."""
-    if config is not None and config.crop_jitter_px > 0:
-        gt = gt.jittered(config.crop_jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
+    config = config or SynthConfig()
+    geometry = config.crop_geometry()
+    if geometry.jitter_px > 0:
+        gt = gt.jittered(geometry.jitter_px, np.random.default_rng([config.seed, int(index), _JITTER]))
     if task == "recognizer":
-        config = config or SynthConfig()
-        made = recognizer_crops(image, gt, spec, partial=config.recognizer_partial, bend=config.recognizer_bend)
+        made = recognizer_crops(image, gt, spec, partial=config.recognizer_partial)
         if keep is None:
             return made
         kept = keep(len(made[0]))  # drawn once: crops and IDs keep the same rows
         return tuple(array[kept] for array in made)
-    config = config or SynthConfig()
-    chosen = crosspoint_centre_markers(gt, spec, CROSSPOINT_CROP)
+    chosen = crosspoint_centre_markers(gt, spec, geometry.crosspoints)
     if keep is not None:
         chosen = chosen[keep(len(chosen))]
-    return crosspoint_crops(image, gt.select(chosen), spec, CROSSPOINT_CROP)
+    return crosspoint_crops(image, gt.select(chosen), spec, geometry.crosspoints)
 
 
 class ShardDataset(_Items, Dataset):
@@ -598,19 +590,6 @@ def open_shard_part(part: Path, task: str) -> dict[str, np.ndarray]:
     return arrays
 
 
-def shard_bend_problem(root: str | Path, meta: dict, bend: bool, task: str = "recognizer") -> str | None:
-    """Why a shard folder's recognizer crops do not suit a recognizer whose crops are `bend`
-    (`SynthConfig.recognizer_bend`, False for folders written before the option), or None (also for
-    the other tasks, whose crops are never bent)."""
-    if task != "recognizer":
-        return None
-    written = bool(meta["synth"].get("recognizer_bend", False))
-    if written == bend:
-        return None
-    return (f"{root}: recognizer crops {'bent' if written else 'through the homography'}, but the network's are "
-            f"{'bent' if bend else 'not'}; write shards {'with' if bend else 'without'} --recognizer-bend")
-
-
 def read_shard_meta(root: str | Path) -> dict:
     """shards.json of a shard folder, checked to be one."""
     path = Path(root) / SHARD_META
@@ -622,8 +601,28 @@ def read_shard_meta(root: str | Path) -> dict:
     missing = [k for k in ("task", "spec", "codebook_hash", "synth", "images_per_part") if k not in meta]
     if missing or meta["task"] not in TASKS:
         raise ValueError(f"{path}: missing field(s) {', '.join(missing) or 'task'} or unknown task")
-    SynthConfig.from_dict(meta["synth"], source=f"{path}:synth")  # written with a removed option: refused by name
+    synth = SynthConfig.from_dict(meta["synth"], source=f"{path}:synth")  # a removed option: refused by name
+    if meta["task"] != "localizer":  # a folder written before the record: its crops as its synth config cut them
+        written = synth.crop_geometry() if meta.get("crop_geometry") is None else CropGeometry.from_dict(
+            meta["crop_geometry"], source=f"{path}:crop_geometry")
+        if written.jitter_px != synth.crop_jitter_px:
+            raise ValueError(f"{path}: crop_geometry.jitter_px is {written.jitter_px}, synth.crop_jitter_px "
+                             f"{synth.crop_jitter_px}; the crops were cut with one of them")
+        meta["crop_geometry"] = written.to_dict()
     return meta
+
+
+def shard_geometry_problem(root: str | Path, meta: dict, geometry: CropGeometry) -> str | None:
+    """Why a shard folder's crops (`read_shard_meta`'s crop_geometry) do not suit a run that cuts its
+    crops with `geometry`, or None (also for localizer shards, which hold no crops)."""
+    if meta.get("crop_geometry") is None:
+        return None
+    written = CropGeometry.from_dict(meta["crop_geometry"], source=f"{root}/{SHARD_META}:crop_geometry")
+    if written == geometry:
+        return None
+    return (f"{root}: crops cut with another geometry than this run's ({'; '.join(written.differences(geometry))}, "
+            f"shards vs run); write shards with --crop-jitter {geometry.jitter_px:g} or train with --crop-jitter "
+            f"{written.jitter_px:g}")
 
 
 def shard_parts(root: str | Path) -> list[Path]:

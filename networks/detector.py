@@ -6,7 +6,7 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
     1. Marker Localizer on the whole image (resized by `localizer_scale`, or by a scale chosen per
        image from a first pass's marker sizes, padded to a multiple of 8) -> `decode_localizer` ->
        five points and a presence probability per marker.
-    2. Each marker's 96 x 96 crop (`RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
+    2. Each marker's recognizer crop (96 x 96, `RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
        argmax (over the garment's IDs when `tables` are given) and
        ``confidence = presence probability x softmax probability of that ID``.  A module reader
        (`MarkerModuleReader`, trained with ``recognizer_classes="modules"``) gives code-module logits
@@ -20,12 +20,14 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
        garment's `tables`, their points are re-estimated from the fully visible neighbours on the
        pattern (`networks.neighbours.estimate_from_neighbours`, `partial=True`).  The ID comes from
        the raw points (the recognizer sees the visible part).
-    5. Each marker's 112 x 112 crop (`CROSSPOINT_CROP`) and the
+    5. Each marker's crosspoint crop (112 x 112, `CROSSPOINT_CROP`) and the
        reference texture of its ID -> Crosspoint Localizer; visible = sigmoid > `visibility_threshold`;
        the visible crosspoints near a cubic field fitted to them take its value
        (`smooth_crosspoints_px`); crop (x, y) mapped to image pixels through the inverse crop
        homography, and those outside the image hidden.
 
+The crops are cut as each network's checkpoint says (`assets.pattern.CropGeometry`, carried by the
+network as `crops`): the recognizer's `crops.recognizer`, the crosspoint network's `crops.crosspoints`.
 All crops of one call go through the recognizer and crosspoint networks in batches of `batch_size`,
 under `torch.inference_mode()`, on `device` (uint8 crops are moved there and normalised there).
 Pixels are continuous image coordinates (x right, y down, pixel centres at integer + 0.5).
@@ -98,8 +100,6 @@ class DetectorConfig:
     visibility_threshold: a crosspoint is visible where sigmoid(visibility) exceeds it.
     image_batch_size: images per localizer forward pass (padded to the largest of the batch).
     restrict_to_tables: with tables, the recognised ID is the most probable ID on the garment.
-    recognizer_bend: cut the recognizer's crops through `assets.pattern.bent_crop_map` (True) or the
-      crop homography (False); None: as the recognizer was trained (`MarkerRecognizer.bend`).
     vote_ids: with tables, correct IDs by their neighbours' votes (`networks.neighbours.vote_ids`,
       fully observed markers vote; `vote_min`, `vote_min_partial` and `vote_tolerance` are its
       min_votes, min_votes_partial and tolerance).
@@ -149,7 +149,6 @@ class DetectorConfig:
     grow_min_neighbours: int = 2
     grow_min_visible: float = 0.3
     smooth_crosspoints_px: float | None = SMOOTH_CROSSPOINTS_PX
-    recognizer_bend: bool | None = None
 
     def __post_init__(self) -> None:
         problems = [problem] if (problem := crop_px_problem("smooth_crosspoints_px", self.smooth_crosspoints_px)) else []
@@ -227,13 +226,13 @@ def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, n
 
 
 def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
-                   spec: PatternSpec, crop: CropSpec, bend: bool = False) -> np.ndarray:
+                   spec: PatternSpec, crop: CropSpec) -> np.ndarray:
     """Crops of markers from several images: image_index (N,) into `images`, points_px (N, 5, 2).
-    Returns (N, S, S, 3) uint8, exactly `assets.pattern.unwarp` (as the training crops; bend: bent)."""
+    Returns (N, S, S, 3) uint8, exactly `assets.pattern.unwarp` (as the training crops)."""
     out = np.zeros((len(image_index), crop.size_px, crop.size_px, 3), dtype=np.uint8)
     for i in np.unique(image_index):
         pick = np.flatnonzero(image_index == i)
-        out[pick] = unwarp(images[i], spec, crop, np.asarray(points_px[pick], dtype=np.float64), bend)
+        out[pick] = unwarp(images[i], spec, crop, np.asarray(points_px[pick], dtype=np.float64))
     return out
 
 
@@ -413,11 +412,6 @@ class Detector:
                     out.append((points[keep], score[keep]))
         return out
 
-    @property
-    def recognizer_bend(self) -> bool:
-        """Whether the recognizer's crops are bent: `DetectorConfig.recognizer_bend`, else as it was trained."""
-        return self.recognizer.bend if self.config.recognizer_bend is None else self.config.recognizer_bend
-
     def recognize(self, images: Sequence[np.ndarray], image_index: np.ndarray, points_px: np.ndarray,
                   marker_id: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Stage 2: (marker_id (N,) int64, softmax probability of that ID (N,) float32): the most
@@ -430,8 +424,8 @@ class Detector:
             allowed = torch.as_tensor(self.layout.table_of_id >= 0, device=self.device)
         with torch.inference_mode():
             for part in _batches(len(image_index), self.batch_size):
-                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec, RECOGNIZER_CROP,
-                                       self.recognizer_bend)
+                crops = unwarp_markers(images, image_index[part], points_px[part], self.spec,
+                                       self.recognizer.crops.recognizer)
                 output = self.recognizer(self._to_device(crops)).float()
                 if self.decoder is not None:
                     if marker_id is not None:
@@ -456,7 +450,7 @@ class Detector:
 
     def references(self, marker_id: np.ndarray) -> np.ndarray:
         """(N, S, S, 3) uint8 reference textures of the IDs in the crosspoint network's crop
-        (`CROSSPOINT_CROP`, S = 112), cached per ID."""
+        (its `crop`, the reference's S = 112), cached per ID."""
         marker_id = np.asarray(marker_id, dtype=np.int64)
         missing = np.array(sorted(set(marker_id.tolist()) - set(self._references)), dtype=np.int64)
         if len(missing):

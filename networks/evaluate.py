@@ -44,11 +44,11 @@ from tqdm import tqdm
 from assets.fileio import load_npz, save_json
 from assets.pattern import CROSSPOINT_CROP, CropSpec, PatternSpec, generate_codebook, reference_textures
 from assets.pattern.observation import (ImageGroundTruth, completed_points, crosspoint_crops, crosspoint_markers,
-                                       recognizer_crops, recognizer_markers, training_samples)
+                                       recognizer_markers, training_samples)
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint
 from networks.codes import CodeDecoder, module_targets
 from networks.config import SMOOTH_CROSSPOINTS_PX, TASKS
-from networks.data import SHARD_META, ShardDataset, shard_bend_problem
+from networks.data import SHARD_META, ShardDataset
 from networks.data import _manifest as read_manifest
 from networks.data import _read_png as read_png
 from networks.data import dataset_spec, garment_marker_ids
@@ -61,7 +61,7 @@ from networks.metrics import (
     localizer_metrics,
     recognizer_metrics,
 )
-from networks.tasks import autocast, batch_length, forward, model_bend, reads_modules
+from networks.tasks import autocast, batch_length, forward, reads_modules
 
 #: sample arrays each task reads from `samples/<name>.npz`
 SAMPLE_KEYS = {
@@ -133,7 +133,7 @@ def crop_batches(arrays: dict[str, np.ndarray], batch_size: int = 32) -> Iterato
 
 
 def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
-                   crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> Iterator[dict]:
+                   crop: CropSpec = CROSSPOINT_CROP) -> Iterator[dict]:
     """Batches of the split's samples as the datasets' items collated (`networks.tasks`), with the
     ground truth the metrics need beside them: localizer batches carry "gt_full" (per image (M,)
     bool, matching `cells_to_markers`) and "gt_ignore" (per image (L, 2) centres of the markers the
@@ -142,9 +142,7 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
     2: no fold hides a part of it), crosspoint batches "points_px" (B, 5, 2) and "gt_xy_image"
     (B, K, K, 2) image pixels, all when `gt/<name>.npz` exists.  Localizer batches hold one image each.
     crop: the crosspoint crops' (a network's `crop`); other than the reference's, whose crops the
-    samples store, they are cut from the images with their ground truth (`crosspoint_crops`).
-    bend: the recognizer's crops are bent (a `MarkerRecognizer`'s `bend`): cut from the images with
-    their ground truth (`recognizer_crops` with bend=True; the samples store homography crops)."""
+    samples store, they are cut from the images with their ground truth (`crosspoint_crops`)."""
     root = Path(root)
     codebook = generate_codebook(spec) if task == "crosspoints" else None
     for entry in split_entries(root, split):
@@ -175,15 +173,7 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
             yield batch
             continue
         if task == "recognizer":
-            if bend:
-                if gt is None:
-                    raise ValueError(f"{root}: {entry.get('name')} has no gt/<name>.npz, which a bent recognizer's "
-                                     "crops are cut with (the samples store homography crops)")
-                made = recognizer_crops(read_png(root / entry["image"]) if image is None else image, gt, spec,
-                                        bend=True)
-                arrays = {"crop": made[0], "marker_id": made[1].astype(np.int64)}
-            else:
-                arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
+            arrays = {"crop": samples["recognizer_crops"], "marker_id": samples["recognizer_ids"].astype(np.int64)}
             if gt is not None:  # which crops show a fully visible marker (status 2)
                 pick = recognizer_markers(gt, spec)  # the markers the crops are cut for, in their order
                 if len(pick) == len(arrays["marker_id"]) and np.array_equal(gt.marker_id[pick], arrays["marker_id"]):
@@ -203,16 +193,13 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
 
 
 def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
-                 crop: CropSpec = CROSSPOINT_CROP, bend: bool = False) -> Iterable[dict]:
+                 crop: CropSpec = CROSSPOINT_CROP) -> Iterable[dict]:
     """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
     is not used), or of a factory dataset's split (`folder_batches`, whose crosspoint crops are cut in
-    `crop`); bend: the network's crops are bent (a shard folder's must be so)."""
+    `crop`)."""
     if (Path(data) / SHARD_META).is_file():
-        shards = ShardDataset(data, task, spec=spec)
-        if problem := shard_bend_problem(data, shards.meta, bend, task):
-            raise ValueError(problem)
-        return DataLoader(shards, batch_size=batch_size)
-    return folder_batches(task, data, split, spec, batch_size, crop, bend)
+        return DataLoader(ShardDataset(data, task, spec=spec), batch_size=batch_size)
+    return folder_batches(task, data, split, spec, batch_size, crop)
 
 
 def model_crop(model: nn.Module) -> CropSpec:
@@ -379,7 +366,7 @@ def evaluate_at(checkpoint: str | Path, data: str | Path, thresholds: Sequence[f
     spec = checkpoint_spec(saved)
     if (Path(data) / "template.npz").is_file():
         check_pattern(saved, dataset_spec(data), source=f"{checkpoint} against the dataset {data}")
-    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model), model_bend(model))
+    batches = data_batches(config.task, data, split, spec, batch_size, model_crop(model))
     if (Path(data) / SHARD_META).is_file():
         split = "shards"
     marker_ids = None

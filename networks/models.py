@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from assets.pattern import CROSSPOINT_CROP, PatternSpec, crop_crosspoints_px
+from assets.pattern import CropGeometry, PatternSpec, crop_crosspoints_px
 from networks.backbone import ResNet, load_pretrained, resnet18, resnet50
 from networks.config import CROSSPOINT_VISIBILITY_WEIGHT
 
@@ -121,9 +121,9 @@ class _CropNetwork(nn.Module):
     """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> outputs) on
     recognizer crops; what the ID classifier and the module reader share (their state-dict keys too)."""
 
-    def __init__(self, outputs: int, pretrained: str | Path | None, bend: bool) -> None:
+    def __init__(self, outputs: int, pretrained: str | Path | None, crops: CropGeometry) -> None:
         super().__init__()
-        self.bend = bool(bend)
+        self.crops = crops
         self.backbone = resnet50(num_classes=outputs)
         _load_backbone(self.backbone, pretrained)
 
@@ -136,15 +136,15 @@ class MarkerRecognizer(_CropNetwork):
     """ResNet-50 -> global average pool -> flatten -> ``backbone.fc`` Linear(2048 -> num_ids).
 
     forward: x float (B, 3, 96, 96) normalised crops (`assets.pattern.RECOGNIZER_CROP`) -> logits
-    (B, num_ids); softmax at inference.  bend: the crops it reads are cut through
-    `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`), not the crop homography: whoever
-    cuts its crops (the Detector, `networks.evaluate`) reads it here.
+    (B, num_ids); softmax at inference.  crops: how its crops are cut (`assets.pattern.CropGeometry`;
+    `crops.recognizer`): whoever cuts them (the Detector) reads it here.
     """
 
-    def __init__(self, num_ids: int, pretrained: str | Path | None = None, bend: bool = False) -> None:
+    def __init__(self, num_ids: int, pretrained: str | Path | None = None,
+                 crops: CropGeometry = CropGeometry()) -> None:
         if num_ids < 2:
             raise ValueError(f"MarkerRecognizer: num_ids must be >= 2, got {num_ids}")
-        super().__init__(num_ids, pretrained, bend)
+        super().__init__(num_ids, pretrained, crops)
         self.num_ids = num_ids
 
 
@@ -164,14 +164,15 @@ class MarkerModuleReader(_CropNetwork):
     (B, n * n), module (row r, col c) of the crop's canonical orientation (TL corner top-left) at
     r * n + c; sigmoid is the probability that the module is filled with the code colour (1 in the
     codebook's grids).  It knows no IDs: `networks.codes.CodeDecoder` matches its logits against any
-    codebook of the pattern, so IDs no training garment printed are read too.  bend: as for
+    codebook of the pattern, so IDs no training garment printed are read too.  crops: as for
     `MarkerRecognizer`.
     """
 
-    def __init__(self, modules_per_side: int, pretrained: str | Path | None = None, bend: bool = False) -> None:
+    def __init__(self, modules_per_side: int, pretrained: str | Path | None = None,
+                 crops: CropGeometry = CropGeometry()) -> None:
         if modules_per_side < 2:
             raise ValueError(f"MarkerModuleReader: modules_per_side must be >= 2, got {modules_per_side}")
-        super().__init__(modules_per_side * modules_per_side, pretrained, bend)
+        super().__init__(modules_per_side * modules_per_side, pretrained, crops)
         self.modules_per_side = modules_per_side
 
 
@@ -207,14 +208,17 @@ class CrosspointLocalizer(nn.Module):
     the decoder's output added to each crosspoint's canonical crop position (buffer
     ``canonical_px`` (2, K, K) from `assets.pattern.crop_crosspoints_px`), so the output is absolute
     crop pixels but the regression starts at the right place (an offset of 0 is a flat,
-    fronto-parallel marker).
+    fronto-parallel marker).  crops: how its crops are cut (`assets.pattern.CropGeometry`; `crop` is
+    `crops.crosspoints`, the reference's 112 x 112 by default): whoever cuts them reads it here.
     """
 
-    def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25) -> None:
+    def __init__(self, pretrained: str | Path | None = None, crosspoints_per_side: int = 25,
+                 crops: CropGeometry = CropGeometry()) -> None:
         super().__init__()
         k = crosspoints_per_side
-        self.crop = CROSSPOINT_CROP
-        size = CROSSPOINT_CROP.size_px // 4  # feature size after the decoder's up-convolution
+        self.crops = crops
+        self.crop = crops.crosspoints
+        size = self.crop.size_px // 4  # feature size after the decoder's up-convolution
         if not 1 <= k <= size:
             raise ValueError(f"CrosspointLocalizer: crosspoints_per_side must be in 1..{size}, got {k}")
         self.crosspoints_per_side = k
@@ -251,7 +255,7 @@ class CrosspointLocalizer(nn.Module):
             _check_images(x, f"CrosspointLocalizer {name}")
             if tuple(x.shape[2:]) != (size, size):
                 raise ValueError(f"CrosspointLocalizer {name}: expected {size} x {size} crops "
-                                 f"(assets.pattern.CROSSPOINT_CROP), got {x.shape[2]} x "
+                                 f"(its crops.crosspoints), got {x.shape[2]} x "
                                  f"{x.shape[3]}; the decoder yields {self.crosspoints_per_side} x "
                                  f"{self.crosspoints_per_side} only from that size")
         if crop.shape[0] != reference.shape[0]:

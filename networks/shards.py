@@ -91,10 +91,12 @@ def _write_part(root: str, number: int) -> tuple[int, int, float]:
 
 def shard_meta(task: str, spec: PatternSpec, config: SynthConfig, marker_ids: np.ndarray | None,
                images_per_part: int, crops_per_image: int) -> dict:
-    """The shards.json record of a shard folder (plain JSON types)."""
+    """The shards.json record of a shard folder (plain JSON types); crop_geometry: how the crop tasks'
+    crops are cut (`assets.pattern.CropGeometry`; None for the localizer's images)."""
     return json.loads(json.dumps({
         "format": SHARD_FORMAT, "version": VERSION, "task": task, "spec": spec.to_dict(),
         "codebook_hash": codebook_hash(spec), "synth": config.to_dict(),
+        "crop_geometry": None if task == "localizer" else config.crop_geometry().to_dict(),
         "marker_ids": None if marker_ids is None else [int(i) for i in marker_ids],
         "images_per_part": int(images_per_part), "crops_per_image": int(crops_per_image)}))
 
@@ -203,8 +205,6 @@ def main(argv: list[str] | None = None) -> int:
     write.add_argument("--whole-markers-only", action="store_true", help="recognizer: crops of whole markers only, "
                        "the reference's (default: partial markers with a visible centre too; "
                        "SynthConfig.recognizer_partial)")
-    write.add_argument("--recognizer-bend", action="store_true", help="recognizer: crops through the bent crop "
-                       "map that follows curved cloth (SynthConfig.recognizer_bend; default: the homography)")
     write.add_argument("--images-per-part", type=int, default=64)
     write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
     write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
@@ -222,8 +222,6 @@ def main(argv: list[str] | None = None) -> int:
             config = config.replace(crop_jitter_px=args.crop_jitter)
         if args.whole_markers_only:
             config = config.replace(recognizer_partial=False)
-        if args.recognizer_bend:
-            config = config.replace(recognizer_bend=True)
         if args.pattern is not None:
             spec = PatternSpec.load(args.pattern)
         else:

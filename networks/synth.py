@@ -55,6 +55,7 @@ import numpy as np
 from assets.fileio import check_json_object
 from assets.geometry import apply_homography
 from assets.pattern.codebook import generate_codebook
+from assets.pattern.crops import MAX_CROP_JITTER_PX, CropGeometry
 from assets.pattern.observation import ImageGroundTruth
 from assets.pattern.raster import render_grid_view
 from assets.pattern.spec import PatternSpec
@@ -63,7 +64,8 @@ from networks.config import without_removed
 
 #: `SynthConfig` fields that measurements removed (docs/journal/2026-11-28-crop-options-removed.md):
 #: name -> the only value a saved config (a shard folder's shards.json) may still carry
-SYNTH_REMOVED_FIELDS: dict[str, object] = {"crosspoint_margin_cells": 2, "crosspoint_bend": False}
+SYNTH_REMOVED_FIELDS: dict[str, object] = {"crosspoint_margin_cells": 2, "crosspoint_bend": False,
+                                            "recognizer_bend": False}
 
 _GEOMETRY, _IDS, _LIGHT, _OCCLUDERS, _BACKGROUND, _CAMERA = range(6)
 _SKIN_RGB = np.array([[224, 172, 140], [198, 134, 102], [141, 85, 60], [92, 58, 40], [240, 200, 175]], np.float32)
@@ -93,8 +95,8 @@ class SynthConfig:
     (`ImageGroundTruth.jittered`), as the Detector cuts them from the localizer's points (0: exact
     points, the reference's crops).  recognizer_partial: recognizer crops of partial markers with a
     visible centre too (`assets.pattern.observation.recognizer_markers`), not only of whole ones
-    (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).  recognizer_bend:
-    recognizer crops through `assets.pattern.bent_crop_map` (`TrainConfig.recognizer_bend`).
+    (False: the reference's, whole markers only; `TrainConfig.recognizer_partial`).  `crop_geometry()`
+    is the crop recipe of its crops, which a shard folder records.
     """
 
     image_size: tuple[int, int] = (512, 512)
@@ -126,13 +128,12 @@ class SynthConfig:
     seed: int = 0
     crop_jitter_px: float = 0.0
     recognizer_partial: bool = True
-    recognizer_bend: bool = False
 
     def __post_init__(self) -> None:
         w, h = self.image_size
         problems = []
-        if not self.crop_jitter_px >= 0:
-            problems.append(f"crop_jitter_px must be >= 0, got {self.crop_jitter_px}")
+        if not 0 <= self.crop_jitter_px <= MAX_CROP_JITTER_PX:
+            problems.append(f"crop_jitter_px must be in [0, {MAX_CROP_JITTER_PX:g}] pixels, got {self.crop_jitter_px}")
         if w < 8 or h < 8 or w % 8 or h % 8:
             problems.append(f"image_size must be multiples of 8, got {self.image_size}")
         if not 0 < self.marker_px[0] <= self.marker_px[1]:
@@ -158,6 +159,10 @@ class SynthConfig:
             problems.append("supersample >= 1, node_px >= 2 and deformation_terms >= 1 are required")
         if problems:
             raise ValueError("invalid SynthConfig: " + "; ".join(problems))
+
+    def crop_geometry(self) -> CropGeometry:
+        """How the crop tasks' crops are cut: the reference's crops from points jittered by crop_jitter_px."""
+        return CropGeometry(jitter_px=float(self.crop_jitter_px))
 
     def replace(self, **changes: object) -> "SynthConfig":
         return dataclasses.replace(self, **changes)

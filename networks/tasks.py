@@ -17,6 +17,7 @@ import contextlib
 import torch
 from torch import nn
 
+from assets.pattern import CropGeometry
 from networks.config import TASKS
 from networks.models import (
     CrosspointLocalizer,
@@ -39,28 +40,22 @@ BATCH_KEYS = {
 
 
 def build_model(task: str, num_ids: int, crosspoints_per_side: int = 25, pretrained: str | None = None,
-                recognizer_bend: bool = False, recognizer_classes: str = "garment",
-                modules_per_side: int = 12) -> nn.Module:
+                recognizer_classes: str = "garment", modules_per_side: int = 12,
+                crops: CropGeometry = CropGeometry()) -> nn.Module:
     """The untrained network of `task`; `pretrained` is a torchvision ImageNet ResNet state-dict file;
-    recognizer_bend: the recognizer's crops are bent (`TrainConfig.recognizer_bend`); recognizer_classes "modules"
+    crops: how the crop networks' crops are cut (`TrainConfig.crop_geometry`, a checkpoint's record),
+    which they carry; recognizer_classes "modules"
     (`TrainConfig.recognizer_classes`): the recognizer is a `MarkerModuleReader` of the pattern's
     `modules_per_side`, otherwise a `MarkerRecognizer` of `num_ids` classes."""
     if task == "localizer":
         return MarkerLocalizer(pretrained=pretrained)
     if task == "recognizer" and recognizer_classes == "modules":
-        return MarkerModuleReader(modules_per_side, pretrained=pretrained, bend=recognizer_bend)
+        return MarkerModuleReader(modules_per_side, pretrained=pretrained, crops=crops)
     if task == "recognizer":
-        return MarkerRecognizer(num_ids, pretrained=pretrained, bend=recognizer_bend)
+        return MarkerRecognizer(num_ids, pretrained=pretrained, crops=crops)
     if task == "crosspoints":
-        return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side,
-)
+        return CrosspointLocalizer(pretrained=pretrained, crosspoints_per_side=crosspoints_per_side, crops=crops)
     raise ValueError(f"unknown task {task!r}: expected one of {', '.join(TASKS)}")
-
-
-def model_bend(model: nn.Module) -> bool:
-    """Whether a network's crops are bent (`assets.pattern.bent_crop_map`): a recognizer's `bend`;
-    False for the other networks, whose crops never are."""
-    return bool(getattr(model, "bend", False))
 
 
 def reads_modules(model: nn.Module) -> bool:

@@ -66,8 +66,8 @@ from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint,
 from networks.codes import module_targets
 from networks.config import RECOGNIZER_CLASSES, TASKS, TrainConfig
 from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean_over_ranks, parallel, rank_device
-from networks.data import (JoinedDataset, MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec, garment_marker_ids,
-                           shard_bend_problem)
+from networks.data import (JoinedDataset, MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec,
+                           garment_marker_ids, shard_geometry_problem)
 from networks.evaluate import evaluate_model, resolve_device
 from networks.recipe import check_data_folder, load_recipe, stored_init
 from networks.synth import SynthConfig
@@ -262,32 +262,26 @@ def make_datasets(config: TrainConfig, data: Data, spec: PatternSpec, shards: st
     length = config.steps * config.batch_size
     size = (config.image_size, config.image_size) if task == "localizer" else None  # crops: the synthesizer's own
 
-    jitter = config.crop_jitter_px if task != "localizer" else 0.0
+    geometry = config.crop_geometry()
+    jitter = geometry.jitter_px
     partial = config.recognizer_partial and task == "recognizer"
-    bend = config.recognizer_bend and task == "recognizer"
 
     def synth(count: int, seed: int, with_augment: Augment | None, image_size: tuple[int, int] | None,
               stored: bool = True, crop_jitter_px: float = 0.0) -> Dataset:
         if shards is None or not stored:
             synth_config = None if task == "localizer" else SynthConfig(image_size=(256, 256), centred=True,
                                                                          crop_jitter_px=crop_jitter_px,
-                                                                         recognizer_partial=partial,
-                                                                         recognizer_bend=bend)
+                                                                         recognizer_partial=partial)
             return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
                                 augment=with_augment, marker_ids=marker_ids)
         dataset = ShardDataset(shards, task, with_augment, spec, seed)
-        written = float(dataset.meta["synth"].get("crop_jitter_px", 0.0))
-        if task != "localizer" and written != crop_jitter_px:
-            raise ValueError(f"{shards}: crops cut with a jitter of {written} px, but this run's crop_jitter_px is "
-                             f"{crop_jitter_px}; write shards with --crop-jitter {crop_jitter_px} or train with "
-                             f"--crop-jitter {written}")
+        if problem := shard_geometry_problem(shards, dataset.meta, geometry):
+            raise ValueError(problem)
         written_partial = bool(dataset.meta["synth"].get("recognizer_partial", False))
         if task == "recognizer" and written_partial != partial:
             raise ValueError(f"{shards}: recognizer crops of {'whole and partial' if written_partial else 'whole'} "
                              f"markers, but this run's recognizer_partial is {partial}; write shards "
                              f"{'without' if partial else 'with'} --whole-markers-only")
-        if problem := shard_bend_problem(shards, dataset.meta, bend, task):
-            raise ValueError(problem)
         if marker_ids is not None and not np.isin(dataset.marker_ids if dataset.marker_ids is not None
                                                   else np.arange(spec.num_ids), marker_ids).all():
             raise ValueError(f"{shards}: the shards hold marker IDs outside the {len(marker_ids)} of this run; "
@@ -307,8 +301,8 @@ def make_datasets(config: TrainConfig, data: Data, spec: PatternSpec, shards: st
         parts["train"].append(RenderedDataset(root, "train", task, augment=augment, spec=spec, seed=config.seed + k,
                                               crop_px=config.image_size if task == "localizer" else None,
                                               crop_jitter_px=jitter, view_warp=view_warp, partial_markers=partial,
-                                              decode_ahead=True, recognizer_bend=bend))
-        parts["val"].append(RenderedDataset(root, "val", task, spec=spec, seed=config.seed, recognizer_bend=bend))
+                                              decode_ahead=True))
+        parts["val"].append(RenderedDataset(root, "val", task, spec=spec, seed=config.seed))
         for split in parts:
             if len(parts[split][-1]) == 0:
                 raise ValueError(f"{root}: the {split} split has no {task} samples")
@@ -444,9 +438,8 @@ def _train(config: TrainConfig, data: Data, out: Path, device: torch.device, res
     torch.manual_seed(config.seed)
     model = build_model(config.task, spec.num_ids, spec.crosspoints_per_side,
                         pretrained=None if saved is not None else config.pretrained,
-                        recognizer_bend=config.recognizer_bend,
                         recognizer_classes=config.recognizer_classes,
-                        modules_per_side=spec.modules_per_side).to(device)
+                        modules_per_side=spec.modules_per_side, crops=config.crop_geometry()).to(device)
     if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
         model = model.to(memory_format=torch.channels_last)
     if saved is None and config.init is not None:
@@ -625,7 +618,6 @@ def _config_from_args(args: argparse.Namespace, recipe_config: TrainConfig | Non
                  "num_workers": args.num_workers,
                  "image_size": args.image_size, "augment": False if args.no_augment else None,
                  "view_warp": False if args.no_view_warp else None,
-                 "recognizer_bend": True if args.recognizer_bend else None,
                  "recognizer_partial": False if args.whole_markers_only else None,
                  "recognizer_classes": args.recognizer_classes,
                  "mixed_precision": False if args.no_mixed_precision else None}
@@ -712,10 +704,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="train without augmentation (photometric, and the localizer's view warp)")
     parser.add_argument("--no-view-warp", action="store_true",
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
-    parser.add_argument("--recognizer-bend", action="store_true",
-                        help="recognizer: cut its crops through the bent crop map that follows curved cloth "
-                        "(assets.pattern.bent_crop_map), not the homography; the checkpoint carries it and the "
-                        "Detector and networks.evaluate cut so for it; shards need the same")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
                         "markers with a visible centre too; shards need the same: networks.synth write "

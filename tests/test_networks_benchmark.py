@@ -339,12 +339,3 @@ def test_the_small_marker_recognizer_run_differs_from_the_main_one_only_in_its_m
     assert small == main.__class__(**{**main.__dict__, "marker_px": (10.0, 32.0)})
     assert bench.RUNS["recognizer_small"][:4] == bench.RUNS[bench.MAIN["recognizer"]][:4]
     assert bench.run_config("recognizer_small", 1, 2, {}).recognizer_partial
-
-
-def test_the_bent_recognizer_run_differs_from_the_main_one_only_in_its_bent_crops(bench):
-    bent, main = bench.run_config("recognizer_bent", 1, 2, {}), bench.run_config(bench.MAIN["recognizer"], 1, 2, {})
-    assert bent.recognizer_bend and not main.recognizer_bend and bent == main.replace(recognizer_bend=True)
-    assert bench.shard_config("recognizer_bent") == bench.shard_config(bench.MAIN["recognizer"]).replace(
-        recognizer_bend=True)
-
-

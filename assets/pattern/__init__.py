@@ -30,9 +30,10 @@ Design of the appearance (why it looks the way it does)
 from assets.pattern.codebook import codebook_min_distance, generate_codebook, hamming_to_rotations
 from assets.pattern.crops import (
     CROSSPOINT_CROP,
+    MAX_CROP_JITTER_PX,
     RECOGNIZER_CROP,
+    CropGeometry,
     CropSpec,
-    bent_crop_map,
     crop_crosspoints_px,
     crop_homography,
     crop_localization_px,
@@ -46,7 +47,9 @@ from assets.pattern.table import LOCALIZATION_POINTS, MarkerTable, localization_
 __all__ = [
     "CROSSPOINT_CROP",
     "LOCALIZATION_POINTS",
+    "MAX_CROP_JITTER_PX",
     "RECOGNIZER_CROP",
+    "CropGeometry",
     "CropSpec",
     "MarkerTable",
     "PatternSpec",
@@ -61,7 +64,6 @@ __all__ = [
     "reference_textures",
     "render_region",
     "unwarp",
-    "bent_crop_map",
     "write_png",
     "xy_to_pixel",
 ]

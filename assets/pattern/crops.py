@@ -15,25 +15,20 @@ cells, 4 px per cell, crosspoints at 8, 12, ..., 104).
 function that makes training crops from ground truth, unwarps detections at inference, and renders the
 reference textures' frame, so all three agree by construction.
 
-`bent_crop_map` (crop -> image) is the option that follows curved cloth (`unwarp(..., bend=True)`; a
-network trained on it says so in its config, `networks.config.TrainConfig.recognizer_bend`): the
-homography through the four corners plus a displacement that puts the centre on its own point and
-vanishes at the corners (the mean of a paraboloid and of one parabola per marker axis, `bent_crop_map`).
-Five points do not fit a homography on curved cloth, and the least-squares one misplaces the
-crosspoints: on the 10,195 fully visible markers of 120 renders their median distance from where the
-map puts the crop's canonical grid is 0.36 cells with the homography, 0.14 with the bend (the tenth of
-markers furthest off a homography: 1.22 against 0.45 cells; `benchmarks/crop_bend.py`).
+`CropGeometry` is the whole crop recipe in one record: both crops and the jitter of the five points
+training crops were cut from.  Checkpoints and shard folders carry it, and the Detector cuts its crops
+as the checkpoints say.
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from assets.geometry import apply_homography, fit_homography
+from assets.fileio import check_json_object
+from assets.geometry import fit_homography
 from assets.pattern.raster import cell_weights, composite, line_coverage
 from assets.pattern.spec import PatternSpec
 from assets.pattern.table import localization_rc
@@ -56,6 +51,68 @@ class CropSpec:
 
 RECOGNIZER_CROP = CropSpec(size_px=96, margin_cells=0)
 CROSSPOINT_CROP = CropSpec(size_px=112, margin_cells=2)
+
+#: the largest crop jitter (pixels, standard deviation) a `CropGeometry` takes; the localizer's points
+#: are about 1 px off at the median
+MAX_CROP_JITTER_PX = 8.0
+
+
+@dataclass(frozen=True)
+class CropGeometry:
+    """How the crop networks' inputs are cut from a marker's five points: the recognizer's crop, the
+    crosspoint network's crop (`CropSpec`: size and margin), and jitter_px, the standard deviation
+    (pixels) of the Gaussian noise that moved the five points training crops were cut from, as the
+    Detector cuts them from the localizer's points (0: exact points).  The defaults are the
+    reference's: 96 x 96 and 112 x 112 crops from exact points.  A network's checkpoint and a shard
+    folder carry the geometry they were made with (`to_dict`)."""
+
+    recognizer: CropSpec = RECOGNIZER_CROP
+    crosspoints: CropSpec = CROSSPOINT_CROP
+    jitter_px: float = 0.0
+
+    def __post_init__(self) -> None:
+        problems = [f"{name} must be a CropSpec, got {getattr(self, name)!r}" for name in ("recognizer", "crosspoints")
+                    if not isinstance(getattr(self, name), CropSpec)]
+        jitter = self.jitter_px
+        if isinstance(jitter, bool) or not isinstance(jitter, (int, float)) or not 0 <= jitter <= MAX_CROP_JITTER_PX:
+            problems.append(f"jitter_px must be in [0, {MAX_CROP_JITTER_PX:g}] pixels, got {jitter!r}")
+        if problems:
+            raise ValueError("invalid CropGeometry: " + "; ".join(problems))
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain JSON types: {"recognizer": {"size_px", "margin_cells"}, "crosspoints": {...}, "jitter_px"}."""
+        return {"recognizer": {"size_px": self.recognizer.size_px, "margin_cells": self.recognizer.margin_cells},
+                "crosspoints": {"size_px": self.crosspoints.size_px, "margin_cells": self.crosspoints.margin_cells},
+                "jitter_px": float(self.jitter_px)}
+
+    @classmethod
+    def from_dict(cls, data: object, source: str = "CropGeometry") -> "CropGeometry":
+        """From a dict as `to_dict` writes; errors name `source` and the field."""
+        check_json_object(data, ("recognizer", "crosspoints", "jitter_px"), source)
+        missing = [name for name in ("recognizer", "crosspoints", "jitter_px") if name not in data]
+        if missing:
+            raise ValueError(f"{source}: missing field(s) {', '.join(missing)}")
+        crops = {}
+        for name in ("recognizer", "crosspoints"):
+            crop = check_json_object(data[name], ("size_px", "margin_cells"), f"{source}.{name}")
+            size, margin = crop.get("size_px"), crop.get("margin_cells")
+            if isinstance(size, bool) or not isinstance(size, int) or isinstance(margin, bool) \
+                    or not isinstance(margin, (int, float)):
+                raise ValueError(f"{source}.{name}: size_px must be an integer and margin_cells a number, got "
+                                 f"{size!r}, {margin!r}")
+            try:
+                crops[name] = CropSpec(size_px=size, margin_cells=margin)
+            except ValueError as exc:
+                raise ValueError(f"{source}.{name}: {exc}") from None
+        try:
+            return cls(**crops, jitter_px=data["jitter_px"])
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from None
+
+    def differences(self, other: "CropGeometry") -> list[str]:
+        """What differs from `other`, one "field: this vs other" per field."""
+        return [f"{name}: {getattr(self, name)} vs {getattr(other, name)}"
+                for name in ("recognizer", "crosspoints", "jitter_px") if getattr(self, name) != getattr(other, name)]
 
 
 def crop_crosspoints_px(spec: PatternSpec, crop: CropSpec) -> np.ndarray:
@@ -85,112 +142,15 @@ def crop_homography(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarr
     return fit_homography(points, crop_localization_px(spec, crop))
 
 
-def bent_crop_map(spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray,
-                  crop_xy: np.ndarray | None = None) -> np.ndarray:
-    """Crop -> image coordinates of markers on curved cloth (module docstring): the homography through
-    the four corners plus a displacement that is the centre's offset d from that homography at the
-    centre and vanishes at the corners.  With x, y from -1 to 1 across the marker (corner to corner
-    through the centre), the displacement is the mean of the paraboloid ``(1 - (x^2 + y^2) / 2) d``
-    (a dome) and of ``(1 - x^2) a e_x + (1 - y^2) b e_y``, where d = a e_x + b e_y on the marker's
-    image axes e_x, e_y (a cylinder along each axis).  All five points map exactly.
-
-    localization_px: (5, 2) or (N, 5, 2) continuous image coordinates of centre, TL, TR, BL, BR;
-    crop_xy: (..., 2) continuous crop coordinates (default: every crop pixel's centre, (S, S, 2)).
-    Returns (N, ..., 2) (or (..., 2) for one marker) continuous image coordinates."""
-    points, single = _five_points(localization_px)
-    if crop_xy is None:
-        shape, (homogeneous, weights) = (crop.size_px, crop.size_px, 2), _pixel_bend_basis(spec, crop)
-    else:
-        shape, (homogeneous, weights) = np.shape(crop_xy), _bend_basis(spec, crop, crop_xy)
-    corners, fields = _bend_parts(spec, crop, points)
-    mapped = homogeneous @ np.swapaxes(corners, -1, -2)  # (N, P, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mapped = mapped[..., :2] / mapped[..., 2:]
-    out = (mapped + weights @ fields).reshape(len(points), *shape)
-    return out[0] if single else out
-
-
-def _five_points(localization_px: np.ndarray) -> tuple[np.ndarray, bool]:
-    """(N, 5, 2) float64 localization points, and whether one marker's (5, 2) were given."""
-    points = np.asarray(localization_px, dtype=np.float64)
-    single = points.ndim == 2
-    points = points[None] if single else points
-    if points.shape[-2:] != (5, 2):
-        raise ValueError(f"localization points must have shape (5, 2) or (N, 5, 2), got {points.shape}")
-    return points, single
-
-
-def _marker_points(points: np.ndarray, single: bool, xy: np.ndarray, frame: str) -> tuple[np.ndarray, tuple]:
-    """Each marker's own points (..., 2) of one marker (`single`) or (N, ..., 2) for the N markers of
-    `points` (N, 5, 2), as (N, P, 2) float64 and the shape (with N) to give results back in; `frame`
-    ("crop", "image") names them in the error."""
-    values = np.asarray(xy, dtype=np.float64)
-    values = values[None] if single else values
-    if values.shape[0] != len(points) or values.shape[-1] != 2:
-        raise ValueError(f"{frame} points must have shape (N, ..., 2) for N = {len(points)} markers, got "
-                         f"{np.shape(xy)}")
-    return values.reshape(len(points), -1, 2), values.shape
-
-
-def _bend_parts(spec: PatternSpec, crop: CropSpec, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`bent_crop_map`'s per-marker parts for points (N, 5, 2): the corners' homographies (N, 3, 3)
-    crop -> image, and the fields (N, 3, 2) the weights of `_bend_basis` multiply: half the centre's
-    offset d (the dome), half a e_x and half b e_y (the cylinders; d = a e_x + b e_y)."""
-    canonical = crop_localization_px(spec, crop)
-    n = len(points)
-    corners = fit_homography(np.broadcast_to(canonical[1:], (n, 4, 2)), points[:, 1:])  # (N, 3, 3) crop -> image
-    offset = points[:, 0] - apply_homography(corners, np.broadcast_to(canonical[:1], (n, 1, 2)))[:, 0]  # (N, 2)
-    _, tl, tr, bl, br = (points[:, k] for k in range(5))
-    e_x, e_y = (tr - tl + br - bl) / 2, (bl - tl + br - tr) / 2  # (N, 2): the marker's image axes
-    det = e_x[:, 0] * e_y[:, 1] - e_x[:, 1] * e_y[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):  # offset = a e_x + b e_y (Cramer)
-        a = (offset[:, 0] * e_y[:, 1] - offset[:, 1] * e_y[:, 0]) / det
-        b = (e_x[:, 0] * offset[:, 1] - e_x[:, 1] * offset[:, 0]) / det
-    a, b = (np.where(np.isfinite(v), v, 0.0)[:, None] for v in (a, b))  # a degenerate quad: the dome alone
-    return corners, 0.5 * np.stack([offset, a * e_x, b * e_y], axis=1)
-
-
-def _bend_basis(spec: PatternSpec, crop: CropSpec, crop_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`bent_crop_map`'s fixed parts at crop points (..., 2): their homogeneous coordinates (P, 3) and
-    the weights (P, 3) of the dome ``1 - (x^2 + y^2) / 2`` and the cylinders ``1 - x^2``, ``1 - y^2``."""
-    canonical = crop_localization_px(spec, crop)
-    flat = np.asarray(crop_xy, dtype=np.float64).reshape(-1, 2)
-    weights = _bend_weights((flat - canonical[0]) / (canonical[4] - canonical[0]))
-    return np.concatenate([flat, np.ones((len(flat), 1))], axis=1), weights
-
-
-def _bend_weights(xy: np.ndarray) -> np.ndarray:
-    """(..., 3): at marker coordinates xy (..., 2) (centre 0, corners +-1), the weights of the dome
-    ``1 - (x^2 + y^2) / 2`` and of the cylinders ``1 - x^2``, ``1 - y^2``."""
-    return np.stack([1.0 - 0.5 * (xy ** 2).sum(axis=-1), 1.0 - xy[..., 0] ** 2, 1.0 - xy[..., 1] ** 2], axis=-1)
-
-
-@functools.lru_cache(maxsize=8)
-def _pixel_bend_basis(spec: PatternSpec, crop: CropSpec) -> tuple[np.ndarray, np.ndarray]:
-    """`_bend_basis` at every crop pixel's centre, kept: the map is cut for every training crop."""
-    centres = np.arange(crop.size_px, dtype=np.float64) + 0.5
-    basis = _bend_basis(spec, crop, np.stack(np.meshgrid(centres, centres), axis=-1))
-    for array in basis:
-        array.flags.writeable = False
-    return basis
-
-
-def unwarp(image: np.ndarray, spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray,
-           bend: bool = False) -> np.ndarray:
+def unwarp(image: np.ndarray, spec: PatternSpec, crop: CropSpec, localization_px: np.ndarray) -> np.ndarray:
     """Cut the crops of N markers out of one image.
 
     image (H, W) or (H, W, C); localization_px (N, 5, 2) or (5, 2) continuous image coordinates.
-    bend: through `bent_crop_map` (curved cloth) instead of `crop_homography`.
     Returns (N, S, S[, C]) (or (S, S[, C])) with the image's dtype, bilinear, zero outside the image.
     """
     points = np.asarray(localization_px, dtype=np.float64)
     single = points.ndim == 2
     size = (crop.size_px, crop.size_px)
-    if bend:
-        maps = (bent_crop_map(spec, crop, points[None] if single else points) - 0.5).astype(np.float32)
-        crops = np.stack([cv2.remap(image, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-                          for m in maps])
-        return crops[0] if single else crops
     homographies = crop_homography(spec, crop, points[None] if single else points)
     # OpenCV puts pixel centres at integers; ours are at +0.5: conjugate by a half-pixel shift.
     to_cv = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1]])

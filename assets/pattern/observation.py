@@ -209,22 +209,21 @@ def recognizer_markers(gt: ImageGroundTruth, spec: PatternSpec, partial: bool = 
     return np.flatnonzero(keep)
 
 
-def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, partial: bool = False,
-                     bend: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def recognizer_crops(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec, partial: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Marker recognizer samples: (crops (N, 96, 96, C) of the image's dtype, marker IDs (N,) int32)
     of the markers of `recognizer_markers` (every marker whose five localization points are visible;
-    partial: partial markers with a visible centre too), unwarped by `RECOGNIZER_CROP` (bend: through
-    `bent_crop_map`, for a recognizer trained so).
+    partial: partial markers with a visible centre too), unwarped by `RECOGNIZER_CROP`.
 
     spec: the garment's pattern spec (`surface.spec`; the panels' specs differ only in their tiling,
     which crops do not depend on)."""
     image = _image(image, gt)
     if not partial:
         pick = recognizer_markers(gt, spec)
-        return _unwarp(image, spec, RECOGNIZER_CROP, gt.points_px[pick], bend), gt.marker_id[pick]
+        return _unwarp(image, spec, RECOGNIZER_CROP, gt.points_px[pick]), gt.marker_id[pick]
     completed = completed_points(gt)
     pick = recognizer_markers(gt, spec, partial, completed)
-    return _unwarp(image, spec, RECOGNIZER_CROP, completed[pick], bend), gt.marker_id[pick]
+    return _unwarp(image, spec, RECOGNIZER_CROP, completed[pick]), gt.marker_id[pick]
 
 
 def crosspoint_crops(
@@ -340,11 +339,10 @@ def _image(image: np.ndarray, gt: ImageGroundTruth) -> np.ndarray:
     return image
 
 
-def _unwarp(image: np.ndarray, spec: PatternSpec, crop: CropSpec, points_px: np.ndarray,
-            bend: bool = False) -> np.ndarray:
+def _unwarp(image: np.ndarray, spec: PatternSpec, crop: CropSpec, points_px: np.ndarray) -> np.ndarray:
     if len(points_px) == 0:
         return np.zeros((0, crop.size_px, crop.size_px) + image.shape[2:], dtype=image.dtype)
-    return unwarp(image, spec, crop, points_px.astype(np.float64), bend)
+    return unwarp(image, spec, crop, points_px.astype(np.float64))
 
 
 def training_samples(image: np.ndarray, gt: ImageGroundTruth, spec: PatternSpec) -> dict[str, np.ndarray]:

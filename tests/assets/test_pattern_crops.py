@@ -1,3 +1,5 @@
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -5,12 +7,12 @@ import pytest
 from assets.geometry import apply_homography, fit_homography
 from assets.pattern import (
     CROSSPOINT_CROP,
+    CropGeometry,
+    CropSpec,
     PatternSpec,
     RECOGNIZER_CROP,
-    bent_crop_map,
     crop_crosspoints_px,
     crop_homography,
-    crop_localization_px,
     reference_textures,
     render_region,
     unwarp,
@@ -67,47 +69,24 @@ def test_perspective_round_trip(small_table):
         for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
             mapped = apply_homography(crop_homography(spec, crop, loc_seen), crosspoints_seen)
             assert np.abs(mapped - crop_crosspoints_px(spec, crop)).max() < 1e-6
-            # a flat marker's centre lies on its corners' homography: the bent map is that homography
-            bent = bent_crop_map(spec, crop, loc_seen, crop_crosspoints_px(spec, crop))
-            assert np.abs(bent - crosspoints_seen.reshape(bent.shape)).max() < 1e-6
         patch = unwarp(seen, spec, RECOGNIZER_CROP, loc_seen).astype(np.float64)
         errors = np.abs(patch[None, 4:-4, 4:-4] - refs[:, 4:-4, 4:-4]).mean(axis=(1, 2, 3))
         assert errors.argmin() == m
         assert errors[m] < 20 and errors[m] < 0.5 * np.delete(errors, m).min()
 
 
-def test_the_bent_crop_map_follows_a_marker_wrapped_round_a_cylinder():
-    """Five points on curved cloth fit no homography; the bent map passes through all five and puts
-    the crosspoints of a marker on the slope of a cylinder (radius 1.5 marker sides, its axis along
-    the marker's left edge, seen from 6 sides away) three times closer to where they are than the
-    least-squares homography.  (Seen head-on, a bulge moves the centre along no image axis: five
-    points cannot tell it, and both maps are the same.)"""
-    spec = PatternSpec()
-    crop = RECOGNIZER_CROP
-
-    def project(uv: np.ndarray) -> np.ndarray:  # crop pixels -> image pixels (a marker side is 96 crop px)
-        x, y = uv[..., 0] / 96, uv[..., 1] / 96 - 0.5
-        angle = x / 1.5
-        depth = 6.0 + 1.5 * (1.0 - np.cos(angle))
-        return np.stack([400.0 + 600.0 * 1.5 * np.sin(angle) / depth, 300.0 + 600.0 * y / depth], axis=-1)
-
-    grid = crop_crosspoints_px(spec, crop)
-    truth, points = project(grid), project(crop_localization_px(spec, crop))
-    bent = bent_crop_map(spec, crop, points, grid)
-    assert np.abs(bent_crop_map(spec, crop, points, crop_localization_px(spec, crop)) - points).max() < 1e-9
-    homography = apply_homography(np.linalg.inv(crop_homography(spec, crop, points)), grid)
-    bent_error = np.linalg.norm(bent - truth, axis=-1)
-    plane_error = np.linalg.norm(homography - truth, axis=-1)
-    assert np.median(plane_error) > 1.0  # image px: a cell is 4
-    assert np.median(bent_error) < np.median(plane_error) / 2.5 and bent_error.max() < plane_error.max() * 0.6
-    # every pixel of the crop through the map, batched, and the crop cut through it
-    maps = bent_crop_map(spec, crop, np.stack([points, points + 3.0]))
-    assert maps.shape == (2, 96, 96, 2) and np.allclose(maps[1], maps[0] + 3.0)
-    image = np.random.default_rng(0).integers(0, 256, (600, 800, 3), dtype=np.uint8)
-    cut = unwarp(image, spec, crop, points, bend=True)
-    at = maps[0, 40, 57] - 0.5  # a crop pixel is the image sampled bilinearly where the map puts it
-    assert np.abs(cut[40, 57].astype(float) - cv2.getRectSubPix(image, (1, 1), tuple(at))[0, 0]).max() <= 1.5
-    with pytest.raises(ValueError, match="shape"):
-        bent_crop_map(spec, crop, points[:4])
-
-
+def test_a_crop_geometry_round_trips_through_json_and_names_what_is_wrong():
+    geometry = CropGeometry(jitter_px=1.0)
+    assert geometry.recognizer == RECOGNIZER_CROP and geometry.crosspoints == CROSSPOINT_CROP
+    assert CropGeometry.from_dict(json.loads(json.dumps(geometry.to_dict()))) == geometry
+    assert geometry.differences(CropGeometry()) == ["jitter_px: 1.0 vs 0.0"]
+    wider = CropGeometry(crosspoints=CropSpec(128, 4))
+    assert wider.differences(CropGeometry()) == [f"crosspoints: {CropSpec(128, 4)} vs {CROSSPOINT_CROP}"]
+    for data, message in (({**geometry.to_dict(), "bend": True}, r"x: unknown field\(s\) bend"),
+                          ({**geometry.to_dict(), "jitter_px": 9.0}, r"x: invalid CropGeometry: jitter_px must be in \[0, 8\]"),
+                          ({**geometry.to_dict(), "recognizer": {"size_px": 4, "margin_cells": 0}},
+                           r"x\.recognizer: invalid CropSpec"),
+                          ({**geometry.to_dict(), "crosspoints": {"size_px": "112", "margin_cells": 2}},
+                           r"x\.crosspoints: size_px must be an integer")):
+        with pytest.raises(ValueError, match=message):
+            CropGeometry.from_dict(data, source="x")

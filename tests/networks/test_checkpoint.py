@@ -6,7 +6,7 @@ import json
 import pytest
 import torch
 
-from assets.pattern import PatternSpec
+from assets.pattern import CropGeometry, CropSpec, PatternSpec
 from networks.backbone import resnet18
 from networks.checkpoint import (checkpoint_spec, codebook_hash, load_checkpoint, read_checkpoint, save_checkpoint,
                                  slim_checkpoint)
@@ -147,3 +147,28 @@ def test_slim_checkpoint_keeps_the_network_in_bf16_without_the_optimizer(trained
     with pytest.raises(ValueError, match="junk.pt: not a checkpoint"):
         slim_checkpoint(tmp_path / "junk.pt", tmp_path / "out.pt")
     assert not (tmp_path / "out.pt").exists()
+
+
+def test_checkpoints_carry_the_crop_geometry_the_network_cuts_with(tmp_path):
+    """A crop network's checkpoint records its crops and jitter; the rebuilt network carries them (what the
+    Detector cuts with).  A checkpoint written before the record loads with its config's; a record that
+    contradicts its config is refused by name."""
+    config = TrainConfig("crosspoints", crop_jitter_px=1.0)
+    model = build_model("crosspoints", SPEC.num_ids, SPEC.crosspoints_per_side, crops=config.crop_geometry())
+    path = save_checkpoint(tmp_path / "xp.pt", "crosspoints", model, config, SPEC)
+    raw = torch.load(path, weights_only=True)
+    assert raw["crop_geometry"] == {"recognizer": {"size_px": 96, "margin_cells": 0},
+                                    "crosspoints": {"size_px": 112, "margin_cells": 2}, "jitter_px": 1.0}
+    loaded, _, _ = load_checkpoint(path)
+    assert loaded.crops == CropGeometry(jitter_px=1.0) and loaded.crop == CropSpec(112, 2)
+    del raw["crop_geometry"]  # as written before the record
+    torch.save(raw, tmp_path / "old.pt")
+    assert load_checkpoint(tmp_path / "old.pt")[0].crops == CropGeometry(jitter_px=1.0)
+    torch.save({**raw, "crop_geometry": CropGeometry(jitter_px=2.0).to_dict()}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match=r"other\.pt: crop_geometry\.jitter_px is 2\.0, but its config trained with "
+                                         r"crop_jitter_px 1\.0"):
+        load_checkpoint(tmp_path / "other.pt")
+    torch.save({**raw, "crop_geometry": {"recognizer": {"size_px": "96"}}}, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match=r"bad\.pt:crop_geometry: missing field\(s\) crosspoints, jitter_px"):
+        load_checkpoint(tmp_path / "bad.pt")
+    assert TrainConfig("localizer", crop_jitter_px=1.0).crop_geometry() == CropGeometry()  # it cuts no crops

@@ -152,7 +152,7 @@ def test_a_module_reader_checkpoint_round_trips_and_the_detector_decodes_it(tmp_
     points = np.stack([corners + [96 * (i % 3), 96 * (i // 3)] for i in range(6)])
     ids, probability = detector.recognize([image], np.zeros(6, dtype=np.int64), points)
     with torch.no_grad():
-        crops = unwarp_markers([image], np.zeros(6, dtype=np.int64), points, SPEC, RECOGNIZER_CROP, False)
+        crops = unwarp_markers([image], np.zeros(6, dtype=np.int64), points, SPEC, RECOGNIZER_CROP)
         logits = detector.recognizer(detector._to_device(crops))
     expected = CodeDecoder(codebook, GARMENT_IDS).decode(logits)
     assert np.array_equal(ids, expected.marker_id.numpy()) and np.isin(ids, GARMENT_IDS).all()

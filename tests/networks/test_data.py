@@ -14,7 +14,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from assets.fileio import save_json, save_npz
-from assets.pattern import CROSSPOINT_CROP, RECOGNIZER_CROP, PatternSpec, generate_codebook, reference_textures, unwarp
+from assets.pattern import CROSSPOINT_CROP, PatternSpec, generate_codebook, reference_textures
 from assets.geometry import apply_homography
 from assets.pattern.observation import (ImageGroundTruth, crosspoint_crops, localizer_targets, recognizer_crops,
                                         recognizer_markers)
@@ -230,22 +230,6 @@ def test_partial_marker_items_add_the_partial_markers_crops_cut_from_the_image(f
     assert len(same) == len(whole) and all(same)
     with pytest.raises(ValueError, match="partial_markers is for the recognizer"):
         RenderedDataset(folder, "train", "crosspoints", partial_markers=True)
-
-
-def test_bent_recognizer_crops_are_cut_through_the_bent_map(folder):
-    bent = RenderedDataset(folder, "train", "recognizer", recognizer_bend=True)
-    exact = RenderedDataset(folder, "train", "recognizer")
-    assert len(bent) == len(exact) > 2
-    for i in range(len(bent)):
-        image_index, k = (int(v) for v in bent._index[i])
-        entry = bent.entries[image_index]
-        image = cv2.imread(str(folder / entry["image"]), cv2.IMREAD_COLOR)[:, :, ::-1]
-        points = bent._sources[image_index]["points_px"][k]
-        assert np.array_equal(bent[i]["crop"].permute(1, 2, 0).numpy(), unwarp(image, SPEC, RECOGNIZER_CROP, points,
-                                                                               bend=True))
-        assert bent[i]["marker_id"] == exact[i]["marker_id"]
-    with pytest.raises(ValueError, match="recognizer_bend is for the recognizer"):
-        RenderedDataset(folder, "train", "crosspoints", recognizer_bend=True)
 
 
 def test_per_image_marker_work_is_done_once_when_the_dataset_is_made_and_stale_samples_are_refused_then(

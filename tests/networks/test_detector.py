@@ -12,6 +12,8 @@ from assets.geometry import apply_homography, fit_homography
 from assets.pattern import (
     CROSSPOINT_CROP,
     RECOGNIZER_CROP,
+    CropGeometry,
+    CropSpec,
     MarkerTable,
     PatternSpec,
     crop_crosspoints_px,
@@ -403,33 +405,6 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         detector([small, small.astype(np.float32)])
 
 
-def test_a_recognizer_trained_on_bent_crops_gets_bent_crops(codebook, table, scene):
-    """The Detector cuts a recognizer's crops as it was trained (`MarkerRecognizer.bend`): the IDs and
-    probabilities are the network's on `unwarp(bend=True)` crops, which differ from the homography's
-    where the centre is off the corners' homography (moved 2 px here, as curved cloth moves it)."""
-    image, points, _ = scene
-    points = points.copy()
-    points[:, 0] += [2.0, -1.5]
-    localizer, _, crosspoints = _networks(0)
-    torch.manual_seed(3)
-    bent = MarkerRecognizer(SPEC.num_ids, bend=True).eval()
-    detector = Detector(localizer, bent, crosspoints, SPEC, tables=[table], codebook=codebook)
-    index = np.zeros(len(points), np.int64)
-    ids, probability = detector.recognize([image], index, points)
-    outputs = {}
-    with torch.inference_mode():
-        for bend in (True, False):
-            crops = unwarp_markers([image], index, points, SPEC, RECOGNIZER_CROP, bend)
-            outputs[bend] = torch.softmax(bent(detector._to_device(crops)).float(), dim=1).numpy()
-    assert np.allclose(outputs[True][np.arange(len(ids)), ids], probability, atol=1e-5)
-    assert not np.allclose(outputs[True], outputs[False], atol=1e-4)
-    # the config overrides how the network was trained
-    homography = Detector(localizer, bent, crosspoints, SPEC, tables=[table], codebook=codebook,
-                          config=DetectorConfig(recognizer_bend=False))
-    ids, probability = homography.recognize([image], index, points)
-    assert np.allclose(outputs[False][np.arange(len(ids)), ids], probability, atol=1e-5)
-
-
 def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, scene):
     """smooth_crosspoints_px: the same markers and visibility, the visible crosspoints moved (a
     crosspoint network with a noisy last layer), the hidden ones not."""
@@ -630,3 +605,21 @@ def test_auto_localizer_scale_localizes_again_at_the_chosen_scale(detector, scen
     alone = auto.localize([small])[0]  # alone: in a batch the small image is padded to the large one's size
     assert len(alone[0]) < 8 and auto.localizer_scales == [1.0]
     assert all(np.array_equal(a, b) for a, b in zip(alone, at(1.0).localize([small])[0]))
+
+
+def test_the_detector_cuts_the_recognizers_crops_as_its_network_carries_them(codebook, table, scene):
+    """The recognizer's crops are its `crops.recognizer` (from its checkpoint's crop geometry), not a
+    Detector's own constant: a 64 px recognizer gets 64 px crops, and its probabilities on them."""
+    image, points, _ = scene
+    localizer, _, crosspoints = _networks(0)
+    torch.manual_seed(3)
+    small = CropGeometry(recognizer=CropSpec(64, 0))
+    recognizer = MarkerRecognizer(SPEC.num_ids, crops=small).eval()
+    detector = Detector(localizer, recognizer, crosspoints, SPEC, tables=[table], codebook=codebook)
+    index = np.zeros(len(points), np.int64)
+    ids, probability = detector.recognize([image], index, points)
+    crops = unwarp_markers([image], index, points, SPEC, small.recognizer)
+    with torch.inference_mode():
+        expected = torch.softmax(recognizer(detector._to_device(crops)).float(), dim=1).numpy()
+    assert crops.shape[1:3] == (64, 64)
+    assert np.allclose(expected[np.arange(len(ids)), ids], probability, atol=1e-5)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from assets.pattern import PatternSpec
+from assets.pattern import CropGeometry, PatternSpec
 from assets.pattern.observation import localizer_targets
 from networks.data import ShardDataset, read_shard_meta, synth_crops
 from networks.shards import main, write_shards
@@ -87,6 +87,15 @@ def test_cli_writes_jittered_crops(tmp_path, capsys):
                  "--image-size", "128", "--images-per-part", "2", "--crop-jitter", "1.5", "--quiet"]) == 0
     meta = read_shard_meta(out)
     assert meta["synth"]["crop_jitter_px"] == 1.5
+    assert CropGeometry.from_dict(meta["crop_geometry"]) == CropGeometry(jitter_px=1.5)
+    # a folder written before the record reads as its synth config cut it; one contradicting it is refused
+    raw = json.loads((out / "shards.json").read_text())
+    (out / "shards.json").write_text(json.dumps({k: v for k, v in raw.items() if k != "crop_geometry"}))
+    assert read_shard_meta(out)["crop_geometry"] == raw["crop_geometry"]
+    (out / "shards.json").write_text(json.dumps({**raw, "crop_geometry": CropGeometry().to_dict()}))
+    with pytest.raises(ValueError, match="crop_geometry.jitter_px is 0.0, synth.crop_jitter_px 1.5"):
+        read_shard_meta(out)
+    (out / "shards.json").write_text(json.dumps(raw))
     config = SynthConfig.from_dict(meta["synth"])
     image, gt = PatternSynthesizer(SPEC, config).sample(0)
     jittered, _ = synth_crops("recognizer", image, gt, SPEC, config, 0)
@@ -120,7 +129,7 @@ def test_time_limit_stops_submitting_parts_that_would_end_after_it(tmp_path):
 
 
 #: per removed SynthConfig field: a value other than the product's
-SYNTH_REMOVED_OTHER_VALUES = {"crosspoint_margin_cells": 4, "crosspoint_bend": True}
+SYNTH_REMOVED_OTHER_VALUES = {"crosspoint_margin_cells": 4, "crosspoint_bend": True, "recognizer_bend": True}
 
 
 @pytest.mark.parametrize("name", sorted(SYNTH_REMOVED_FIELDS))

@@ -18,11 +18,10 @@ from assets.fileio import save_npz
 from assets.pattern import PatternSpec
 from networks.checkpoint import load_checkpoint, read_checkpoint, slim_checkpoint
 from networks.config import REMOVED_FIELDS, TrainConfig
-from networks.evaluate import evaluate, folder_batches
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
-from networks.train import FIT_SKIP_STEPS, MASKED_LOGIT, StepOrder, lr_factor, main, make_datasets, train
+from networks.train import FIT_SKIP_STEPS, MASKED_LOGIT, StepOrder, lr_factor, main, train
 from tests.networks.test_evaluate import write_factory_dataset
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
@@ -330,7 +329,8 @@ def test_the_recognizer_trains_on_jittered_crops_from_shards_written_so(dataset,
     result = train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, shards=shards, progress=False)
     assert result["step"] == 2
     assert read_checkpoint(tmp_path / "run" / "last.pt")["config"]["crop_jitter_px"] == 1.0
-    with pytest.raises(ValueError, match=r"jitter of 1\.0 px.*--crop-jitter"):
+    with pytest.raises(ValueError, match=r"another geometry than this run's \(jitter_px: 1\.0 vs 0\.0, shards vs run\); "
+                       r"write shards with --crop-jitter 0 or train with --crop-jitter 1"):
         train(config.replace(crop_jitter_px=0.0), dataset, tmp_path / "exact", device="cpu", spec=SPEC,
               shards=shards, progress=False)
     with pytest.raises(ValueError, match="crop_jitter_px must be in"):
@@ -348,35 +348,6 @@ def test_the_recognizer_trains_on_partial_markers_from_shards_written_so(dataset
     with pytest.raises(ValueError, match="whole and partial.*write shards with --whole-markers-only"):
         train(config.replace(recognizer_partial=False), dataset, tmp_path / "whole", device="cpu", spec=SPEC,
               shards=shards, progress=False)
-
-
-def _refuses_homography_shards(config: TrainConfig, dataset: Path, tmp_path: Path) -> None:
-    """A run of a bent network (`config`) refuses shards written without its bend, naming the flag."""
-    shards = tmp_path / "shards"
-    write_shards(shards, config.task, SPEC, count=2, config=SynthConfig(image_size=(128, 128)), images_per_part=2,
-                 progress=False)
-    flag = "--recognizer-bend" if config.task == "recognizer" else "--crosspoint-bend"
-    with pytest.raises(ValueError, match=f"write shards with {flag}"):
-        train(config.replace(synth_weight=0.5, init=None), dataset, tmp_path / "mixed", device="cpu", spec=SPEC,
-              shards=shards, progress=False)
-
-
-def test_a_bent_recognizer_trains_evaluates_and_loads_on_bent_crops(dataset, tmp_path):
-    out = tmp_path / "bent"
-    assert main(["recognizer", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
-                 "--num-workers", "0", "--recognizer-classes", "codebook", "--recognizer-bend", "--device", "cpu"]) == 0
-    model, config, _ = load_checkpoint(out / "last.pt", expected_task="recognizer")
-    assert config.recognizer_bend and model.bend
-    rendered, val = make_datasets(config, dataset, SPEC)
-    assert rendered.recognizer_bend and val.recognizer_bend
-    # evaluation cuts bent crops from the images (the samples store homography ones)
-    bent = next(iter(folder_batches("recognizer", dataset, "test", SPEC, batch_size=64, bend=True)))
-    stored = next(iter(folder_batches("recognizer", dataset, "test", SPEC, batch_size=64)))
-    assert torch.equal(bent["marker_id"], stored["marker_id"]) and not torch.equal(bent["crop"], stored["crop"])
-    assert evaluate(out / "last.pt", dataset, split="test", device="cpu")["samples"] == len(bent["marker_id"])
-    _refuses_homography_shards(config, dataset, tmp_path)
-    with pytest.raises(ValueError, match="recognizer_bend is for the recognizer"):
-        _config("crosspoints", recognizer_bend=True)
 
 
 def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_validation(dataset, tmp_path):
@@ -398,7 +369,7 @@ def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_
 #: per removed TrainConfig field: (task, a value other than the product's)
 REMOVED_OTHER_VALUES = {"crosspoint_visibility_weight": ("crosspoints", 10.0), "marker_shrink": ("recognizer", 0.5),
                         "crosspoint_margin_cells": ("crosspoints", 4), "crosspoint_bend": ("crosspoints", True),
-                        "localizer_marker_px": ("localizer", 22.0)}
+                        "localizer_marker_px": ("localizer", 22.0), "recognizer_bend": ("recognizer", True)}
 
 
 @pytest.mark.parametrize("name", sorted(REMOVED_FIELDS))
