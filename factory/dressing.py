@@ -9,7 +9,9 @@ set-in sleeves with a tall cap do not fit a T-pose: the arm pokes through the sl
 
 1. Place: every panel is moved by its placement hint (`assets.garments.export.placed_positions`);
    a panel without one cannot be dressed (`DressingError` names it).  Hints are written for the
-   T-pose; arm panels turn with the arm about the shoulder into the dressing pose.
+   T-pose of the body's default shape; on another shape each panel moves with the joint its body
+   part hangs from (`placement_shifts`).  Arm panels turn with the arm about the shoulder into the
+   dressing pose.
 2. Curve: the panels of one body part (torso, waist, neck, each arm) are rolled onto a cylinder around
    that part's axis (from its joints), length-preserving around the axis.  The radius at each height
    is the larger of the body's radius there plus `clearance` and what the panels' width needs so
@@ -166,11 +168,33 @@ class DressingBody:
 
 
 def dressing_body(body: BodyModel, betas: np.ndarray | None = None, pose: str = "A") -> DressingBody:
-    vertices, joints = body.rest(betas)
-    trans = np.array([0.0, 0.0, joints[0, 2] - vertices[:, 2].min()])
+    rest_joints = standing_joints(body, betas)
+    trans = rest_joints[0]
     posed = body.pose(dressing_pose(pose)[None], trans[None], betas)
     return DressingBody(pose.upper(), posed.vertices[0].astype(np.float64), posed.joints[0].astype(np.float64),
-                        joints - joints[0] + trans, trans)
+                        rest_joints, trans)
+
+
+def standing_joints(body: BodyModel, betas: np.ndarray | None = None) -> np.ndarray:
+    """(J, 3) joints of the body in the T-pose, soles on z = 0 and pelvis on the Z axis (metres)."""
+    vertices, joints = body.rest(betas)
+    return joints - joints[0] + np.array([0.0, 0.0, joints[0, 2] - vertices[:, 2].min()])
+
+
+def placement_shifts(template: Template, body: BodyModel, dressed: DressingBody) -> np.ndarray:
+    """(P, 3) metres: how far step 1 moves each panel of `template` from its placement hint.
+
+    Hints are written for the body's default shape (`body.default_betas`: the default garments are
+    drafted for it, 1.70 m tall; GarmentCode places panels for its mean body, 1.72 m).  On the shape
+    of `dressed` each panel moves with the joint its body part hangs from (the start joint in
+    `_PARTS`: spine3 for the torso, the pelvis for the waist, the neck, each shoulder, each hip),
+    T-pose to T-pose, so the panel keeps its offset from that joint; the panels keep their shapes.
+    Zero on the default shape.
+    Every panel needs a placement with a body part dressing knows."""
+    reference = dict(zip(body.joint_names, standing_joints(body, body.default_betas)))
+    target = dict(zip(body.joint_names, dressed.rest_joints))
+    anchors = [_PARTS[panel.placement.body_part][1] for panel in template.pattern.panels]
+    return np.array([target[joint] - reference[joint] for joint in anchors]).reshape(-1, 3)
 
 
 def curve_onto_body(template: Template, level_mm: int, body: BodyModel, dressed: DressingBody,
@@ -195,6 +219,7 @@ def curve_onto_body(template: Template, level_mm: int, body: BodyModel, dressed:
         group = _PARTS[part][0]
         if group is not None:
             groups.setdefault(group, []).append(p)
+    positions += placement_shifts(template, body, dressed)[level.panel]
     for group, members in groups.items():
         _, start, end, skin_joints = _PARTS[panels[members[0]].placement.body_part]
         origin = joints[start]

@@ -34,9 +34,11 @@ outside has its loop reversed (vertex order and curve directions); then a panel 
 clockwise in its own frame is mirrored (x -> -x, arc sagittas negated) and its placement composed with
 180 degrees about the local Y axis.  Every 3D point stays where GarmentCode put it, except on arm panels
 (`_straighten_arms`): GarmentCode places sleeves on its A-pose body's arms, about 50 degrees down, and
-our hints are for the T-pose, so each arm's panels turn up about the sleeve's cap end.  Edges keep their
-names (the label if unique in the panel, else `e{index}` with GarmentCode's edge index) whatever their
-new position in the loop.  Seam `reverse` follows GarmentCode's stitch meaning exactly: right side to
+our hints are for the T-pose, so each arm's panels turn up about the sleeve's cap end.  Positions stay
+those of GarmentCode's mean body (1.72 m tall; our default body 1.70 m): dressing on another body shape
+moves each panel with its body part (`factory.dressing.placement_shifts`).  Edges keep their names
+(the label if unique in the panel, else `e{index}` with GarmentCode's edge index) whatever their new
+position in the loop.  Seam `reverse` follows GarmentCode's stitch meaning exactly: right side to
 right side (one edge's end meets the other's start) unless the stitch is tagged 'right_wrong', then
 flipped once for each of the two panels whose loop was reversed.  The 3D endpoints do not decide it:
 GarmentCode places panels loosely (front and back 45 cm apart), so on short edges the two pairings
