@@ -442,6 +442,9 @@ class SynthDataset(_Items, Dataset):
     codebook: (num_ids, n, n) codes of `spec` (generated if not given); marker_ids: the IDs that
     may appear (default all; `PatternSynthesizer`)."""
 
+    #: item i is as random as any other, so a `MixedDataset` takes its items in order (and its cache hits)
+    iid = True
+
     def __init__(self, task: str, spec: PatternSpec, length: int, seed: int, config: SynthConfig | None = None,
                  augment: Augment | None = None, image_size: tuple[int, int] | None = None,
                  codebook: np.ndarray | None = None, crops_per_sample: int = 2, marker_ids: np.ndarray | None = None):
@@ -649,7 +652,9 @@ class JoinedDataset(ConcatDataset):
 
 class MixedDataset(Dataset):
     """`length` items, each drawn from `datasets[k]` with probability weights[k] (normalised) at a
-    uniformly random index of it; deterministic per (seed, epoch, index)."""
+    uniformly random index of it, or, from a dataset of i.i.d. items (``iid``, the synthesizer's), at
+    item `index` itself: consecutive items of a batch then share its samples, whose crops a random
+    index would render anew one crop at a time; deterministic per (seed, epoch, index)."""
 
     def __init__(self, datasets: Sequence[Dataset], weights: Sequence[float], length: int, seed: int):
         weights = np.asarray(weights, dtype=np.float64)
@@ -682,6 +687,8 @@ class MixedDataset(Dataset):
             raise IndexError(f"index {index} out of range for {self.length} items")
         rng = np.random.default_rng([self.seed, self.epoch, int(index)])
         k = int(rng.choice(len(self.datasets), p=self.weights))
+        if getattr(self.datasets[k], "iid", False):
+            return k, int(index) % len(self.datasets[k])
         return k, int(rng.integers(len(self.datasets[k])))
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:

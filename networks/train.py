@@ -136,6 +136,12 @@ class StepOrder(Dataset):
         return self.dataset[int(self.order(epoch)[offset]) if self.shuffle else offset]
 
 
+#: crops a crop task takes of each synthesized sample (a centred 256 x 256 sample shows about 90
+#: markers, and rendering it is most of an item's cost): recognizer items half synthesized, 105 items/s
+#: on one core at 16, 20 at 2 (`docs/journal/2026-11-29-module-reader-run.md`)
+SYNTH_CROPS_PER_SAMPLE = 16
+
+
 def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoader:
     """A DataLoader whose `num_workers` workers come from a fork server (`networks.workers.worker_context`,
     which says why), each with one BLAS, OpenMP and OpenCV thread."""
@@ -273,7 +279,7 @@ def make_datasets(config: TrainConfig, data: Data, spec: PatternSpec, shards: st
                                                                          crop_jitter_px=crop_jitter_px,
                                                                          recognizer_partial=partial)
             return SynthDataset(task, spec, length=count, seed=seed, config=synth_config, image_size=image_size,
-                                augment=with_augment, marker_ids=marker_ids)
+                                augment=with_augment, marker_ids=marker_ids, crops_per_sample=SYNTH_CROPS_PER_SAMPLE)
         dataset = ShardDataset(shards, task, with_augment, spec, seed)
         if problem := shard_geometry_problem(shards, dataset.meta, geometry):
             raise ValueError(problem)

@@ -409,6 +409,8 @@ def test_mixed_dataset_draws_in_proportion_to_the_weights(codebook):
     assert abs((sources[:, 0] == 0).mean() - 0.75) < 0.03
     assert sources[sources[:, 0] == 0, 1].max() < 10 and sources[sources[:, 0] == 1, 1].max() >= 10
     assert len(np.unique(sources[sources[:, 0] == 1, 1])) == 20  # every item of b is reachable
+    # synthesized items are i.i.d.: taken in order, so consecutive items share a synthesized sample
+    assert all(j == i % len([a, b][k]) for i, (k, j) in enumerate(sources))
     k, j = mixed.source(7)
     assert torch.equal(mixed[7]["image"], [a, b][k][j]["image"])
     assert [mixed.source(i) for i in range(50)] == [tuple(s) for s in sources[:50]]
