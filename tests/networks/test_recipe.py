@@ -33,13 +33,8 @@ def test_every_shipped_recipe_loads_and_round_trips(path):
     assert recipe.data_digest == table_digest(recipe.data)
 
 
-TINY = """
-[networks.localizer]
-data = "synth"
-steps = 3
-batch_size = 1
-image_size = 64
-lr = 1e-3
+#: a tiny run's settings, shared by the test recipes
+SMALL = """lr = 1e-3
 warmup_steps = 0
 augment = false
 num_workers = 0
@@ -47,6 +42,14 @@ val_samples = 2
 val_every = 100
 checkpoint_every = 100
 """
+
+TINY = """
+[networks.localizer]
+data = "synth"
+steps = 3
+batch_size = 1
+image_size = 64
+""" + SMALL
 
 
 def _recipe(tmp_path: Path, text: str, name: str = "tiny") -> Path:
@@ -109,14 +112,7 @@ motions = ["walk"]
 recognizer_classes = "codebook"
 steps = 2
 batch_size = 2
-lr = 1e-3
-warmup_steps = 0
-augment = false
-num_workers = 0
-val_samples = 2
-val_every = 100
-checkpoint_every = 100
-"""
+""" + SMALL
 
 
 def _recipe_build(folder: Path, data: dict, parts: list[str]) -> Path:
