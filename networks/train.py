@@ -29,7 +29,8 @@ base and flags given on the command line override it.
 config (flags given still override it, and the run folder's `recipe.json` records the recipe, its
 file's SHA-256 and what the flags changed), `--data` is the folder `factory.dataset build --recipe`
 made (checked to be this recipe's data; its training parts are the data), and a recipe starting from
-stored weights fetches them (or checks the `--init` file given against the manifest).
+stored weights writes the pinned ones from the repository's history (or checks the `--init` file
+given against their SHA-256, on a machine without the history).
 
 Batches follow a fixed order (`StepOrder`): step s takes positions s*B .. (s+1)*B - 1 of a sequence of
 epochs, each an order of the training set seeded by (seed, epoch), and every item is itself seeded by
