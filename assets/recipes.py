@@ -13,12 +13,15 @@ import json
 import tomllib
 from pathlib import Path
 
-from assets.fileio import safe_name
+from assets.fileio import load_json, safe_name
 
 #: the repository's root: relative paths in recipes start here
 ROOT = Path(__file__).resolve().parent.parent
 #: where recipe names are looked up
 RECIPES = ROOT / "networks" / "recipes"
+#: the record `factory.dataset build --recipe` writes into its output folder: the recipe's name, its
+#: `[data]` table and that table's digest, and its part folders ({"train": [...], "holdout": [...]})
+BUILD_RECORD = "recipe.json"
 
 
 def recipe_path(name: str | Path) -> Path:
@@ -45,6 +48,17 @@ def read_recipe(name: str | Path) -> tuple[Path, dict]:
         raise ValueError(f"{path}: not a TOML recipe ({exc})") from None
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not UTF-8 text ({exc})") from None
+
+
+def read_build(folder: str | Path) -> dict:
+    """The `BUILD_RECORD` of a recipe build folder; FileNotFoundError naming the folder without one."""
+    path = Path(folder) / BUILD_RECORD
+    if not path.is_file():
+        raise FileNotFoundError(f"{folder}: no {BUILD_RECORD} (not built by factory.dataset build --recipe)")
+    record = load_json(path)
+    if not isinstance(record, dict) or not isinstance(record.get("parts"), dict):
+        raise ValueError(f"{path}: not the record of a recipe build (no parts)")
+    return record
 
 
 def table_digest(table: object) -> str:

@@ -24,7 +24,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from assets.fileio import load_json, save_json  # noqa: E402
+from assets.fileio import save_json  # noqa: E402
+from assets.recipes import read_build  # noqa: E402
 from networks.evaluate import evaluate, split_entries  # noqa: E402
 from networks.evaluate_detector import evaluate_detector, load_detector  # noqa: E402
 
@@ -33,7 +34,7 @@ TARGET_TOP1 = 0.995
 
 def parts(build: Path) -> list[tuple[str, Path, str]]:
     """(kind, folder, split) of each part of the recipe build `build`."""
-    record = load_json(build / "recipe.json")
+    record = read_build(build)
     listed = [("train", build / p, "test") for p in record["parts"]["train"]]
     listed += [("holdout", build / p, "all") for p in record["parts"]["holdout"]]
     missing = [str(f) for _, f, _ in listed if not (f / "manifest.jsonl").is_file()]

@@ -40,12 +40,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from assets.fileio import check_json_object, check_settings, load_json, safe_name, save_json
-from assets.recipes import ROOT, read_recipe, table_digest
+from assets.fileio import check_json_object, check_settings, safe_name, save_json
+from assets.recipes import BUILD_RECORD, ROOT, read_recipe, table_digest
 from factory.dataset import DatasetConfig, RenderSettings
 
-#: the record a recipe build writes into its folder
-RECORD = "recipe.json"
 #: part folders of the training and of the evaluation data
 TRAIN, HOLDOUT = "train", "holdout"
 
@@ -215,9 +213,9 @@ def build_recipe(name: str | Path, out: str | Path, shard: tuple[int, int] = (0,
     parts = recipe.parts()
     record = {"recipe": path.stem, "data": table, "data_digest": table_digest(table),
               "parts": {kind: [p.folder for p in parts if p.folder.startswith(kind + "/")] for kind in (TRAIN, HOLDOUT)}}
-    check_settings(out / RECORD, record)  # another recipe's folder is refused before anything is built
+    check_settings(out / BUILD_RECORD, record)  # another recipe's folder is refused before anything is built
     out.mkdir(parents=True, exist_ok=True)
-    save_json(out / RECORD, record)
+    save_json(out / BUILD_RECORD, record)
     folders = []
     for part in parts:
         if not holdout and part.folder.startswith(HOLDOUT):
@@ -227,12 +225,4 @@ def build_recipe(name: str | Path, out: str | Path, shard: tuple[int, int] = (0,
     return folders
 
 
-def recipe_folders(out: str | Path, kind: str = TRAIN) -> list[Path]:
-    """The part folders of kind `kind` (TRAIN or HOLDOUT) of a recipe build in `out`, in build order."""
-    out = Path(out)
-    if not (out / RECORD).is_file():
-        raise FileNotFoundError(f"{out}: no {RECORD} (not built by factory.dataset build --recipe)")
-    return [out / folder for folder in load_json(out / RECORD)["parts"][kind]]
-
-
-__all__ = ["BodyShape", "DataRecipe", "Part", "build_recipe", "garment_label", "load_data_recipe", "recipe_folders"]
+__all__ = ["BodyShape", "DataRecipe", "Part", "build_recipe", "garment_label", "load_data_recipe"]

@@ -29,12 +29,11 @@ other weights or data than the recipe names (weights stored later do not change 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from assets.fileio import check_json_object, load_json
-from assets.recipes import read_recipe, table_digest
+from assets.fileio import check_json_object
+from assets.recipes import BUILD_RECORD, read_build, read_recipe, table_digest
 from networks.config import TASKS, TrainConfig
 from networks.weights import fetch_blob, file_sha256
 
@@ -42,8 +41,6 @@ from networks.weights import fetch_blob, file_sha256
 DATA_SOURCES = ("rendered", "synth")
 #: the keys of a recipe network's `init` table: stored weights pinned in the repository's history
 INIT_KEYS = ("commit", "file", "sha256")
-#: the record `factory.dataset build --recipe` writes into its output folder
-DATA_RECORD = "recipe.json"
 
 
 @dataclass(frozen=True)
@@ -135,7 +132,7 @@ class Recipe:
 
     def record(self, task: str) -> dict:
         """What a run of `task` saves beside its config: the recipe, its file's SHA-256, its tables."""
-        return {"recipe": self.name, "file_sha256": hashlib.sha256(self.path.read_bytes()).hexdigest(),
+        return {"recipe": self.name, "file_sha256": file_sha256(self.path),
                 "data_digest": self.data_digest, "task": task, "network": self.networks[task].to_table()}
 
 
@@ -182,16 +179,15 @@ def check_data_folder(recipe: Recipe, folder: str | Path) -> list[Path]:
     """The training part folders of `folder`, a build of `recipe`'s data; refused, naming the folder, when
     it was built from another recipe or another `[data]` table."""
     folder = Path(folder)
-    record_path = folder / DATA_RECORD
+    record_path = folder / BUILD_RECORD
     if not record_path.is_file():
-        raise FileNotFoundError(f"{folder}: no {DATA_RECORD}; build the data with "
+        raise FileNotFoundError(f"{folder}: no {BUILD_RECORD}; build the data with "
                                 f"python -m factory.dataset build --recipe {recipe.name} --out {folder}")
-    record = load_json(record_path)
-    if not isinstance(record, dict) or record.get("data_digest") != recipe.data_digest:
-        built = record.get("recipe") if isinstance(record, dict) else None
-        raise ValueError(f"{record_path}: built from recipe {built!r} with another [data] table than "
-                         f"{recipe.path}'s; rebuild it or train on the folder made from this recipe")
-    parts = record.get("parts", {}).get("train")
+    record = read_build(folder)
+    if record.get("data_digest") != recipe.data_digest:
+        raise ValueError(f"{record_path}: built from recipe {record.get('recipe')!r} with another [data] table "
+                         f"than {recipe.path}'s; rebuild it or train on the folder made from this recipe")
+    parts = record["parts"].get("train")
     if not isinstance(parts, list) or not parts:
         raise ValueError(f"{record_path}: lists no training parts")
     missing = [p for p in parts if not (folder / p / "manifest.jsonl").is_file()]
