@@ -225,7 +225,7 @@ class _Results:
                  candidates: torch.Tensor | None = None) -> None:
         self.task, self.spec, self.radius_px, self.threshold, self.crop = task, spec, radius_px, threshold, crop
         self.decoder = decoder  # a module reader's: its logits ranked as codebook IDs
-        self.candidates = candidates  # an ID classifier's: (num_ids,) bool, the IDs it may answer
+        self.candidates = candidates  # an ID classifier's: the IDs (K,) int64 it may answer
         self.samples = 0
         self.loss: dict[str, float] = {}
         self.store: dict[str, list] = {}
@@ -247,7 +247,9 @@ class _Results:
                       ignore=batch.get("gt_ignore"))
         elif self.task == "recognizer":
             if self.decoder is None and self.candidates is not None:
-                output = output.masked_fill(~self.candidates.to(output.device), -math.inf)
+                allowed = torch.zeros(output.shape[1], dtype=torch.bool, device=output.device)
+                allowed[self.candidates.to(output.device)] = True
+                output = output.masked_fill(~allowed, -math.inf)
             ranked = self.decoder.ranked(output, 5) if self.decoder is not None \
                 else torch.topk(output, min(5, output.shape[1]), dim=1).indices
             self._add(ranked=ranked.cpu().numpy(), marker_id=batch["marker_id"].numpy(),
@@ -326,10 +328,8 @@ def evaluate_model_at(task: str, model: nn.Module, batches: Iterable[dict], thre
             raise ValueError("evaluate_model: a module-reading recognizer needs the pattern (spec) to decode IDs")
         codebook = generate_codebook(spec)
         codes, decoder = module_targets(codebook).to(device), CodeDecoder(codebook, marker_ids, device=device)
-    candidates = None
-    if task == "recognizer" and decoder is None and marker_ids is not None:
-        candidates = torch.zeros(spec.num_ids if spec is not None else int(np.max(marker_ids)) + 1, dtype=torch.bool)
-        candidates[torch.as_tensor(np.asarray(marker_ids, dtype=np.int64))] = True
+    candidates = None if decoder is not None or marker_ids is None else \
+        torch.as_tensor(np.asarray(marker_ids, dtype=np.int64))
     was_training = model.training
     model.eval()
     results = {t: _Results(task, spec, radius_px, t, model_crop(model), decoder, candidates) for t in thresholds}
