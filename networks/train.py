@@ -138,9 +138,9 @@ class StepOrder(Dataset):
 
 
 #: crops a crop task takes of each synthesized sample (a centred 256 x 256 sample shows about 90
-#: markers, and rendering it is most of an item's cost): recognizer items half synthesized, 105 items/s
-#: on one core at 16, 20 at 2 (`docs/journal/2026-11-29-module-reader-run.md`)
-SYNTH_CROPS_PER_SAMPLE = 16
+#: markers, and rendering it is most of an item's cost): synthesized recognizer items, augmented, on
+#: one core: 278 items/s at 48, 133 at 16 (rendered crops: 365)
+SYNTH_CROPS_PER_SAMPLE = 48
 
 
 def data_loader(dataset: Dataset, num_workers: int, **kwargs: object) -> DataLoader:
