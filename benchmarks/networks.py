@@ -15,10 +15,10 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    crops + shards, synth weight 0.25), their crops
    cut from five points jittered by `CROP_JITTER_PX`, as the Detector cuts them from the
    localizer's: shards written so, rendered crops cut anew per item, `TrainConfig.crop_jitter_px`;
-   in the fifth run the jittered recognizer reached a validation loss of 0.164 on exact rendered
-   crops against 0.263 for the exact-crop one at the same step; the recognizer's crops include
-   partial markers with a visible centre, `TrainConfig.recognizer_partial`, since the eighth run's
-   whole-marker recognizer read them 0.37 right) train until the budget's end.
+   the jittered recognizer reached a validation loss of 0.164 on exact rendered crops against 0.263
+   for the exact-crop one at the same step; the recognizer's crops include partial markers with a
+   visible centre, `TrainConfig.recognizer_partial`, since a whole-marker recognizer read them 0.37
+   right) train until the budget's end.
    Comparison runs, named in --runs: recognizer and crosspoints on the reference's exact crops,
    recognizer_jitter (jittered crops of whole markers only), crosspoints_jitter (the main
    crosspoint run's crops at synth weight 0.75: which mix trains it best), localizer_upright
@@ -43,7 +43,7 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    and each run and its --init on held-out synthesized samples (`synth_heldout`: the shard folders'
    configs from another seed), where the gap between synthetic and rendered data shows; and the main
    localizer's presence threshold chosen on the val renders and checked beside the reference's 0.5
-   on the test renders (`evaluate_threshold`, `presence_threshold.py`).
+   on the test renders (`evaluate_threshold`).
 4. Inference throughput of `networks.Detector` (the three main runs chained, float32) on synthesized
    images framed as the renders (markers scaled with the image side; the localizer sees them at the
    scale it was trained on, `DetectorConfig.localizer_scale` = 512 / side), on the GPU and on the CPU,
@@ -59,15 +59,14 @@ Trained networks leave the machine (checkpoints with Adam's state, about 1 GB, c
 `--export-weights` writes every trained run as a compact int8 checkpoint under <export>/store (the
 main runs as <task>.pt, which `networks.weights store` takes, the comparison runs as <run>.pt, which
 `--init` takes; localizer 12 MB, recognizer 33 MB, crosspoints 29 MB: int8 measured as the float
-weights on the held-out renders, at half of bf16, so a comparison run that wins can come back too;
-the eighteenth run's `localizer_upright` could not), and they come back in checked parts over
+weights on the held-out renders, at half of bf16, so a comparison run that wins can come back too),
+and they come back in checked parts over
 back-to-back calls (`benchmarks/device_files.py`, whose docstring lists a session's calls: a call
 returns at most 8 files of 16 MiB and carries at most 64 MiB, the machine goes back 30 s after a
 call, and a path a call does not carry is removed from its working tree).  A later run starts from
 them with `--init <folder>`, where they still exist: they are too large for the repository (its
 working tree travels with every call), and a session may start from a new checkout without the
-ignored folders of the last (the seventh run's session did; the eighth run's kept them and trained
-on from the seventh's weights, 16 parts of data and weights carried in six 5-second calls).
+ignored folders of the last (16 parts of data and weights carry over in six 5-second calls).
 
 Prints the tables of `benchmarks/RESULTS.md` and a `RESULT {json}` line; writes `results.json`, the
 shards and the runs to `--out`.  `results.json` is written after training and after each evaluation
@@ -96,7 +95,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.append(str(ROOT / "benchmarks"))  # the other scripts, after the project (this file shadows networks/)
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -107,7 +105,7 @@ from assets.pattern.observation import ImageGroundTruth, training_samples  # noq
 from networks.checkpoint import codebook_hash, read_checkpoint, slim_checkpoint  # noqa: E402
 from networks.config import TrainConfig  # noqa: E402
 from networks.data import dataset_spec, garment_marker_ids, write_training_samples  # noqa: E402
-from networks.evaluate import evaluate, read_manifest  # noqa: E402
+from networks.evaluate import evaluate, evaluate_at, read_manifest  # noqa: E402
 from networks.shards import write_shards  # noqa: E402
 from networks.workers import one_thread, worker_context  # noqa: E402
 from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
@@ -116,10 +114,9 @@ from networks.synth import PatternSynthesizer, SynthConfig  # noqa: E402
 #: the planned step (shortened by --final to what the last call reaches: more than any call reaches)
 SCHEDULE = {"localizer": (200_000, 32), "recognizer": (200_000, 256), "crosspoints": (200_000, 64)}
 LR, WARMUP = 3e-4, 300
-#: A run that starts from a trained checkpoint (`--init`) peaks at LR too (`--init-lr` for another).
-#: The localizer had 5e-5 from the thirteenth run to the nineteenth, when its renders were read per
-#: image and its steps were few; from the twentieth on, at LR on the renders alone (decoded ahead), every
-#: run gained (fully visible recall 0.884 -> 0.953 -> 0.980 -> 0.989, corners 0.93-1.02 -> 0.46-0.51 px).
+#: A run that starts from a trained checkpoint (`--init`) peaks at LR too (`--init-lr` for another):
+#: a localizer fine-tuned at 5e-5 gained little, while at LR on the renders alone (decoded ahead) every
+#: call gained (fully visible recall 0.884 -> 0.953 -> 0.980 -> 0.989, corners 0.93-1.02 -> 0.46-0.51 px).
 #: side of the localizer's training images (rendered ones are cut to it), pixels
 IMAGE_SIZE = 256
 #: the data-mix comparison: the localizer runs compared at this step
@@ -127,9 +124,8 @@ COMPARE_STEPS = 1500
 VAL_EVERY = {"localizer": 1000, "recognizer": 2000, "crosspoints": 2000}
 #: name -> (task, synth weight, stop at step (None: the schedule), share of the data workers, shard folder)
 RUNS = {
-    # renders alone (named when it was half synthesized): on the renders alone it gained in the eighth run's
-    # A/B and in every run from the twentieth on, while the synthetic half held it back (nineteenth run);
-    # `--synth-weight localizer_mix=0.5` brings the half back for a call
+    # renders alone (named when it was half synthesized): on the renders alone it gains, while a
+    # synthetic half held it back; `--synth-weight localizer_mix=0.5` brings the half back for a call
     "localizer_mix": ("localizer", 0.0, None, 3, "localizer"),
     "localizer_synth": ("localizer", 1.0, COMPARE_STEPS, 2, "localizer"),
     "localizer_rendered": ("localizer", 0.0, COMPARE_STEPS, 2, "localizer"),
@@ -138,8 +134,8 @@ RUNS = {
     "recognizer": ("recognizer", 0.75, None, 6, "recognizer"),
     "recognizer_jitter": ("recognizer", 0.75, None, 6, "recognizer_jitter"),
     # the main recognizer: mostly rendered crops; at 0.75 synthesized it stayed at 0.984 on the held-out
-    # renders over three runs, at 0.25 it reached 0.987 in the twenty-third (beside recognizer_small at
-    # 0.5: 0.985); `--synth-weight recognizer_partial=0.75` brings the old share back for a call
+    # renders over three calls, at 0.25 it reached 0.987 (beside recognizer_small at 0.5: 0.985);
+    # `--synth-weight recognizer_partial=0.75` brings the old share back for a call
     "recognizer_partial": ("recognizer", 0.25, None, 6, "recognizer_partial"),
     # the main recognizer's config on synthesized markers from 10 px (`SHARD_SYNTH`): at 0.75 it read
     # 0.996 of the renders' fully visible markers of 16-24 px, 0.955 of 12-16 px and 0.78 under 12 px
@@ -147,8 +143,8 @@ RUNS = {
     "crosspoints": ("crosspoints", 0.75, None, 3, "crosspoints"),
     "crosspoints_jitter": ("crosspoints", 0.75, None, 3, "crosspoints_jitter"),
     # the main crosspoint run: mostly rendered crops, which beat 0.75 synthesized from the same start on
-    # the held-out renders in the thirteenth and twenty-first runs (0.480 against 0.502 px); a rendered
-    # crop costs a worker more than a shard's (decoded ahead, about 5 ms against 1.7): twice the share
+    # the held-out renders twice (0.480 against 0.502 px); a rendered crop costs a worker more than a
+    # shard's (decoded ahead, about 5 ms against 1.7): twice the share
     "crosspoints_rendered": ("crosspoints", 0.25, None, 6, "crosspoints_jitter"),
 }
 MAIN = {"localizer": "localizer_mix", "recognizer": "recognizer_partial", "crosspoints": "crosspoints_rendered"}
@@ -173,8 +169,8 @@ SHARD_SYNTH = {"localizer_upright": {"upright_probability": 1.0},
                "recognizer_small": {"marker_px": (10.0, 32.0)}}
 #: held-out synthesized samples (`synth_heldout`): images per shard folder, synthesizer seed
 SYNTH_HELDOUT = (64, 1_000_003)
-#: a main run's GPU time per step against the localizer's (sixth run, four runs sharing one H100:
-#: localizer 15.3, recognizer 14.2, crosspoints 8.2 steps/s)
+#: a main run's GPU time per step against the localizer's (four runs sharing one H100: localizer
+#: 15.3, recognizer 14.2, crosspoints 8.2 steps/s)
 GPU_COST = {"localizer": 1.0, "recognizer": 1.1, "crosspoints": 1.9}
 #: the tasks heaviest first: the order the main runs are placed in and take spare GPUs as DDP ranks
 HEAVIEST = tuple(sorted(GPU_COST, key=GPU_COST.get, reverse=True))
@@ -196,7 +192,7 @@ def prepare(root: Path, out: Path, cores: int = 1, name: str = "rendered") -> tu
     folder has none.
     Copied, not linked: on the device machine the working tree is replaced by each call, and a call
     that does not carry the folder removes it there, so links into it break under a running
-    benchmark (the sixth networks run lost its evaluation so)."""
+    benchmark and its evaluation is lost."""
     view = out / name
     view.mkdir(parents=True, exist_ok=True)
     items = ["images", "gt", "meta", "template.npz", "config.json", "splits.json", "manifest.jsonl"]
@@ -260,8 +256,8 @@ def run_step(folder: Path) -> int:
 
 def with_synth_weight(runs: dict[str, tuple], name: str, weight: float) -> dict[str, tuple]:
     """`runs` with run `name` drawing `weight` of its samples from the synthesizer (0: renders alone;
-    `--localizer-synth-weight`: the eighth run's A/B found a last renders-only phase, warped, lowers
-    the localizer's corner error on renders from 1.04-1.11 to 0.78-0.81 px)."""
+    `--localizer-synth-weight`: an A/B found a last renders-only phase, warped, lowers the
+    localizer's corner error on renders from 1.04-1.11 to 0.78-0.81 px)."""
     if not 0 <= weight <= 1:
         raise ValueError(f"a synth weight must be in [0, 1], got {weight}")
     task, _, stop, share, folder = runs[name]
@@ -355,8 +351,8 @@ def placement(active: list[str], gpus: int) -> dict[str, list[int]]:
 
 def sharing_note(placed: dict[str, list[int]]) -> str:
     """A line for the log when runs of `placement` share a GPU ("" when none do): the runs are fed by
-    the CPU's data workers, and the nineteenth run's five runs on four GPUs each trained 30-40% slower
-    than four runs did, the ones with a GPU of their own included (benchmarks/RESULTS.md)."""
+    the CPU's data workers, and five runs on four GPUs each trained 30-40% slower than four runs did,
+    the ones with a GPU of their own included."""
     shared: dict[int, list[str]] = {}
     for name, gpus in placed.items():
         if gpus:  # a run's first GPU (its other ranks' GPUs are its own)
@@ -365,7 +361,7 @@ def sharing_note(placed: dict[str, list[int]]) -> str:
     if not pairs:
         return ""
     return (f"note: {len(placed)} runs on {len(shared)} GPUs share them ({'; '.join(pairs)}); every run gets "
-            "fewer data workers and trains slower (the nineteenth run: 30-40% slower than four runs on four)")
+            "fewer data workers and trains slower (five runs on four GPUs: 30-40% slower than four on four)")
 
 
 def worker_counts(active: list[str], ranks: dict[str, int], cores: int, smoke: bool) -> dict[str, int]:
@@ -618,14 +614,64 @@ def chain_metrics(checkpoints: list[Path], view: Path, device: str, smoke: bool 
     return evaluate_detector(detector, view, split="heldout", progress=False)
 
 
+#: the presence threshold of the Detector's defaults and the reference's (`DetectorConfig.presence_threshold`)
+REFERENCE_THRESHOLD = 0.5
+#: the presence thresholds swept by default (`thresholds_arg` adds the reference)
+DEFAULT_THRESHOLDS = "0.2,0.3,0.35,0.4,0.45,0.5"
+
+
+def thresholds_arg(text: str) -> list[float]:
+    """'0.2,0.3,0.5' -> sorted distinct thresholds in (0, 1); the reference's 0.5 is always among them."""
+    try:
+        values = {float(item) for item in text.split(",") if item.strip()}
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--thresholds: {text!r} is not a comma-separated list of numbers")
+    outside = sorted(v for v in values if not 0 < v < 1)
+    if outside:
+        raise argparse.ArgumentTypeError(f"--thresholds: {outside} are not in (0, 1)")
+    return sorted(values | {REFERENCE_THRESHOLD})
+
+
+def choose_threshold(metrics: dict[float, dict]) -> float:
+    """The threshold whose fully visible markers' F1 is highest in `metrics` (threshold -> the
+    localizer's `networks.evaluate` metrics); of equal F1, the highest threshold (the nearer the
+    reference)."""
+    if not metrics:
+        raise ValueError("no thresholds were evaluated")
+    return max(metrics, key=lambda t: (round(metrics[t]["full"]["f1"], 9), t))
+
+
+def sweep(checkpoint: Path, data: Path, thresholds: list[float], choose_split: str = "val",
+          test_split: str = "test", device: str = "cpu") -> dict:
+    """The localizer `checkpoint` on `data`'s `choose_split` at each of `thresholds` (`networks.evaluate`,
+    the localizer run once per split and decoded at every threshold), the threshold chosen there
+    (`choose_threshold`: reading the best threshold off the test split itself would prove nothing),
+    and that one and the reference's on `test_split`:
+    {"chosen", "choose_split", "test_split", "choose": {t: metrics}, "test": {t: metrics}}."""
+    if choose_split == test_split:
+        raise ValueError("the threshold must be chosen on another split than the one it is tested on: a "
+                         "threshold read off its test split proves nothing")
+
+    def measure(split: str, wanted: list[float]) -> dict[float, dict]:  # one localizer pass per split
+        metrics = evaluate_at(checkpoint, data, wanted, split=split, task="localizer", device=device, progress=False)
+        full = metrics[wanted[0]]["full"]
+        if full["true_positive"] + full["false_negative"] == 0:
+            raise ValueError(f"{data}: the split {split!r} has no fully visible markers")
+        return metrics
+
+    chosen_metrics = measure(choose_split, sorted(set(thresholds) | {REFERENCE_THRESHOLD}))
+    chosen = choose_threshold(chosen_metrics)
+    return {"chosen": chosen, "choose_split": choose_split, "test_split": test_split, "choose": chosen_metrics,
+            "test": measure(test_split, sorted({chosen, REFERENCE_THRESHOLD}))}
+
+
 def evaluate_threshold(out: Path, rendered: Path, device: str, init: dict[str, str] | None = None) -> dict:
     """The main localizer's presence threshold chosen by F1 on the rendered dataset's val split and
-    checked beside the reference's 0.5 on its test split (`presence_threshold.sweep`): the compact
+    checked beside the reference's 0.5 on its test split (`sweep`): the compact
     checkpoint that would be stored, else the main run's last.pt, else its --init; {} without one, or
-    when the dataset lacks either split.
-    The twenty-third run's localizer met 0.99 P/R on fully visible test markers at 0.35 (chosen on val)."""
-    from presence_threshold import DEFAULT_THRESHOLDS, sweep, thresholds_arg  # benchmarks/
-
+    when the dataset lacks either split.  A localizer whose presence probability is conservative finds
+    more markers at a lower threshold: one met 0.99 P/R on fully visible test markers at 0.35 (chosen
+    on val)."""
     compact = out / "compact" / "localizer.pt"
     checkpoints = main_checkpoints(out, init)
     localizer = compact if compact.exists() else checkpoints[0] if checkpoints else None
@@ -640,14 +686,12 @@ def evaluate_partial_ids(out: Path, test: Path, device: str, init: dict[str, str
                          ) -> dict[str, dict]:
     """The recognizers' top-1 given the true five points on the held-out renders, whole against partial
     markers, by marker size, and whole markers by the share of their crosspoints visible and by layout
-    residual (`partial_ids.top1`: {"groups", "by_size", "by_visible", "by_residual"}): every recognizer run's
-    last.pt, and the checkpoint the main one started from (`--init`), so a run's change shows beside its
-    start in the same call.  The size shows where the errors are: the eighteenth run's recognizer read
+    residual (`networks.recognizer_top1.top1`: {"groups", "by_size", "by_visible", "by_residual"}): every
+    recognizer run's last.pt, and the checkpoint the main one started from (`--init`), so a run's change
+    shows beside its start in the same call.  The size shows where the errors are: one recognizer read
     0.996 of the fully visible markers of 16-24 px and 0.78 of those under 12 px."""
     from networks.evaluate_detector import load_detector  # the garment's tables without assets.garments (triangle)
-
-    from foreshortening import rendered_pairs  # benchmarks/ (this script's folder)
-    from partial_ids import top1
+    from networks.recognizer_top1 import rendered_pairs, top1
 
     localizer, _, crosspoints = main_checkpoints(out, init)
     recognizers = {f"{name} (step {run_step(out / name / 'run')})": out / name / "run" / "last.pt"
@@ -667,13 +711,12 @@ def evaluate_extra(out: Path, view: Path, device: str, init: dict[str, str] | No
     """The Detector's networks (`main_checkpoints`) on a second folder of held-out renders
     (`--extra-heldout`, every image held out; made, say, at another resolution or of unseen motions):
     each network's `networks.evaluate` metrics, the chain with its defaults, and the recognizer's top-1
-    given the true points by group and marker size (`partial_ids.top1`).  The chain runs three times:
-    with the localizer at full size, at 512 / the image side (the scale of the renders it trained on,
-    as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale` None)."""
+    given the true points by group and marker size (`networks.recognizer_top1.top1`).  The chain runs
+    three times: with the localizer at full size, at 512 / the image side (the scale of the renders it
+    trained on, as in `throughput`), and at the scale it chooses per image (`DetectorConfig.localizer_scale`
+    None)."""
     from networks.evaluate_detector import load_detector
-
-    from foreshortening import rendered_pairs
-    from partial_ids import top1
+    from networks.recognizer_top1 import rendered_pairs, top1
 
     paths = main_checkpoints(out, init)
     metrics = {task: evaluate(path, view, split="heldout", device=device, progress=False)
@@ -873,8 +916,8 @@ def main() -> None:
 class Stages:
     """The evaluation stages after training, each kept apart: `stage(key, fn, *args)` stores fn's
     value as result[key], or, when it raises, its traceback in result["errors"][key] and goes on;
-    results.json is written after every stage, so a late failure loses nothing done before it (the
-    ninth run lost its shard and run tables to a failure in its last stage)."""
+    results.json is written after every stage, so a late failure loses nothing done before it (such
+    as the shard and run tables)."""
 
     def __init__(self, result: dict, path: Path, started: float) -> None:
         self.result, self.path, self.started = result, path, started
@@ -960,8 +1003,6 @@ def _print_tables(result: dict) -> None:
     if result.get("partial_ids"):
         _print_top1(f"{result['heldout_images']} held-out renders", result["partial_ids"])
     if result.get("presence_threshold"):
-        from presence_threshold import print_sweep  # benchmarks/
-
         print()
         print_sweep(result["presence_threshold"], f"# presence threshold of {result['presence_threshold']['checkpoint']}")
     if result.get("extra"):
@@ -974,6 +1015,29 @@ def _print_tables(result: dict) -> None:
               f"{r.get('localizer_scale', 1.0):.2g} | "
               f"{r['images_per_s']:.3g} | {r['markers_per_image']:.0f} / {r.get('shown_per_image', 0):.0f} | "
               f"{r.get('found_first_image', '-')} / {r.get('shown_first_image', '-')} | {_stages(r, r['images'])} |")
+
+
+def print_sweep(result: dict, title: str) -> None:
+    """`sweep`'s two tables under `title`: every threshold on the choosing split, then the chosen one
+    beside the reference on the test split."""
+    chosen = float(result["chosen"])  # the keys are strings once the result went through JSON
+    header = ("| threshold | fully visible P / R / F1 | all markers P / R | predictions on partial markers | "
+              "median px centre, TL, TR, BL, BR |\n|---|---|---|---|---|")
+
+    def row(threshold: float, metrics: dict) -> str:
+        full, every = metrics["full"], metrics["all"]
+        mark = " (chosen)" if threshold == chosen else " (reference)" if threshold == REFERENCE_THRESHOLD else ""
+        corners = ", ".join(f"{full['error_px'][p]['median']:.2f}" for p in ("centre", "TL", "TR", "BL", "BR"))
+        return (f"| {threshold:g}{mark} | {full['precision']:.4f} / {full['recall']:.4f} / {full['f1']:.4f} | "
+                f"{every['precision']:.4f} / {every['recall']:.4f} | {full.get('on_other_markers', 0)} | {corners} |")
+
+    print(f"{title}\n\n## chosen on {result['choose_split']!r} (best F1 on fully visible markers: {chosen:g})\n"
+          f"{header}")
+    for t, m in result["choose"].items():
+        print(row(float(t), m))
+    print(f"\n## checked on {result['test_split']!r}, beside the reference\n{header}")
+    for t, m in result["test"].items():
+        print(row(float(t), m))
 
 
 def _print_metrics(metrics: dict[str, dict]) -> None:
@@ -1012,9 +1076,9 @@ def _print_extra(extra: dict) -> None:
 
 
 def _print_top1(images: str, recognizers: dict[str, dict]) -> None:
-    """Per recognizer label, its top-1 given the true points (`partial_ids.top1`) per group, then per
-    group and marker size, then whole markers by the share of their crosspoints visible (in the size
-    column; records of older results have none)."""
+    """Per recognizer label, its top-1 given the true points (`networks.recognizer_top1.top1`) per group,
+    then per group and marker size, then whole markers by the share of their crosspoints visible (in the
+    size column; records of older results have none)."""
     print(f"\n| recognizer, top-1 given the true points ({images}) | markers | size px | count | top-1 "
           "|\n|---|---|---|---|---|")
     for label, record in recognizers.items():

@@ -1,6 +1,8 @@
 """`benchmarks/networks.py`: the GPU placement of its runs (which GPU each training process gets), its
-run table for one call, and its evaluation stages kept apart."""
+run table for one call, its evaluation stages kept apart, and the presence threshold chosen on one
+split by F1 and checked on another."""
 
+import argparse
 import json
 import shutil
 import subprocess
@@ -111,13 +113,13 @@ def test_prepare_builds_the_samples_a_dataset_travelled_without_on_several_cores
 
 def test_the_gpu_machine_s_imports_need_no_triangle():
     """The GPU machine runs the benchmark from the working tree without the project's own install, and
-    lacks `triangle` (the ninth run's evaluation stopped on it): the benchmark and the scripts its
+    lacks `triangle` (an evaluation once stopped on it there): the benchmark and the modules its
     evaluation loads import without it."""
     code = ("import sys; sys.modules['triangle'] = None; sys.path[:0] = ['.', 'benchmarks']\n"
             "import importlib.util\n"
             "spec = importlib.util.spec_from_file_location('bench_networks', 'benchmarks/networks.py')\n"
             "spec.loader.exec_module(importlib.util.module_from_spec(spec))\n"
-            "import partial_ids, foreshortening, networks.evaluate_detector\n"
+            "import networks.recognizer_top1, networks.evaluate_detector\n"
             "print('assets.garments' in sys.modules)")
     done = subprocess.run([sys.executable, "-c", code], cwd=PROJECT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -126,7 +128,7 @@ def test_the_gpu_machine_s_imports_need_no_triangle():
 
 def test_the_run_table_shows_the_call_s_synth_weight_not_the_default(bench, capsys):
     """Tables printed again from a results.json (as for RESULTS.md) show the weight the call trained
-    with: the eleventh run's localizer trained on renders only and its table said 0.5."""
+    with, not the run's default."""
     row = {"step": 10, "target": 10, "steps_this_call": 10, "seconds": 1.0, "steps_per_s": 10.0, "workers": 2,
            "first_loss": 2.0, "last_loss": 1.0, "gpus": [0]}
     result = {"date": "2026-11-26", "machine": "test", "wall_s": 1.0, "shards": {}, "mixes": {},
@@ -339,3 +341,54 @@ def test_the_small_marker_recognizer_run_differs_from_the_main_one_only_in_its_m
     assert small == main.__class__(**{**main.__dict__, "marker_px": (10.0, 32.0)})
     assert bench.RUNS["recognizer_small"][:4] == bench.RUNS[bench.MAIN["recognizer"]][:4]
     assert bench.run_config("recognizer_small", 1, 2, {}).recognizer_partial
+
+
+def _f1(f1: float) -> dict:
+    return {"full": {"f1": f1}}
+
+
+def test_the_best_f1_is_chosen_and_a_tie_goes_to_the_higher_threshold(bench):
+    assert bench.choose_threshold({0.3: _f1(0.990), 0.4: _f1(0.996), 0.5: _f1(0.993)}) == 0.4
+    assert bench.choose_threshold({0.3: _f1(0.99), 0.4: _f1(0.99), 0.5: _f1(0.98)}) == 0.4
+    assert bench.choose_threshold({0.2: _f1(0.9), 0.5: _f1(0.9)}) == 0.5  # the reference, at equal F1
+    with pytest.raises(ValueError, match="no thresholds"):
+        bench.choose_threshold({})
+
+
+def test_thresholds_always_include_the_reference_and_bad_ones_are_refused(bench):
+    assert bench.thresholds_arg("0.4,0.2,0.4") == [0.2, 0.4, 0.5]
+    for text, problem in (("0.3,x", "not a comma-separated list"), ("0,0.3", r"\[0.0\] are not in"),
+                          ("1.5", r"\[1.5\] are not in")):
+        with pytest.raises(argparse.ArgumentTypeError, match=problem):
+            bench.thresholds_arg(text)
+
+
+def test_choosing_the_threshold_on_the_split_it_is_tested_on_is_refused(bench, tmp_path):
+    with pytest.raises(ValueError, match="another split than the one it is tested on"):
+        bench.sweep(tmp_path / "l.pt", tmp_path, [0.3], "test", "test")
+
+
+def test_the_presence_threshold_is_chosen_on_val_and_checked_on_test(bench, tmp_path, capsys):
+    """The benchmark's stage on a real (tiny, untrained) localizer: every threshold on the val split,
+    the chosen one and the reference on the test split; no stage without a val split."""
+    from tests.networks.test_evaluate_detector import untrained_checkpoints, write_garment_dataset
+
+    data = write_garment_dataset(tmp_path / "ds", {"train": 1, "val": 1, "test": 1})
+    untrained_checkpoints(tmp_path / "init", MAIN3)
+    init = bench.init_weights(tmp_path / "init")
+    result = bench.evaluate_threshold(tmp_path / "out", data, "cpu", init)
+    assert result["checkpoint"] == init["localizer_mix"]
+    assert list(result["choose"]) == [0.2, 0.3, 0.35, 0.4, 0.45, 0.5]
+    assert all(m["split"] == "val" and m["task"] == "localizer" for m in result["choose"].values())
+    assert set(result["test"]) == {result["chosen"], 0.5}
+    assert all(m["split"] == "test" for m in result["test"].values())
+    found = [m["all"]["true_positive"] + m["all"]["false_positive"] for m in result["choose"].values()]
+    assert found == sorted(found, reverse=True)  # a lower threshold keeps at least as many predictions
+    bench.print_sweep(json.loads(json.dumps(result)), "# sweep")  # as results.json holds it: string keys
+    printed = capsys.readouterr().out.splitlines()
+    assert len([line for line in printed if line.startswith("| 0.")]) == 6 + len(result["test"])
+    assert sum("(chosen)" in line for line in printed) == 2 and any(line.startswith("| 0.5") for line in printed)
+    manifest = data / "manifest.jsonl"
+    manifest.write_text("".join(line + "\n" for line in manifest.read_text().splitlines()
+                                if json.loads(line)["split"] != "val"))
+    assert bench.evaluate_threshold(tmp_path / "out", data, "cpu", init) == {}

@@ -471,12 +471,3 @@ def test_crop_items_decoded_ahead_give_the_items_read_per_image(folder, tmp_path
     worker = pickle.loads(pickle.dumps(ahead))
     assert len(ahead) == len(read) > 0 and ahead.decoded_bytes > 0 and read.decoded_bytes == 0
     _assert_same_items(read, ahead, worker)
-
-
-@pytest.mark.parametrize("task", ["localizer", "crosspoints"])
-def test_the_decode_ahead_benchmark_reads_the_same_items_both_ways_through_workers(folder, load_benchmark, task):
-    rows = load_benchmark("decode_ahead").measure(folder, items=64, workers=1, crop_px=64, task=task)
-    assert [r["loader"] for r in rows] == ["read per image", "decoded ahead"]
-    assert all(r["task"] == task and r["images"] == 4 and r["item_ms"] > 0 and r["loader_items_per_s"] > 0
-               for r in rows)
-    assert rows[0]["decoded_mib"] == 0 and rows[1]["decoded_mib"] > 0

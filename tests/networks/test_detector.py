@@ -385,7 +385,7 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         centre = detections.points_px[:, 0].astype(np.float64)
         gaps = np.linalg.norm(centre[:, None] - centre[None], axis=-1) + np.eye(len(centre)) * 1e9
         assert gaps.min() > 40.0
-    # NHWC on the CPU as on a GPU: less time per network (benchmarks/inference_layout.py)
+    # NHWC on the CPU as on a GPU: less time per network
     for network in (detector.localizer, detector.recognizer, detector.crosspoints):
         kernels = [p for p in network.parameters() if p.dim() == 4 and p.shape[-1] > 1]
         assert kernels and all(p.is_contiguous(memory_format=torch.channels_last) for p in kernels)

@@ -101,7 +101,7 @@ def test_on_a_curved_panel_the_local_fits_follow_the_curvature(layout, table):
         assert error[1:].max() < 1e-6  # the corners are the neighbours' shared corners: exact here
         assert error[0] < centre_error  # the centre bends with the cloth (the plane: 2.6 px)
     # a corner no neighbour shares (only the right-hand neighbours seen) comes from the fit, extrapolated:
-    # where a bend is least sure (benchmarks/growth.py scores such "one-sided" markers apart)
+    # where a bend is least sure
     right = np.array([2, 4, 7])  # the slots of the top-right, right and bottom-right neighbours
     one_side = np.repeat(np.isin(np.arange(8), right), 5)[None]
     partial = place_from_neighbours(src, dst, one_side, own_xy, side, 1.5, 2)[0]

@@ -6,10 +6,11 @@ network is measured.
 
 A marker of 20 px in the image is magnified about 5 times into its crop, one of 60 px about twice: the
 same image error is a larger crop error on small markers.  The table gives both errors per size bin
-(`partial_ids.SIZES`, the square root of the marker's area in the image) and their ratio, and both
-errors on the crops whose every crosspoint is visible (no fold or edge hides a part of the marker).
+(`networks.recognizer_top1.SIZES`, the square root of the marker's area in the image) and their ratio,
+and both errors on the crops whose every crosspoint is visible (no fold or edge hides a part of the
+marker).
 
-    python benchmarks/crosspoint_scale.py --checkpoint crosspoints_jitter.pt --rendered .bench/rendered23 \
+    python research/crosspoint_scale.py --checkpoint crosspoints_jitter.pt --rendered .bench/rendered23 \
         --capture .bench/cap8/capture --frames f000120 [--max-images 10] [--device cpu]
 
 Prints a table and a `RESULT {json}` line.  CPU or GPU.
@@ -24,7 +25,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "research"))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -33,7 +34,7 @@ from tqdm import tqdm  # noqa: E402
 
 from assets.pattern import CROSSPOINT_CROP, CropSpec, generate_codebook  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth, crosspoint_crops  # noqa: E402
-from foreshortening import marker_shape  # noqa: E402
+from foreshortening import images_and_truth  # noqa: E402
 from networks.checkpoint import check_pattern, checkpoint_spec, load_checkpoint  # noqa: E402
 from networks.data import dataset_spec  # noqa: E402
 from networks.evaluate import (  # noqa: E402
@@ -45,9 +46,8 @@ from networks.evaluate import (  # noqa: E402
 )
 from networks.homography import crop_to_image  # noqa: E402
 from networks.metrics import crosspoint_metrics  # noqa: E402
+from networks.recognizer_top1 import SIZES, marker_shape, size_bin  # noqa: E402
 from networks.tasks import autocast, forward  # noqa: E402
-from partial_ids import SIZES, size_bin  # noqa: E402
-from vote_settings import images_and_truth  # noqa: E402
 
 
 def crop_set(pairs: list[tuple[Path, Path]], spec, codebook: np.ndarray, crop: CropSpec = CROSSPOINT_CROP

@@ -3,14 +3,15 @@ images: the synthesizer (`networks.synth`), a rendered training dataset (`factor
 a capture (`factory.dataset capture`), so training data can be matched to what a capture ring sees.
 
 Per marker, from its four corners (TL, TR, BL, BR) in image pixels: the affine map from the printed
-square that fits them best (least squares); its singular values s_min <= s_max.  `ratio` = s_min /
+square that fits them best (least squares, `networks.recognizer_top1.marker_shape`); its singular
+values s_min <= s_max.  `ratio` = s_min /
 s_max is the foreshortening (1 frontal, 0.5 the marker seen at 60 degrees, 0 edge-on), `size` =
 sqrt(s_min s_max) * edge the marker's size in pixels (the square root of its area), `rotation`
 the angle of the map's rotation part (degrees, 0 upright, positive clockwise in the image: the
 orientation the localizer must tell from the code to name its corners).  Markers are counted by
 status: fully visible (every on-fabric point visible) and all present (also partly).
 
-    python benchmarks/foreshortening.py --rendered .bench/rendered2 --capture .bench/cap/capture \
+    python research/foreshortening.py --rendered .bench/rendered2 --capture .bench/cap/capture \
         --synth 60 [--synth-config '{"foreshortening": 8}'] [--scale 0.3]
 
 --scale multiplies the capture's sizes (the Detector's --localizer-scale), so sizes compare with
@@ -30,41 +31,18 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
-from networks.evaluate import read_manifest  # noqa: E402
+from networks.recognizer_top1 import marker_affine, marker_shape, rendered_pairs  # noqa: E402
 
-#: the printed square's corners TL, TR, BL, BR (unit edge), as `ImageGroundTruth.points_px[:, 1:]`
-SQUARE = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], np.float64)
 OBLIQUE = 0.6
 #: markers turned by more than this from upright (degrees) count as rotated
 ROTATED_DEG = 45.0
 
 
-def _affine(points_px: np.ndarray) -> np.ndarray:
-    """(M, 5, 2) localization points -> (K, 2, 2) least-squares linear map from the printed square to
-    the four corners, per marker whose four corners are known (a partial marker's off-fabric corners
-    are NaN)."""
-    corners = np.asarray(points_px, np.float64)[:, 1:]
-    corners = corners[np.isfinite(corners).all(axis=(1, 2))]
-    centred = corners - corners.mean(axis=1, keepdims=True)
-    square = SQUARE - SQUARE.mean(axis=0)
-    # corners ~ square @ A.T: A = (square^+ corners).T for every marker at once
-    return np.einsum("ij,mjk->mki", np.linalg.pinv(square), centred)
-
-
 def marker_rotation(points_px: np.ndarray) -> np.ndarray:
     """(M, 5, 2) localization points -> (K,) in-plane rotation in degrees, (-180, 180], of each marker
     whose four corners are known: the angle of the rotation nearest its affine map (polar decomposition)."""
-    a = _affine(points_px)
+    a = marker_affine(points_px)
     return np.degrees(np.arctan2(a[:, 1, 0] - a[:, 0, 1], a[:, 0, 0] + a[:, 1, 1]))
-
-
-def marker_shape(points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(M, 5, 2) localization points -> (ratio, size) per marker whose four corners are known (see the
-    module docstring)."""
-    singular = np.linalg.svd(_affine(points_px), compute_uv=False)
-    ratio = singular[:, 1] / np.maximum(singular[:, 0], 1e-12)
-    size = np.sqrt(singular[:, 0] * singular[:, 1])
-    return ratio, size
 
 
 def summary(ratio: np.ndarray, size: np.ndarray, rotation: np.ndarray | None = None) -> dict:
@@ -96,18 +74,19 @@ def measure(gts: list[ImageGroundTruth], scale: float = 1.0) -> dict:
 HELDOUT = ("val", "test")
 
 
-def rendered_pairs(folder: Path, splits: tuple[str, ...] | None = None) -> list[tuple[Path, Path]]:
-    """(image, ground truth) paths of a factory dataset folder's images of `splits` (None: all)."""
-    return [(folder / e["image"], folder / e["gt"]) for e in read_manifest(folder)
-            if splits is None or e["split"] in splits]
-
-
 def capture_pairs(folder: Path) -> list[tuple[Path, Path]]:
     """(image, ground truth) paths of every view of a capture folder (``cam*/f*.png``)."""
     pairs = [(p, p.with_name(f"{p.stem}_gt.npz")) for p in sorted(folder.glob("cam*/f*.png"))]
     if not pairs:
         raise FileNotFoundError(f"{folder}: no cam*/f*.png (not a capture folder)")
     return pairs
+
+
+def images_and_truth(rendered: Path | None, capture: Path | None) -> tuple[list[tuple[Path, Path]], Path]:
+    """(image, ground truth) pairs and the template of a rendered dataset's held-out split or a capture."""
+    if rendered is not None:
+        return rendered_pairs(rendered, HELDOUT), rendered / "template.npz"
+    return capture_pairs(capture), capture / "template.npz"
 
 
 def synth_gts(count: int, overrides: dict) -> list[ImageGroundTruth]:

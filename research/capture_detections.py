@@ -3,15 +3,15 @@ saved detections of a `reconstruction run --detections networks` against the cap
 by marker status: fully visible, partial with the centre visible (the localizer's target), partial
 with the centre hidden (never a localizer target).  Several runs side by side (e.g. two weight sets).
 
-    python benchmarks/capture_detections.py --capture .bench/cap/capture \
+    python research/capture_detections.py --capture .bench/cap/capture \
         --runs seventh=.bench/cap/rec_nets eighth=.bench/cap/rec_nets8 [--radius 12]
 
 A ground-truth marker is found when a detection's centre lies within --radius px of its centre (the
 nearest), identified when that detection also has its ID; its visible crosspoints are counted as
 recovered when it is identified.  A second table splits the markers whose centre is visible by
-foreshortening (`benchmarks/foreshortening.py`'s ratio, from the corners the ground truth knows), and
-a third counts per frame the markers (IDs) visible in two or more views and those identified in two
-or more, which is what triangulation needs.  Prints the tables and a `RESULT {json}` line.
+foreshortening (`networks.recognizer_top1.marker_shape`'s ratio, from the corners the ground truth
+knows), and a third counts per frame the markers (IDs) visible in two or more views and those
+identified in two or more, which is what triangulation needs.  Prints the tables and a `RESULT {json}` line.
 """
 
 from __future__ import annotations
@@ -29,9 +29,7 @@ from scipy.spatial import cKDTree  # noqa: E402
 
 from assets.fileio import load_npz  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
-
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from foreshortening import marker_shape  # noqa: E402
+from networks.recognizer_top1 import marker_shape  # noqa: E402
 
 KINDS = ("fully visible", "partial, centre visible", "partial, centre hidden")
 #: foreshortening bins (ratio of the corners' best-fit affine map's singular values)
@@ -39,7 +37,7 @@ BINS = (0.0, 0.3, 0.5, 0.7, 1.0001)
 
 
 def ratios(points_px: np.ndarray) -> np.ndarray:
-    """(M,) foreshortening ratio per marker, NaN where a corner is unknown (as `foreshortening.marker_shape`)."""
+    """(M,) foreshortening ratio per marker, NaN where a corner is unknown (as `marker_shape`)."""
     corners = np.asarray(points_px, np.float64)[:, 1:]
     out = np.full(len(corners), np.nan)
     known = np.isfinite(corners).all(axis=(1, 2))

@@ -13,7 +13,7 @@ and what the growth from neighbours (`DetectorConfig.grow_missing`) had to work 
 pattern neighbours were detected with their right ID, and whether its ID was claimed by a detection
 elsewhere (growth only places IDs not detected yet).
 
-    python benchmarks/chain_misses.py --checkpoints loc.pt rec.pt xp.pt --rendered .bench/rendered_m --split test
+    python research/chain_misses.py --checkpoints loc.pt rec.pt xp.pt --rendered .bench/rendered_m --split test
 
 Prints a table per reason, one line per miss, and a `RESULT {json}` line.  CPU or GPU.
 """
@@ -72,7 +72,7 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
     """(one dict per missed fully visible marker: "id", "size_px", "reason", "presence", "right_neighbours"
     (its pattern neighbours detected with their right ID), "neighbours" (on the garment),
     "id_claimed_elsewhere"; the image's fully visible markers).  `detector` knows the garment (tables)."""
-    from foreshortening import marker_shape  # benchmarks/, on the path from main
+    from networks.recognizer_top1 import marker_shape
 
     (detections,), ((located, _),) = detector.detect([image])
     scales = list(detector.localizer_scales)
@@ -117,11 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.low_threshold < args.presence_threshold:
         parser.error(f"--low-threshold must lie in (0, --presence-threshold {args.presence_threshold}), "
                      f"got {args.low_threshold}")
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    from foreshortening import rendered_pairs
-
     from networks.data import _read_png as read_png
     from networks.evaluate_detector import load_detector  # the garment's tables from the dataset folder
+    from networks.recognizer_top1 import rendered_pairs
 
     pairs = rendered_pairs(args.rendered, (args.split,))
     if not pairs:

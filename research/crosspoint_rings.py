@@ -3,8 +3,8 @@ ring 0 the outermost crosspoints (nearest the crop's edge, least context around 
 marker's centre.  On a shard folder of synthesized samples (`networks.synth write`: exact ground
 truth, unlimited) or the crosspoint crops of a factory dataset's split.
 
-    python benchmarks/crosspoint_rings.py --checkpoint .bench/weights15/crosspoints_jitter.pt --data /tmp/xs_exact
-    python benchmarks/crosspoint_rings.py --checkpoint XP.pt --data .bench/rendered23 --split test --device cpu
+    python research/crosspoint_rings.py --checkpoint .bench/weights15/crosspoints_jitter.pt --data /tmp/xs_exact
+    python research/crosspoint_rings.py --checkpoint XP.pt --data .bench/rendered23 --split test --device cpu
 
 Prints a table (ring, crosspoints, median and p95 crop error of the crosspoints visible in the ground
 truth), a second one of the median error by ring group and by displacement (how far the true
