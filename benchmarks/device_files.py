@@ -17,10 +17,10 @@ runs on the device machine's Python as well as here).
 A device session's weights, for instance (`benchmarks/networks.py --export-weights`):
 
     (a benchmark started in the background does not keep the machine: it goes back 30 s after a call
-    returns, so the wait calls follow one another with nothing in between; the tenth run lost one so.
+    returns, so the wait calls follow one another with nothing in between, or the benchmark is lost.
     Start it detached, `setsid nohup python3 ... > LOG 2>&1 < /dev/null &`, and have the same call
-    check that it is alive and its log growing before it returns: the twenty-sixth run's `nohup ... &`
-    left an empty log, and the queued wait calls spent the session's device time on nothing)
+    check that it is alive and its log growing before it returns: a plain `nohup ... &` once left an
+    empty log, and the queued wait calls spent the session's device time on nothing)
     call 2 (on the machine):  python3 benchmarks/device_files.py wait /tmp/bn/export/results.json --timeout 570
                               python3 benchmarks/device_files.py pack /tmp/bn/export/store /tmp/parts
                               python3 benchmarks/device_files.py send /tmp/parts $OUT --parts 0-2

@@ -9,7 +9,7 @@ targets are remade from its ground-truth points moved by the same homography
 (`networks.data.RenderedDataset`).  Every random choice comes from the generator passed in, so an
 item is reproducible from its seed.
 
-Data loading on the GPU machine's cores bounds the localizer's training (RESULTS.md, issue 7), so the
+Data loading on the GPU machine's cores bounds the localizer's training, so the
 colour steps are one 3 x 4 affine transform (`cv2.transform`) and the sensor noise is read from a bank
 of standard normal draws at a random offset: i.i.d. Gaussian within an image, at a fraction of the
 cost of drawing it anew (the draws were half of an item's cost).
@@ -146,9 +146,9 @@ class ViewWarp:
     camera), about a random point of the image.
 
     The localizer's rendered training set is about a hundred images of one garment, seen from one
-    camera distance with markers of 14-23 px (5th-95th percentile), and it is learnt by heart: in the
-    seventh and eighth GPU runs the validation loss stopped falling after 3,000 of 15,000 steps at
-    about five times the training loss.  Every view warp shows those images as a new camera would,
+    camera distance with markers of 14-23 px (5th-95th percentile), and it is learnt by heart: without
+    the warp the validation loss stopped falling after 3,000 of 15,000 steps at about five times the
+    training loss.  Every view warp shows those images as a new camera would,
     with exact targets."""
 
     probability: float = 0.75

@@ -148,7 +148,7 @@ def _describe(data: object) -> str:
 #: per task, the weights (key prefixes) a compact checkpoint keeps in float32: the localizer's head
 #: regresses pixel offsets straight from its weights, and rounding it is what int8 cost the localizer
 #: (held-out corners 0.45-0.48 -> 0.46-0.51 px, recall 0.989 -> 0.988), while rounding its backbone
-#: even to 6 bits moved nothing (benchmarks/RESULTS.md, "int8 and the localizer's head"); 1.8 MB more.
+#: even to 6 bits moved nothing; 1.8 MB more.
 FLOAT_WEIGHTS = {"localizer": ("head.",), "recognizer": (), "crosspoints": ()}
 
 
@@ -159,7 +159,7 @@ def quantize_weights(state: dict[str, torch.Tensor], keep_float: tuple[str, ...]
     each weight moves by at most half its channel's step.  Other tensors (biases, normalisation
     parameters and statistics) and the weights whose key starts with one of `keep_float` stay
     float32: they are a few percent of a ResNet's bytes.  `bits` below 8 rounds coarser (still stored as
-    int8): `benchmarks/rounding.py` measures what rounding costs that way."""
+    int8), which magnifies what rounding costs."""
     levels = 2 ** (bits - 1) - 1
     stored, scales = {}, {}
     for key, value in state.items():

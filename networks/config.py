@@ -74,7 +74,7 @@ KEEP_OWN_CELLS = 12.0
 #: with Gaussian weights of this width (marker sides) around each placed point and a polynomial of this
 #: degree bending the homography's residuals; a corner shared with a neighbour is that neighbour's.
 #: (None, 0) is one homography over the whole neighbourhood, the placement before 2026-11-27.  Chosen
-#: by benchmarks/growth.py on 40 renders (RESULTS.md): grown fully visible markers' centres 0.90 ->
+#: on the exact ground truth of 40 renders (docs/journal/2026-11-28-networks-gpu-runs.md): grown fully visible markers' centres 0.90 ->
 #: 0.34 px (median), corners 0.85 -> 0.30 px; partly visible ones' centres 2.26 -> 1.48 px.
 NEIGHBOUR_SIGMA_SIDES, NEIGHBOUR_DEGREE = 1.5, 2
 
@@ -147,9 +147,9 @@ class TrainConfig:
     recognizer_partial (recognizer): train on crops of partial markers with a visible centre as well
     as whole ones (`assets.pattern.observation.recognizer_markers`; rendered crops cut from the
     image, shards written so: `SynthConfig.recognizer_partial`), since the Detector recognizes every
-    marker the localizer finds; validation stays on whole markers.  The ninth GPU run's measurement
-    made it the default: partial markers read right 0.63 -> 0.76 on renders, 0.77 -> 0.92 on a
-    capture, whole ones 0.952 -> 0.963.  False: the reference's crops, whole markers only (and what
+    marker the localizer finds; validation stays on whole markers.  The default, as it measured
+    better: partial markers read right 0.63 -> 0.76 on renders, 0.77 -> 0.92 on a capture, whole
+    ones 0.952 -> 0.963.  False: the reference's crops, whole markers only (and what
     a saved config without the field trained on).
 
     A saved config may still name a field that measurements removed (`REMOVED_FIELDS`) with the value

@@ -240,8 +240,8 @@ class RenderedDataset(_Items, Dataset):
         if task == "crosspoints" or self._cut_anew:  # references, or crops cut anew
             self.spec = spec if spec is not None else dataset_spec(self.root)
         # what per-image work the items need (completed points, the markers' picks) is done here, once,
-        # before DataLoader workers fork: done per worker and image, it starved the tenth GPU run (a
-        # mixed batch draws its rendered items from random images, so the workers' caches rarely hit)
+        # before DataLoader workers fork: done per worker and image, it starved the GPU (a mixed
+        # batch draws its rendered items from random images, so the workers' caches rarely hit)
         self._sources: list[dict[str, np.ndarray]] = []
         quiet = len(self.entries) < (50 if self._cut_anew or view_warp else 1000)
         entries = tqdm(range(len(self.entries)), desc=f"index {split} {task}", disable=quiet)

@@ -31,7 +31,7 @@ from networks.models import CELL, NUM_POINTS
 #: Default NMS radius in pixels: below the distance between two markers' centres (one marker
 #: apart: 11-23 px in the 512 px renders, p5-p95) and above the spread of a duplicated marker's two
 #: predictions of the same centre.  Larger radii (6-10 px, or 0.4-0.6 of the predicted marker's size)
-#: traded recall for precision at the same F1 on the seventh GPU run's localizer (RESULTS.md).
+#: traded recall for precision at the same F1 on a trained localizer.
 NMS_RADIUS_PX = 4.0
 
 _CHANNELS = 1 + 2 * NUM_POINTS

@@ -3,8 +3,7 @@
 A rendered item reads a random image of the split each time.  For the localizer, decoding its PNG
 (8 ms at 512 x 512) and reading its cells from samples/<name>.npz (3 ms) were two thirds of the item's
 18 ms on our CPU, and the per-worker cache rarely hits, so the localizer on renders alone trained at
-16.5 steps/s against 27.5 with half its items from shards (RESULTS.md, twentieth GPU run; 33.1 with
-this file, twenty-first).  A jittered crosspoint crop spent 17 of its 21 ms reading the PNG and the
+16.5 steps/s against 27.5 with half its items from shards (33.1 with this file).  A jittered crosspoint crop spent 17 of its 21 ms reading the PNG and the
 markers' ground truth.  With `RenderedDataset(decode_ahead=True)` the dataset decodes every image
 of its split once, in the process that makes it, into one file in the temporary folder
 (`DecodedArrays.write`); each DataLoader worker maps that file read-only, and the page cache shares

@@ -38,7 +38,7 @@ class Detections:
                                              saved before this field)
 
     On the factory's rendered shirt with the chained Detector's error rate (26% of IDs wrong, errors
-    independent; benchmarks/id_votes.py), 23 of 13,720 markers with support 1 or more kept a wrong ID,
+    independent), 23 of 13,720 markers with support 1 or more kept a wrong ID,
     against 2,792 of 6,815 with support 0: support is the ID's best evidence after the recognizer.
     """
 

@@ -125,8 +125,7 @@ class DetectorConfig:
       value, averaging out the network's noise while folds keep theirs; None: off (the network's raw
       outputs, as the reference).  0.5 (the default) lowered the crop error on held-out renders 0.406
       -> 0.372 px (test split) and 0.525 -> 0.505 px (val), on exact synthesized crops 0.339 -> 0.300
-      px, and the 8-camera capture's error median 0.180 -> 0.166 mm at the same coverage and p95
-      (`benchmarks/RESULTS.md`).
+      px, and the 8-camera capture's error median 0.180 -> 0.166 mm at the same coverage and p95.
     """
 
     presence_threshold: float = 0.5
@@ -337,8 +336,8 @@ class Detector:
             candidates = np.flatnonzero(self.layout.table_of_id >= 0) \
                 if self.layout is not None and config.restrict_to_tables else None
             self.decoder = CodeDecoder(self.codebook, candidates, self.device)
-        # NHWC convolutions: on a GPU's tensor cores (benchmarks/memory_format.py), and on the CPU too
-        # (10-21% less time per network, benchmarks/inference_layout.py)
+        # NHWC convolutions: faster on a GPU's tensor cores, and on the CPU too (10-21% less time per
+        # network)
         self.localizer = localizer.to(self.device, memory_format=torch.channels_last).eval()
         self.recognizer = recognizer.to(self.device, memory_format=torch.channels_last).eval()
         self.crosspoints = crosspoints.to(self.device, memory_format=torch.channels_last).eval()

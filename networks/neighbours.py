@@ -100,7 +100,7 @@ def place_from_neighbours(src: np.ndarray, dst: np.ndarray, mask: np.ndarray, ta
     neighbours), mask (T, P) bool; target_xy (T, Q, 2) pattern_xy of the points wanted; side_m (T,) the
     markers' side on the pattern (metres).  With `sigma_sides` None and `degree` 0, one homography is
     fitted to all the masked points and applied to the targets: a plane through the whole
-    neighbourhood, which on curved cloth puts a marker's centre 2-3 px off (RESULTS.md).  Otherwise a
+    neighbourhood, which on curved cloth puts a marker's centre 2-3 px off.  Otherwise a
     target that coincides on the pattern with seen points (a corner shared with a neighbour) takes their
     mean, and every other target the fit of a homography plus a polynomial of `degree` in the pattern
     position (in marker sides from the target) to its residuals, each seen point weighted by
@@ -325,7 +325,7 @@ def vote_ids(layout: MarkerLayout, spec: PatternSpec, marker_id: np.ndarray, poi
     cut markers of both panels share one place).  `rounds` passes (a corrected voter votes anew).
 
     On the ground truth of the factory's 40 rendered shirt images, points moved by 1 px and 26% of
-    the IDs replaced by random garment IDs (benchmarks/id_votes.py, RESULTS.md), the defaults raise
+    the IDs replaced by random garment IDs (docs/journal/2026-11-28-networks-gpu-runs.md), the defaults raise
     the ID accuracy from 0.743 to 0.863 (0.746 to 0.944 on fully observed markers) and change 14 of
     15,267 right IDs; of the true IDs, 7 of 20,535 change.
 

@@ -4,7 +4,7 @@
         --garment out/ds --image-size 256
 
 Synthesizing on the fly in DataLoader workers feeds a GPU poorly (about 50 localizer images/s from 3
-workers in the first GPU run, RESULTS.md issue 7) and is paid again by every run and every epoch.  A
+workers) and is paid again by every run and every epoch.  A
 shard folder is written once by a pool of processes, then read by `networks.data.ShardDataset` from
 memory-mapped .npy files, where a worker costs little more than the augmentation; several runs (the
 data-mix comparison) and resumed runs share it.

@@ -31,7 +31,7 @@ One sample (`PatternSynthesizer.render(index)`, deterministic in (config.seed, i
   (`depth_m` at the image centre).
 
 The defaults match the factory's renders (512 x 512, the garment filling the frame; measured on the
-20 Blender renders of a shirt walk of issue 7): markers 19-24 px across (longer edge, 5th to 95th
+20 Blender renders of a shirt walk): markers 19-24 px across (longer edge, 5th to 95th
 percentile), foreshortened by 1.6 (median; 3.3 at the 75th percentile), 75 % of them within 30
 degrees of upright, the same white / code-colour contrast and blur (a crop's correlation with its
 reference texture) and fold shading of about the same strength.  The first defaults (markers 40-160

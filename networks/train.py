@@ -40,8 +40,8 @@ run would have seen.  Mixed precision (bf16 autocast) on CUDA.
 Several GPUs (or CPU processes): ``torchrun --nproc-per-node N -m networks.train ...`` trains with
 DistributedDataParallel (`networks.distributed`): `batch_size` stays the global batch, each rank
 takes an equal share of every step's batch, BatchNorm uses the global batch's statistics, and only
-rank 0 writes the run folder, logs and shows the progress bar.  Measured on H200s (RESULTS.md, twelfth
-run), two ranks train the crosspoint network at half the step rate of one GPU: not yet a speed-up.
+rank 0 writes the run folder, logs and shows the progress bar.  Measured on H200s, two ranks train
+the crosspoint network at half the step rate of one GPU: not yet a speed-up.
 """
 
 from __future__ import annotations
@@ -88,8 +88,8 @@ VAL_SEED_OFFSET = 1_000_003
 #: is planned to end at this share of the time left (validations and checkpoints vary the pace)
 FIT_SKIP_STEPS, FIT_PROBE_SHARE, FIT_MARGIN = 10, 0.05, 0.93
 #: ... and fitted once more, at the rate measured over this share of the time limit after the first
-#: fit: a first probe inside a slow start (caches filling, other runs starting) planned the tenth GPU
-#: run's localizer at a third of its steady rate, and its GPU idled for the last 10 minutes
+#: fit: a first probe inside a slow start (caches filling, other runs starting) once planned a
+#: localizer at a third of its steady rate, and its GPU idled for the last 10 minutes
 FIT_REFIT_SHARE = 0.2
 
 
@@ -447,7 +447,7 @@ def _train(config: TrainConfig, data: Data, out: Path, device: torch.device, res
                         pretrained=None if saved is not None else config.pretrained,
                         recognizer_classes=config.recognizer_classes,
                         modules_per_side=spec.modules_per_side, crops=config.crop_geometry()).to(device)
-    if device.type == "cuda":  # NHWC convolutions on tensor cores (benchmarks/memory_format.py)
+    if device.type == "cuda":  # NHWC convolutions: faster on tensor cores
         model = model.to(memory_format=torch.channels_last)
     if saved is None and config.init is not None:
         init_weights(model, config, spec, class_ids)

@@ -4,7 +4,7 @@ Workers forked from the caller would inherit its initialised OpenBLAS and run a 
 each worker (synthesis measured 8-17x slower with 14 workers on 16 cores), and OpenCV or CUDA state
 inherited by a fork can deadlock.  Spawned workers avoid both, but each imports the caller's main
 module and torch again: on the GPU machine 31 workers starting at once took 48 s before their first
-part (importing `networks.shards` alone takes 8 s there; RESULTS.md, issue 7), against 9 s for the
+part (importing `networks.shards` alone takes 8 s there), against 9 s for the
 part itself.  So workers come from a fork server (`worker_context`): one fresh interpreter, started
 inside `server_environment` (one BLAS / OpenMP thread, read at import), that imports torch, the
 caller's main module and the named modules once and forks each worker from that clean state; each
@@ -15,7 +15,7 @@ multiprocessing's own "__main__" preload does nothing (Python 3.11 and 3.12 pass
 of the main module), so the main module is preloaded by its name when it was run with `python -m`
 (`python -m networks.train`: without it every DataLoader worker imported torch and the trainer's
 modules anew, and the first batch came 30 s after the loop began on the GPU machine, against 3.5 s
-for workers of a preloaded server; RESULTS.md, issue 7); a script's own imports are covered by
+for workers of a preloaded server); a script's own imports are covered by
 torch and the named modules.
 """
 

@@ -21,8 +21,9 @@ The check (`consistent_points`), per frame, vectorised:
 
 So a correct region that lies within one marker, or has fewer than `min_points` points, is dropped
 too: nothing on the pattern confirms it (a small patch seen through a gap; on the demo capture, 0.5%
-of the points at no ID errors).  The defaults are chosen on that capture (`benchmarks/id_errors.py`,
-4 cameras at 640 x 360, 0.3 px noise, 12 mm level, pitch 2 mm), see `NeighbourConfig`.
+of the points at no ID errors).  The defaults are chosen on that capture (4 cameras at 640 x 360,
+0.3 px noise, 12 mm level, pitch 2 mm, with 0-26% of the IDs replaced: `GroundTruthConfig.id_error`),
+see `NeighbourConfig`.
 
 P triangulated points, G garment-wide crosspoints.
 """
