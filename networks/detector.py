@@ -328,7 +328,8 @@ class Detector:
                                      "does not use this pattern's codebook")
                 if num_ids is not None and table.marker_ids.max() >= num_ids:
                     raise ValueError(f"Detector: tables[{t}] uses IDs up to {table.marker_ids.max()}, the recognizer "
-                                     f"knows {num_ids}")
+                                     f"knows {num_ids}; a module reader (the stored reader.pt, `python -m "
+                                     "networks.weights fetch`) recognises any ID of the codebook")
             self.layout = MarkerLayout.from_tables(tables, len(self.codebook))
         #: a module reader's decoder: the garment's IDs with `restrict_to_tables`, else the whole codebook
         self.decoder = None

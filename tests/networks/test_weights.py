@@ -111,16 +111,17 @@ def test_store_keeps_weights_out_of_the_tree_and_a_clone_fetches_them(localizer,
 
     clone = tmp_path / "clone"
     subprocess.run(["git", "clone", "-q", str(repo), str(clone)], check=True)
-    written = fetch(tmp_path / "weights", root=clone, tasks=("localizer",))
+    written = fetch(tmp_path / "weights", root=clone, names=("localizer",))
     assert written["localizer"].read_bytes() == (folder / "localizer.pt").read_bytes()
     load_checkpoint(written["localizer"], expected_task="localizer", spec=SPEC)
+    assert set(fetch(tmp_path / "weights", root=clone)) == {"localizer"}  # by default all that is stored
     with pytest.raises(ValueError, match="no stored weights for recognizer"):
-        fetch(tmp_path / "weights", root=clone)
+        fetch(tmp_path / "weights", root=clone, names=("localizer", "recognizer"))
 
     shallow = tmp_path / "shallow"
     subprocess.run(["git", "clone", "-q", "--depth", "1", f"file://{repo}", str(shallow)], check=True)
     with pytest.raises(ValueError, match="lacks commit .* holding the localizer weights .*shallow clone"):
-        fetch(tmp_path / "w2", root=shallow, tasks=("localizer",))
+        fetch(tmp_path / "w2", root=shallow, names=("localizer",))
 
 
 def test_store_refuses_bad_input_and_leaves_head(localizer, repo, tmp_path):
@@ -131,6 +132,11 @@ def test_store_refuses_bad_input_and_leaves_head(localizer, repo, tmp_path):
     slim_checkpoint(localizer[0], wrong / "recognizer.pt", dtype=torch.int8)
     with pytest.raises(ValueError, match=r"recognizer\.pt: a localizer checkpoint under the name recognizer\.pt"):
         store(wrong, root=repo)
+    classifier = build_model("recognizer", SPEC.num_ids, SPEC.crosspoints_per_side)
+    mislabeled = tmp_path / "mislabeled"
+    save_checkpoint(mislabeled / "reader.pt", "recognizer", classifier, TrainConfig("recognizer"), SPEC, step=1)
+    with pytest.raises(ValueError, match=r"reader\.pt: an ID classifier under the name reader\.pt"):
+        store(mislabeled, root=repo)
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "crosspoints.pt").write_bytes(b"not a checkpoint")
@@ -157,10 +163,10 @@ def test_cli_store_list_fetch(localizer, repo, tmp_path, capsys):
     assert weights_main([*at, "store", str(folder), "--source", "cli"]) == 0
     assert weights_main([*at, "list"]) == 0
     assert '"source": "cli"' in capsys.readouterr().out
-    assert weights_main([*at, "fetch", "--out", str(tmp_path / "w"), "--tasks", "localizer"]) == 0
+    assert weights_main([*at, "fetch", "--out", str(tmp_path / "w"), "--networks", "localizer"]) == 0
     assert (tmp_path / "w" / "localizer.pt").is_file()
-    assert weights_main([*at, "fetch", "--out", str(tmp_path / "w")]) == 2
-    assert "no stored weights for recognizer, crosspoints" in capsys.readouterr().err
+    assert weights_main([*at, "fetch", "--out", str(tmp_path / "w"), "--networks", "reader,crosspoints"]) == 2
+    assert "no stored weights for reader, crosspoints" in capsys.readouterr().err
     (repo / MANIFEST).write_text("{")
     assert weights_main([*at, "list"]) == 2
     assert "weights.json: not JSON" in capsys.readouterr().err
