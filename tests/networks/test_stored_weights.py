@@ -1,6 +1,6 @@
 """The trained weights this repository keeps (networks/weights.json): fetched from its history, they
 find, identify and locate the markers of a synthesized view: the ID classifier those of the shirt's
-IDs, the module reader those of IDs no network was trained on."""
+IDs, the module reader those of IDs beyond them."""
 
 import numpy as np
 import pytest
@@ -23,8 +23,8 @@ def test_the_stored_weights_detect_a_synthesized_view(stored, recognizer):
     paths = stored
     detector = Detector.from_checkpoints(paths["localizer"], paths[recognizer], paths["crosspoints"], device="cpu")
     trained = np.asarray(read_checkpoint(paths["recognizer"])["recognizer_ids"])
-    # the classifier: its own IDs; the reader: a garment's worth of the codebook's last IDs, which no
-    # network saw in training (its renders are the shirt's, IDs 0..545)
+    # the classifier: its own IDs; the reader: a garment's worth of the codebook's last IDs, outside the
+    # classifier's and never on a training render (those are the shirt's)
     garment_ids = trained if recognizer == "recognizer" else np.arange(detector.spec.num_ids - len(trained),
                                                                        detector.spec.num_ids)
     assert recognizer == "recognizer" or not np.isin(garment_ids, trained).any()
