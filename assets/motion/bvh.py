@@ -57,6 +57,8 @@ CHANNEL_NAMES = tuple(f"{axis}{kind}" for kind in ("position", "rotation") for a
 #: SMPL joint -> (source joint, source joint at the far end of the SMPL joint's bone, or None), for the
 #: CMU motion-capture skeleton (Y up, facing +Z, T-pose at rest).  CMU's Neck and shoulders start at
 #: Spine1, so SMPL's upper-chest bone (spine3 -> neck) has no source bone and takes Spine1's rotation.
+#: The cgspeed conversion puts FingerBase where the hand joint is (offset 0 0 0), so the wrist's bone
+#: ends at HandIndex1 (the knuckles).
 CMU_TO_SMPL: dict[str, tuple[str, str | None]] = {
     "pelvis": ("Hips", None),
     "left_hip": ("LeftUpLeg", "LeftLeg"),
@@ -78,8 +80,8 @@ CMU_TO_SMPL: dict[str, tuple[str, str | None]] = {
     "right_shoulder": ("RightArm", "RightForeArm"),
     "left_elbow": ("LeftForeArm", "LeftHand"),
     "right_elbow": ("RightForeArm", "RightHand"),
-    "left_wrist": ("LeftHand", "LeftFingerBase"),
-    "right_wrist": ("RightHand", "RightFingerBase"),
+    "left_wrist": ("LeftHand", "LeftHandIndex1"),
+    "right_wrist": ("RightHand", "RightHandIndex1"),
     "left_hand": ("LeftFingerBase", None),
     "right_hand": ("RightFingerBase", None),
 }

@@ -1,6 +1,8 @@
 """BVH files: parsing (channel orders, end sites, clear errors) and retargeting a CMU skeleton onto the
 default body (bone directions follow the source exactly, whatever the source's rest pose)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -10,7 +12,8 @@ from assets.motion import Motion
 from assets.motion.bvh import CMU_TO_SMPL, parse_bvh, read_bvh, retarget_to_smpl
 from assets.rotations import Y_UP_TO_Z_UP, align_vectors, rotvec_to_matrix
 
-# The CMU skeleton as the cgspeed BVH conversion writes it: Y up, facing +Z, T-pose, CMU units.
+# The CMU skeleton as the cgspeed BVH conversion writes it: Y up, facing +Z, T-pose, CMU units; like
+# the hips, neck and shoulders, FingerBase starts where its parent does (the shipped clip's layout).
 CMU_SKELETON = (
     ("Hips", None, (0.0, 0.0, 0.0)),
     ("LHipJoint", "Hips", (0.0, 0.0, 0.0)),
@@ -33,15 +36,15 @@ CMU_SKELETON = (
     ("LeftArm", "LeftShoulder", (3.36241, 1.20089, -0.31121)),
     ("LeftForeArm", "LeftArm", (4.983, 0.0, 0.0)),
     ("LeftHand", "LeftForeArm", (3.48356, 0.0, 0.0)),
-    ("LeftFingerBase", "LeftHand", (0.71526, 0.0, 0.0)),
-    ("LeftHandIndex1", "LeftFingerBase", (0.5767, 0.0, 0.0)),
+    ("LeftFingerBase", "LeftHand", (0.0, 0.0, 0.0)),
+    ("LeftHandIndex1", "LeftFingerBase", (0.71526, 0.0, 0.0)),
     ("LThumb", "LeftHand", (0.0, 0.0, 0.0)),
     ("RightShoulder", "Spine1", (0.0, 0.0, 0.0)),
     ("RightArm", "RightShoulder", (-3.1366, 1.37405, -0.40465)),
     ("RightForeArm", "RightArm", (-5.2419, 0.0, 0.0)),
     ("RightHand", "RightForeArm", (-3.44417, 0.0, 0.0)),
-    ("RightFingerBase", "RightHand", (-0.62253, 0.0, 0.0)),
-    ("RightHandIndex1", "RightFingerBase", (-0.5019, 0.0, 0.0)),
+    ("RightFingerBase", "RightHand", (0.0, 0.0, 0.0)),
+    ("RightHandIndex1", "RightFingerBase", (-0.62253, 0.0, 0.0)),
     ("RThumb", "RightHand", (0.0, 0.0, 0.0)),
 )
 CMU_END_SITES = {
@@ -50,6 +53,7 @@ CMU_END_SITES = {
     "RightHandIndex1": (-0.4022, 0.0, 0.0), "RThumb": (-0.4455, 0.0, 0.4455),
 }  # fmt: skip
 FRAME_TIME = 0.008333
+SHIPPED_CMU = Path(__file__).resolve().parents[2] / "assets" / "data" / "motions" / "cmu_93_03_charleston.bvh"
 ARM_CHAINS = {  # joints below each shoulder, turned to hang at rest in the hanging-arm variant
     "Left": ("LeftForeArm", "LeftHand", "LeftFingerBase", "LeftHandIndex1", "LThumb"),
     "Right": ("RightForeArm", "RightHand", "RightFingerBase", "RightHandIndex1", "RThumb"),
@@ -336,6 +340,18 @@ def test_hanging_arm_rest_pose_gives_the_same_motion(tmp_path, walk, body):
     errors = bone_errors(motion, hanging, body)
     arms = [f"{side}_{joint}" for side in ("left", "right") for joint in ("shoulder", "elbow", "wrist")]
     assert max(float(errors[name].max()) for name in arms) < 1e-4
+
+
+def test_shipped_cmu_clip_follows_its_bones_and_floor(body):
+    """Real cgspeed CMU mocap (its FingerBase sits at the hand joint, so the wrist bone must end at
+    HandIndex1): every mapped bone follows the source and the lowest joint stays near the floor."""
+    bvh = parse_bvh(SHIPPED_CMU)
+    motion = retarget_to_smpl(bvh, body)
+    assert motion.poses.shape == (353, 24, 3) and motion.fps == pytest.approx(1.0 / 0.0083333)
+    worst = max(float(e.max()) for e in bone_errors(motion, bvh, body).values())
+    assert worst < 1e-4
+    lowest = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])[1][..., 2].min(axis=1)
+    assert 0.0 < lowest.min() and lowest.max() < 0.1  # the ankles or toes, in metres
 
 
 def test_root_path_is_scaled_and_axis_converted(walk, body):
