@@ -7,7 +7,7 @@ which renders a network was trained on, so that anyone can make them again::
 
     [data]
     garments = ["shirt", "assets/data/garmentcode/shirt_mean_specification.json"]
-    motions = ["walk", "arm_swing"]
+    motions = ["walk", "arm_swing", "assets/data/motions/cmu_93_03_charleston.bvh"]
     frames = 8            # per motion, frame_step simulation frames apart (DatasetConfig)
     variations = 5        # the reference's: 5 images per frame, 10 environments, split 22:2:1
     [[data.bodies]]
@@ -22,9 +22,11 @@ which renders a network was trained on, so that anyone can make them again::
     motions = ["squat"]
     bodies = ["tall"]     # labels of [[data.bodies]] entries
 
-Relative garment and body paths are relative to the repository's root (the folder holding
-`networks/recipes`).  A dataset folder is not a garment-mixing store (ground truth refers to one
-template), so a recipe builds one dataset folder per part (`parts`):
+Motions are built-in motion names or motion files (`.bvh`, AMASS or saved `.npz`), named in folders
+by `assets.motion.sources.motion_label` (a file's stem).  Relative garment, body and motion paths are
+relative to the repository's root (the folder holding `networks/recipes`).  A dataset folder is not a
+garment-mixing store (ground truth refers to one template), so a recipe builds one dataset folder per
+part (`parts`):
 - `train/<garment>-<body>`: each training garment on each training body over the training motions;
 - `holdout/<garment>-<body>`: each held-out garment on the first training body, and the first training
   garment on each held-out body, both over the first training motion and the held-out motions; and
@@ -58,8 +60,9 @@ def _strings(table: dict, key: str, source: str, required: bool = True) -> tuple
 
 
 def _input_path(spec: str) -> str:
-    """A garment or body spec: a name as it is, a path resolved against the repository's root."""
-    if "/" not in spec and not spec.endswith((".json", ".npz", ".pkl")):
+    """A garment, body or motion spec: a name as it is, a path resolved against the repository's root
+    (so a recipe builds the same data from any working directory)."""
+    if "/" not in spec and not spec.endswith((".json", ".npz", ".pkl", ".bvh")):
         return spec
     path = Path(spec)
     return str(path if path.is_absolute() else ROOT / path)
@@ -172,7 +175,8 @@ class DataRecipe:
 
     def _config(self, garment: str, body: BodyShape, motions: tuple[str, ...], held: bool = False) -> DatasetConfig:
         frames = self.holdout_frames if held and self.holdout_frames else self.frames
-        return DatasetConfig(garment=_input_path(garment), motions=motions, body=_input_path(body.body),
+        return DatasetConfig(garment=_input_path(garment), motions=tuple(_input_path(m) for m in motions),
+                             body=_input_path(body.body),
                              betas=body.betas, frames=frames, frame_step=self.frame_step,
                              variations=self.variations, seed=self.seed, render=self.render)
 

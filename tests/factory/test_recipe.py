@@ -1,11 +1,15 @@
-"""Data recipes: the shipped recipes' [data] tables read, their parts follow the hold-out rules, bad
-tables are refused naming the file and key, and a folder of another recipe is never built into."""
+"""Data recipes: the shipped recipes' [data] tables read, their parts follow the hold-out rules, motion
+files are named from the repository's root, bad tables are refused naming the file and key, and a
+folder of another recipe is never built into."""
 
 from pathlib import Path
 
 import pytest
 
-from assets.recipes import RECIPES, read_recipe, table_digest
+from assets.body import default_body
+from assets.motion import Motion
+from assets.motion.sources import load_motion, motion_label
+from assets.recipes import RECIPES, ROOT, read_recipe, table_digest
 from factory.recipe import DataRecipe, build_recipe, load_data_recipe
 
 SHIPPED = sorted(RECIPES.glob("*.toml"))
@@ -20,6 +24,8 @@ def test_every_shipped_recipe_reads(path):
     trained = {p.config.garment for p in parts if p.folder.startswith("train/")}
     held = {p.config.garment for p in parts if p.folder.startswith("holdout/")} - trained
     assert len(held) == len(recipe.holdout_garments)  # held-out garments never reach a training part
+    files = {m for p in parts for m in p.config.motions if m.endswith((".bvh", ".npz"))}
+    assert all(Path(m).is_absolute() and Path(m).is_file() for m in files), files
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -56,6 +62,24 @@ def test_parts_hold_out_a_garment_a_body_and_a_motion(tmp_path):
     assert parts["holdout/shirt-tall"].betas == (0.5, 0.9, 0.5)
     assert parts["holdout/shirt-default-motions"].motions == ("squat",)
     assert all(c.betas is None for f, c in parts.items() if f != "holdout/shirt-tall")
+
+
+CHARLESTON = "assets/data/motions/cmu_93_03_charleston.bvh"  # shipped mocap: 353 frames at 120 Hz
+
+
+def test_a_bvh_motion_is_named_from_the_repository_root(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the recipe's parts do not depend on the working directory
+    held_out_bvh = BASE.replace('motions = ["squat"]', f'motions = ["{CHARLESTON}"]')
+    _, _, recipe = load_data_recipe(_write(tmp_path, held_out_bvh))
+    parts = {p.folder: p.config for p in recipe.parts()}
+    shipped = str(ROOT / CHARLESTON)
+    assert parts["holdout/shirt-default-motions"].motions == (shipped,)
+    assert parts["holdout/pants-default"].motions == ("walk", shipped)
+    assert all(c.motions == ("walk", "run") for f, c in parts.items() if f.startswith("train/"))
+    assert motion_label(shipped) == "cmu_93_03_charleston"  # its folders' name, wherever the checkout is
+    motion = load_motion(shipped, default_body())
+    assert isinstance(motion, Motion) and motion.poses.shape == (353, 24, 3) and motion.trans.shape == (353, 3)
+    assert motion.fps == pytest.approx(1 / 0.0083333)
 
 
 @pytest.mark.parametrize("change, message", [
