@@ -35,10 +35,11 @@ NUM_POINTS = 5
 
 
 def normalize(images: torch.Tensor) -> torch.Tensor:
-    """uint8 (B, 3, H, W) RGB -> float32 (B, 3, H, W): / 255, then ImageNet mean and std per channel."""
-    if images.dtype != torch.uint8 or images.ndim != 4 or images.shape[1] != 3:
-        raise ValueError(f"normalize expects uint8 images of shape (B, 3, H, W), got {images.dtype} "
-                         f"{tuple(images.shape)}")
+    """uint8 (B, 3, H, W) RGB, or float32 on the same 0-255 scale -> float32 (B, 3, H, W): / 255, then
+    ImageNet mean and std per channel."""
+    if images.dtype not in (torch.uint8, torch.float32) or images.ndim != 4 or images.shape[1] != 3:
+        raise ValueError(f"normalize expects uint8 (or float32 0-255) images of shape (B, 3, H, W), got "
+                         f"{images.dtype} {tuple(images.shape)}")
     mean = torch.tensor(IMAGENET_MEAN, device=images.device).view(1, 3, 1, 1)
     std = torch.tensor(IMAGENET_STD, device=images.device).view(1, 3, 1, 1)
     return (images.float() / 255.0 - mean) / std

@@ -25,7 +25,8 @@ from assets.pattern import (
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.detections import Detections
-from networks.detector import AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers, usable_points
+from networks.detector import (AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, images_on_device, pad_images,
+                               unwarp_markers, unwarp_markers_on_device, usable_points)
 from networks.homography import (
     auto_localizer_scale,
     crop_to_image,
@@ -84,6 +85,31 @@ def test_unwarp_with_the_true_points_gives_the_reference_textures(table, scene):
         assert error.diagonal().max() < 12, error.diagonal()
         off = error + np.diag(np.full(m, np.inf))
         assert (error.diagonal() < 0.5 * off.min(axis=1)).all()
+
+
+def test_crops_cut_on_the_device_are_the_host_crops_unrounded(scene):
+    """The GPU path's crops (grid_sample through the same homographies), on CPU tensors: two images of
+    different sizes, markers shifted off the image's edge (zero outside), in any order."""
+    image, points, _ = scene
+    second = np.ascontiguousarray(image[: image.shape[0] - 7, : image.shape[1] - 11, ::-1])
+    shifted = points + np.array([image.shape[1] * 0.45, 3.0])  # some markers now cross the right edge
+    images = [image, second]
+    index = np.array([1, 0] * (len(points) // 2) + [0] * (len(points) % 2), dtype=np.int64)
+    chosen = np.where(index[:, None, None] == 0, points, shifted)
+    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
+        host = unwarp_markers(images, index, chosen, SPEC, crop).astype(np.float64)
+        device = unwarp_markers_on_device(images_on_device(images, torch.device("cpu")), index, chosen, SPEC, crop)
+        device = device.permute(0, 2, 3, 1).numpy()
+        assert device.shape == host.shape and device.dtype == np.float32
+        difference = np.abs(device - host)
+        # OpenCV interpolates at 1/32 px and rounds to uint8, the device path does neither: on a black to
+        # white edge (255 a pixel) that is at most 2 x 255 / 64 + 0.5 apart
+        assert difference.mean() < 0.6 and np.percentile(difference, 99.9) < 6.0 and difference.max() < 8.5
+        outside = host.reshape(len(host), -1).max(axis=1) == 0
+        assert not outside.all() and (device.reshape(len(device), -1)[outside].max(initial=0.0) < 1.0)
+    empty = unwarp_markers_on_device(images_on_device(images, torch.device("cpu")), np.zeros(0, np.int64),
+                                     np.zeros((0, 5, 2)), SPEC, CROSSPOINT_CROP)
+    assert empty.shape == (0, 3, CROSSPOINT_CROP.size_px, CROSSPOINT_CROP.size_px)
 
 
 def test_crop_crosspoints_map_back_to_the_true_image_crosspoints(scene):
@@ -538,6 +564,21 @@ def test_detector_on_cuda_matches_cpu(detector, table, scene):
         assert np.array_equal(cpu.marker_id, gpu.marker_id) and np.array_equal(cpu.partial, gpu.partial)
         assert np.abs(cpu.points_px - gpu.points_px).max() < 1e-2
         assert np.abs(cpu.crosspoints_px - gpu.crosspoints_px).max() < 0.1
+
+
+def test_stages_given_the_images_on_the_device_match_the_host_crops(detector, scene):
+    """What the GPU path runs (crops cut from images already on the device), on the CPU: the same IDs
+    and nearly the same probabilities and crosspoints as from OpenCV's crops."""
+    image, points, _ = scene
+    index = np.zeros(len(points), np.int64)
+    on_device = images_on_device([image], torch.device("cpu"))
+    ids, probability = detector.recognize([image], index, points)
+    ids_device, probability_device = detector.recognize([image], index, points, on_device=on_device)
+    assert np.array_equal(ids, ids_device) and np.abs(probability - probability_device).max() < 0.02
+    xy, visible = detector.locate_crosspoints([image], index, points, ids)
+    xy_device, visible_device = detector.locate_crosspoints([image], index, points, ids, on_device)
+    assert (visible == visible_device).mean() > 0.99
+    assert np.median(np.abs(xy - xy_device)) < 0.01 and np.abs(xy - xy_device).max() < 0.2
 
 
 def test_localizer_scale_maps_points_back_to_full_resolution(detector, scene):

@@ -29,8 +29,11 @@ def test_normalize():
     for c in range(3):
         assert torch.allclose(out[0, c], torch.tensor(-IMAGENET_MEAN[c] / IMAGENET_STD[c]))
         assert torch.allclose(out[1, c], torch.tensor((1 - IMAGENET_MEAN[c]) / IMAGENET_STD[c]))
+    assert torch.equal(normalize(images.float()), out)  # float32 on the 0-255 scale: the same
     with pytest.raises(ValueError, match="uint8"):
-        normalize(images.float())
+        normalize(images.double())
+    with pytest.raises(ValueError, match="uint8"):
+        normalize(images[:, :2])
 
 
 def test_output_shapes_and_input_checks():
