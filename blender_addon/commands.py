@@ -20,6 +20,7 @@ the simulation, for one).
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import bpy
@@ -27,15 +28,22 @@ import bpy
 from .settings import FILE
 
 
+def blend_folder() -> Path:
+    """What ``//`` stands for: the .blend file's folder, or for an unsaved file Blender's temporary
+    folder (Preferences > File Paths > Temporary Files, else the system's), so that the default output
+    folder works before the file is first saved."""
+    if bpy.data.filepath:
+        return Path(bpy.data.filepath).parent
+    return Path(bpy.context.preferences.filepaths.temporary_directory or tempfile.gettempdir())
+
+
 def _path(text: str, what: str) -> Path:
-    """An absolute path from a setting (``//`` is the .blend file's folder); ValueError when empty or
-    when it stays relative (an unsaved .blend)."""
+    """An absolute path from a setting (``//``: `blend_folder`); ValueError when empty or relative."""
     if not text:
         raise ValueError(f"{what}: no path given")
-    path = Path(bpy.path.abspath(text))
+    path = blend_folder() / text[2:] if text.startswith("//") else Path(bpy.path.abspath(text))
     if not path.is_absolute():
-        raise ValueError(f"{what}: '{text}' is relative to an unsaved .blend file: save the file or give an "
-                         "absolute folder")
+        raise ValueError(f"{what}: '{text}' is a relative path: give an absolute folder or one starting with //")
     return path
 
 

@@ -60,7 +60,10 @@ class CLOTHCAPTURE_PT_main(_Panel, bpy.types.Panel):
     bl_label = "Cloth Capture"
 
     def draw(self, context):
-        self.layout.prop(context.scene.clothcapture, "output_dir")
+        settings = context.scene.clothcapture
+        self.layout.prop(settings, "output_dir")
+        if settings.output_dir.startswith("//") and not bpy.data.filepath:
+            _describe(self.layout, "Unsaved file: runs go to", lambda: commands.output_root(settings))
 
 
 class CLOTHCAPTURE_PT_pattern(_Panel, bpy.types.Panel):

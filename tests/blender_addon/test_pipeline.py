@@ -193,16 +193,6 @@ def test_a_failing_run_shows_the_tools_error_and_changes_nothing(addon, settings
     motion.source = "BUILTIN"
 
 
-def test_an_unsaved_file_needs_an_absolute_output_folder(addon, settings):
-    folder = settings.output_dir
-    settings.output_dir = "//clothcapture/"
-    try:
-        with pytest.raises(RuntimeError, match="unsaved .blend"):
-            bpy.ops.clothcapture.import_garment()
-    finally:
-        settings.output_dir = folder
-
-
 # ---- Garment ---------------------------------------------------------------------------------------
 def test_a_garment_template_is_imported_at_its_level_with_its_texture(addon, settings, garment):
     job, skirt = garment
