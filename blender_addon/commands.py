@@ -25,7 +25,8 @@ from pathlib import Path
 
 import bpy
 
-from .settings import FILE
+from . import library
+from .settings import FILE, UNAVAILABLE
 
 
 def blend_folder() -> Path:
@@ -83,18 +84,26 @@ def body_spec(settings) -> str:
     return str(_existing_file(m.body_file, "body file")) if m.body_source == FILE else "default"
 
 
+def _listed(value: str, module: str) -> str:
+    """A choice from a list the project fills (in `module`); ValueError saying why the list is empty."""
+    if value == UNAVAILABLE:
+        library.project_module(module)  # raises what keeps Blender from loading the project
+        raise ValueError("no choice made: pick one from the list again")
+    return value
+
+
 def motion_spec(settings) -> str:
     m = settings.motion
-    return str(_existing_file(m.file, "motion file")) if m.source == FILE else m.builtin
+    return str(_existing_file(m.file, "motion file")) if m.source == FILE else \
+        _listed(m.builtin, "assets.motion.builtin")
 
 
 def motion_name(settings) -> str:
     """The motion's name, which names its folders (``motions/<motion>``): its `motion_label`, one plain
     path component."""
-    from assets.motion.sources import motion_label  # the project's packages load when first needed
-
     m = settings.motion
-    return motion_label(bpy.path.abspath(m.file) if m.source == FILE else m.builtin)
+    spec = bpy.path.abspath(m.file) if m.source == FILE else _listed(m.builtin, "assets.motion.builtin")
+    return library.project_module("assets.motion.sources").motion_label(spec)
 
 
 def motion_command(settings) -> tuple[list[str], Path]:
@@ -108,19 +117,19 @@ def motion_command(settings) -> tuple[list[str], Path]:
 # ---- garment ---------------------------------------------------------------------------------------
 def garment_name(settings) -> str:
     """The garment's name, which names its folders (``garments/<garment>``): one plain path component."""
-    from assets.fileio import safe_name  # the project's packages load when first needed
-
     g = settings.garment
     if g.source != FILE:
-        return g.source
+        return _listed(g.source, "assets.garments.defaults")
     path = Path(bpy.path.abspath(g.file))
-    return safe_name(path.parent.name if path.name == "template.npz" else path.stem, "garment file")
+    return library.project_module("assets.fileio").safe_name(
+        path.parent.name if path.name == "template.npz" else path.stem, "garment file")
 
 
 def garment_source(settings) -> str:
     """What `assets.garments.load_template` takes: a default garment's name or the file."""
     g = settings.garment
-    return str(_existing_file(g.file, "garment file")) if g.source == FILE else g.source
+    return str(_existing_file(g.file, "garment file")) if g.source == FILE else \
+        _listed(g.source, "assets.garments.defaults")
 
 
 def garment_dir(settings) -> Path:

@@ -107,6 +107,27 @@ def ensure_importable() -> None:
             sys.path.append(str(path))
 
 
+def _venv_version(root: Path) -> str | None:
+    """The Python version of the project's venv (``3.11``), None without one."""
+    found = sorted((root / ".venv" / "lib").glob("python3.*"))
+    return found[-1].name[len("python"):] if found else None
+
+
+def project_module(name: str):
+    """Module `name` of the project (``assets.motion.builtin``) imported into Blender's Python;
+    ValueError saying exactly why it cannot be: no project, or what Blender's Python lacks."""
+    ensure_importable()
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        root = project_root()  # ValueError when there is no project at all
+        version = f"{sys.version_info.major}.{sys.version_info.minor}"
+        venv = _venv_version(root)
+        hint = f" (the project's venv is for Python {venv}, so its packages cannot serve it)" \
+            if venv not in (None, version) else ""
+        raise ValueError(f"Blender's Python {version} cannot load {name} of {root}: {exc}{hint}") from exc
+
+
 def register() -> None:
     bpy.utils.register_class(ClothCapturePreferences)
     ensure_importable()

@@ -10,8 +10,8 @@ import textwrap
 
 import bpy
 
-from . import commands, jobs
-from .settings import FILE
+from . import commands, jobs, library
+from .settings import FILE, UNAVAILABLE
 
 _ICONS = {jobs.FINISHED: "CHECKMARK", jobs.FAILED: "ERROR", jobs.CANCELLED: "CANCEL"}
 
@@ -48,6 +48,17 @@ def _describe(layout, label: str, describe) -> None:
         layout.label(text=f"{label}: {describe()}")
     except ValueError as exc:
         layout.label(text=str(exc), icon="ERROR")
+
+
+def _why_empty(layout, value: str, module: str) -> None:
+    """Why a list the project fills is empty (in red), when it is."""
+    if value == UNAVAILABLE:
+        try:
+            library.project_module(module)
+        except ValueError as exc:
+            column = layout.column()
+            column.alert = True
+            _lines(column, str(exc))
 
 
 class _Panel:
@@ -95,6 +106,8 @@ class CLOTHCAPTURE_PT_motion(_Panel, bpy.types.Panel):
             layout.prop(motion, "body_file")
         layout.prop(motion, "source")
         layout.prop(motion, "file" if motion.source == FILE else "builtin")
+        if motion.source != FILE:
+            _why_empty(layout, motion.builtin, "assets.motion.builtin")
         column = layout.column(align=True)
         if motion.source != FILE:
             column.prop(motion, "seconds")
@@ -114,6 +127,7 @@ class CLOTHCAPTURE_PT_garment(_Panel, bpy.types.Panel):
         layout.prop(garment, "source")
         if garment.source == FILE:
             layout.prop(garment, "file")
+        _why_empty(layout, garment.source, "assets.garments.defaults")
         row = layout.row(align=True)
         row.prop(garment, "level_mm")
         row.prop(garment, "texture_dpi")

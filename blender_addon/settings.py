@@ -23,31 +23,37 @@ def _library_items(key: str, names, first: str, extra: list[tuple[str, str, str]
     return _enum_cache[key]
 
 
-#: the items of a library-made list while the project is not importable
-_NO_PROJECT = [("NONE", "(project not found)", "Set the project folder in the add-on's preferences")]
+#: the identifier of a library-made list's one item while Blender cannot load the project
+UNAVAILABLE = "NONE"
 _GARMENT_FILE = (FILE, "File", "A sewing-pattern JSON (ours or GarmentCode's) or a template .npz")
+
+
+def _unavailable(reason: str) -> list[tuple[str, str, str]]:
+    """The one item of a list Blender cannot fill: its tooltip says why (`library.project_module`)."""
+    key = f"unavailable {reason}"
+    if key not in _enum_cache:
+        _enum_cache[key] = [(UNAVAILABLE, "(project not loaded)", reason)]
+    return _enum_cache[key]
 
 
 def _builtin_motions(self, context):
     from . import library
 
-    library.ensure_importable()
     try:
-        from assets.motion.builtin import BUILTIN_MOTIONS
-    except ImportError:
-        return _NO_PROJECT
-    return _library_items("motions", BUILTIN_MOTIONS, "walk", [])
+        names = library.project_module("assets.motion.builtin").BUILTIN_MOTIONS
+    except ValueError as exc:
+        return _unavailable(str(exc))
+    return _library_items("motions", names, "walk", [])
 
 
 def _garments(self, context):
     from . import library
 
-    library.ensure_importable()
     try:
-        from assets.garments.defaults import DEFAULT_GARMENTS
-    except ImportError:
-        return _NO_PROJECT + [_GARMENT_FILE]
-    return _library_items("garments", DEFAULT_GARMENTS, "shirt", [_GARMENT_FILE])
+        names = library.project_module("assets.garments.defaults").DEFAULT_GARMENTS
+    except ValueError as exc:
+        return _unavailable(str(exc)) + [_GARMENT_FILE]
+    return _library_items("garments", names, "shirt", [_GARMENT_FILE])
 
 
 def _path(name: str, description: str, subtype: str = "FILE_PATH", default: str = "") -> StringProperty:

@@ -8,10 +8,13 @@ imported earlier in the session.
 
 import atexit
 import importlib
+import json
 import os
 import shutil
+import subprocess
 import sys
 import tempfile
+import textwrap
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -24,7 +27,7 @@ if "bpy" not in sys.modules and "BLENDER_USER_RESOURCES" not in os.environ:
 
 ADDON_ID = "clothcapture"
 #: the add-on's submodules the tests reach into (the job runner, the importers)
-SUBMODULES = ("jobs", "results", "commands")
+SUBMODULES = ("jobs", "results", "commands", "operators", "panels", "library")
 
 
 @pytest.fixture(scope="session")
@@ -70,3 +73,52 @@ def addon(addon_zip, tmp_path_factory):
     bpy.context.scene.clothcapture.output_dir = str(tmp_path_factory.mktemp("output"))
     yield addon_modules(name)
     uninstall_extension(name, repo)
+
+
+ROOT = Path(__file__).resolve().parents[2]
+#: what a script run by `run_script` starts with: modules of BLOCKED cannot be imported (a Blender whose
+#: Python lacks them), then the add-on is installed from ZIP as a legacy add-on into the user scripts
+#: folder (a temporary one) and enabled, with the project's folder in its preferences
+_PRELUDE = '''
+import importlib.abc, json, sys
+
+class _Blocked(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+sys.meta_path.insert(0, _Blocked())
+import bpy  # (the bpy module provides addon_utils once imported)
+import addon_utils
+
+assert bpy.ops.preferences.addon_install(filepath=ZIP) == {"FINISHED"}
+addon_utils.enable("clothcapture", default_set=True)
+bpy.context.preferences.addons["clothcapture"].preferences.project_dir = ROOT
+'''
+
+
+def run_script(body: str, zip_path: Path, folder: Path, runner: str = "bpy", blocked: tuple[str, ...] = (),
+               timeout_s: float = 300.0) -> subprocess.CompletedProcess:
+    """Run `body` (a user's script) after `_PRELUDE` in a new process: the bpy module's Python
+    (``python script.py``) or the `blender` executable (``blender -b --factory-startup -P script.py``),
+    with Blender's user folders in `folder`."""
+    script = folder / "script.py"
+    script.write_text(f"BLOCKED = {set(blocked)!r}\nZIP = {str(zip_path)!r}\nROOT = {str(ROOT)!r}\n"
+                      + _PRELUDE + textwrap.dedent(body))
+    if runner == "bpy":
+        command = [sys.executable, str(script)]
+    else:
+        blender = shutil.which("blender")
+        if blender is None:
+            pytest.fail("no `blender` executable on PATH: `apt-get install blender` (Debian's 3.4) to run this test")
+        command = [blender, "-b", "--factory-startup", "-P", str(script)]
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(folder / "user"), "BLENDER_USER_SCRIPTS": str(folder / "scripts"),
+           "BLENDER_USER_CONFIG": str(folder / "config")}
+    return subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=timeout_s)
+
+
+def script_result(process: subprocess.CompletedProcess) -> dict:
+    """What a `run_script` body printed as ``RESULT <json>`` (the process must have succeeded)."""
+    assert process.returncode == 0, process.stdout[-3000:] + process.stderr[-3000:]
+    line = next(line for line in reversed(process.stdout.splitlines()) if line.startswith("RESULT "))
+    return json.loads(line[len("RESULT "):])

@@ -5,6 +5,8 @@ from its zip into the bpy module."""
 import bpy
 import pytest
 
+from tests.blender_addon.conftest import run_script, script_result
+
 
 @pytest.fixture(scope="module")
 def settings(addon):
@@ -34,3 +36,35 @@ def test_the_default_output_folder_works_on_an_unsaved_file(addon, settings, tmp
     finally:
         settings.output_dir, paths.temporary_directory = folder, temporary
     assert (tmp_path / "clothcapture" / "pattern" / "pattern.png").is_file()
+
+
+def test_a_project_blender_cannot_load_is_named_and_no_placeholder_reaches_a_cli(addon_zip, tmp_path):
+    """Blender's own Python lacks scipy (as Blender's builds do): the lists say why they are empty,
+    and the operators refuse with that reason instead of running a CLI on the placeholder."""
+    result = script_result(run_script("""
+        import sys
+        settings = bpy.context.scene.clothcapture
+        commands = sys.modules["clothcapture.commands"]
+        items = sys.modules["clothcapture.settings"]._builtin_motions(None, bpy.context)
+        refusals = []
+        for command in (commands.motion_command, commands.simulation_command, commands.render_command):
+            try:
+                command(settings)
+                refusals.append(None)
+            except ValueError as exc:
+                refusals.append(str(exc))
+        try:
+            bpy.ops.clothcapture.import_motion()
+            report = None
+        except RuntimeError as exc:
+            report = str(exc)
+        jobs = sys.modules["clothcapture.jobs"].jobs()
+        print("RESULT", json.dumps({"items": items, "value": settings.motion.builtin, "refusals": refusals,
+                                    "report": report, "jobs": len(jobs)}))
+    """, addon_zip, tmp_path, blocked=("scipy",)))
+    [(identifier, name, description)] = result["items"]
+    assert identifier == result["value"] and name == "(project not loaded)"
+    assert "No module named 'scipy'" in description and "Blender's Python" in description
+    assert all(refusal is not None and "No module named 'scipy'" in refusal for refusal in result["refusals"])
+    assert "No module named 'scipy'" in result["report"] and "Traceback" not in result["report"]
+    assert result["jobs"] == 0
