@@ -15,7 +15,9 @@ numpy stays in use), as ``factory/render.py`` does for ``blender -b -P``.
 """
 
 import importlib.util
+import json
 import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -90,6 +92,50 @@ def python_executable() -> str:
         return sys.executable
     raise ValueError(f"no Python for the background jobs: create {venv} (make test) or set one in the "
                      "add-on's preferences")
+
+
+#: the modules the project's tools import (import name: what pip installs), by the part of the install
+#: that provides them: "" the base install, else an extra of pyproject.toml
+INSTALL = {
+    "": {"numpy": "numpy", "scipy": "scipy", "cv2": "opencv-python-headless", "PIL": "pillow",
+         "trimesh": "trimesh", "triangle": "triangle", "tqdm": "tqdm", "matplotlib": "matplotlib"},
+    "factory": {"bpy": "bpy", "OpenEXR": "OpenEXR"},
+    "reconstruction": {"warp": "warp-lang", "newton": "newton"},
+    "networks": {"torch": "torch"},
+}
+#: the oldest Python the project runs on (pyproject.toml's requires-python)
+MIN_PYTHON = (3, 11)
+_PROBE = ("import importlib.util, json, sys; print(json.dumps({'version': list(sys.version_info[:3]), "
+          "'missing': [m for m in sys.argv[1:] if importlib.util.find_spec(m) is None]}))")
+_checked: set[tuple[str, tuple[str, ...]]] = set()
+
+
+def check_python(extras: tuple[str, ...] = ()) -> str:
+    """The interpreter of the background jobs, once asked whether it can run a job that needs the base
+    install and `extras` (names of `INSTALL`); ValueError naming what it lacks and the command that
+    installs it.  A Python that passed is not asked again in this session."""
+    python, root = python_executable(), project_root()
+    if (python, extras) in _checked:
+        return python
+    needed = {module: package for extra in ("", *extras) for module, package in INSTALL[extra].items()}
+    try:
+        answer = subprocess.run([python, "-c", _PROBE, *needed], capture_output=True, text=True, timeout=60,
+                                stdin=subprocess.DEVNULL)
+        found = json.loads(answer.stdout)
+    except (OSError, subprocess.SubprocessError, ValueError) as exc:
+        raise ValueError(f"{python}: not a Python that runs ({type(exc).__name__}: {exc}); set the project's "
+                         "venv python in the add-on's preferences") from exc
+    version = ".".join(map(str, found["version"]))
+    if tuple(found["version"][:2]) < MIN_PYTHON:
+        raise ValueError(f"{python} is Python {version}: the project needs {'.'.join(map(str, MIN_PYTHON))} or "
+                         "later; set the project's venv python in the add-on's preferences")
+    if found["missing"]:
+        wanted = [extra for extra in extras if set(INSTALL[extra]) & set(found["missing"])]
+        target = f"'{root}[{','.join(wanted)}]'" if wanted else str(root)
+        raise ValueError(f"{python} (Python {version}) lacks {', '.join(needed[m] for m in found['missing'])}: "
+                         f"install with {python} -m pip install -e {target}")
+    _checked.add((python, extras))
+    return python
 
 
 def ensure_importable() -> None:

@@ -25,9 +25,12 @@ def _results():
     return results
 
 
-def _start(context, kind: str, label: str, argv: list[str], out: Path, importer: Callable) -> jobs.Job:
-    """Start a background job; `importer(scene)` imports its results into this scene when it succeeds
+def _start(context, kind: str, label: str, argv: list[str], out: Path, importer: Callable,
+           extras: tuple[str, ...] = ()) -> jobs.Job:
+    """Start a background job whose tools need the project's base install and `extras`
+    (`library.check_python`); `importer(scene)` imports its results into this scene when it succeeds
     (unless another .blend file has been opened meanwhile: the results stay on disk)."""
+    python = library.check_python(extras)
     scene_name, blend = context.scene.name, bpy.data.filepath
 
     def on_success(job: jobs.Job) -> str:
@@ -36,13 +39,12 @@ def _start(context, kind: str, label: str, argv: list[str], out: Path, importer:
             return f"finished in {out}; not imported: the scene it was started from is no longer open"
         return importer(scene)
 
-    return jobs.start(jobs.Job(kind, label, argv, out, on_success=on_success), library.python_executable(),
-                      library.project_root())
+    return jobs.start(jobs.Job(kind, label, argv, out, on_success=on_success), python, library.project_root())
 
 
 class _Background:
     """Mixin of the background operators: their `prepare(context)` returns (kind, label, argv, out
-    folder, importer) for `_start`."""
+    folder, importer[, extras]) for `_start`."""
 
     def execute(self, context):
         try:
@@ -168,7 +170,8 @@ class CLOTHCAPTURE_OT_render(_Background, bpy.types.Operator):
         settings = context.scene.clothcapture
         rig = settings.render.rig
         argv, out = commands.render_command(settings)
-        return "render", f"{rig.lower()} {out.name}", argv, out, lambda scene: _results().import_render(scene, out, rig)
+        return "render", f"{rig.lower()} {out.name}", argv, out, lambda scene: _results().import_render(scene, out, rig), \
+            ("factory",)
 
 
 def _review_options(settings) -> dict:
@@ -198,8 +201,9 @@ class CLOTHCAPTURE_OT_reconstruct(_Background, bpy.types.Operator):
         settings = context.scene.clothcapture
         argv, out = commands.reconstruction_command(settings)
         capture, options = _review_capture(settings), _review_options(settings)
+        extras = ("reconstruction",) + (("networks",) if settings.review.detections == "networks" else ())
         return "reconstruction", f"reconstruction {out.name}", argv, out, \
-            lambda scene: _results().import_reconstruction(scene, out, capture, **options)
+            lambda scene: _results().import_reconstruction(scene, out, capture, **options), extras
 
 
 class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):

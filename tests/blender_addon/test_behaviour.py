@@ -2,6 +2,9 @@
 (a 2 x 3 pattern at 50 DPI, a fifth of a second of the built-in walk), through the add-on installed
 from its zip into the bpy module."""
 
+import subprocess
+import sys
+
 import bpy
 import pytest
 
@@ -68,3 +71,26 @@ def test_a_project_blender_cannot_load_is_named_and_no_placeholder_reaches_a_cli
     assert all(refusal is not None and "No module named 'scipy'" in refusal for refusal in result["refusals"])
     assert "No module named 'scipy'" in result["report"] and "Traceback" not in result["report"]
     assert result["jobs"] == 0
+
+
+def test_the_projects_python_is_checked_before_the_first_job_and_what_it_lacks_is_named(addon, settings,
+                                                                                       tmp_path):
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(tmp_path / "bare")], check=True)
+    python = tmp_path / "bare" / "bin" / "python"
+    preferences = bpy.context.preferences.addons[addon.name].preferences
+    before = len(addon.jobs.jobs())
+    try:
+        preferences.python = str(python)
+        with pytest.raises(RuntimeError) as refused:
+            bpy.ops.clothcapture.generate_pattern()
+        preferences.python = "/bin/true"
+        with pytest.raises(RuntimeError, match="/bin/true: not a Python"):
+            bpy.ops.clothcapture.generate_pattern()
+    finally:
+        preferences.python = ""
+    message = str(refused.value)
+    assert f"{python} (Python {sys.version_info.major}.{sys.version_info.minor}" in message
+    for module in ("numpy", "scipy", "opencv-python-headless", "tqdm"):
+        assert module in message
+    assert f"{python} -m pip install -e {addon.library.project_root()}" in message
+    assert len(addon.jobs.jobs()) == before  # nothing started
