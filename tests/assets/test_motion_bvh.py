@@ -53,7 +53,8 @@ CMU_END_SITES = {
     "RightHandIndex1": (-0.4022, 0.0, 0.0), "RThumb": (-0.4455, 0.0, 0.4455),
 }  # fmt: skip
 FRAME_TIME = 0.008333
-SHIPPED_CMU = Path(__file__).resolve().parents[2] / "assets" / "data" / "motions" / "cmu_93_03_charleston.bvh"
+MOTIONS = Path(__file__).resolve().parents[2] / "assets" / "data" / "motions"
+SHIPPED_CMU = {"cmu_93_03_charleston.bvh": 353, "cmu_144_05_front_kick.bvh": 304}  # file -> frames at 120 Hz
 ARM_CHAINS = {  # joints below each shoulder, turned to hang at rest in the hanging-arm variant
     "Left": ("LeftForeArm", "LeftHand", "LeftFingerBase", "LeftHandIndex1", "LThumb"),
     "Right": ("RightForeArm", "RightHand", "RightFingerBase", "RightHandIndex1", "RThumb"),
@@ -342,12 +343,13 @@ def test_hanging_arm_rest_pose_gives_the_same_motion(tmp_path, walk, body):
     assert max(float(errors[name].max()) for name in arms) < 1e-4
 
 
-def test_shipped_cmu_clip_follows_its_bones_and_floor(body):
+@pytest.mark.parametrize("name, frames", SHIPPED_CMU.items())
+def test_shipped_cmu_clip_follows_its_bones_and_floor(body, name, frames):
     """Real cgspeed CMU mocap (its FingerBase sits at the hand joint, so the wrist bone must end at
     HandIndex1): every mapped bone follows the source and the lowest joint stays near the floor."""
-    bvh = parse_bvh(SHIPPED_CMU)
+    bvh = parse_bvh(MOTIONS / name)
     motion = retarget_to_smpl(bvh, body)
-    assert motion.poses.shape == (353, 24, 3) and motion.fps == pytest.approx(1.0 / 0.0083333)
+    assert motion.poses.shape == (frames, 24, 3) and motion.fps == pytest.approx(1.0 / 0.0083333)
     worst = max(float(e.max()) for e in bone_errors(motion, bvh, body).values())
     assert worst < 1e-4
     lowest = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])[1][..., 2].min(axis=1)
