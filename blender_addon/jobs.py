@@ -17,8 +17,9 @@ Cancelling sends SIGINT to the job's process group (Python unwinds, so `assets.f
 deletes its temporary file and every finished file is whole), then SIGKILL after `KILL_AFTER_S`; any
 ``.*.part`` temporary left by a killed writer is then removed from the job's output folder.
 
-In Blender a `bpy.app.timers` timer calls `tick` every `POLL_S` seconds while a job is active; headless
-code (tests, scripts) calls `wait`, which runs the same `tick` until the job is done.
+In Blender a `bpy.app.timers` timer calls `tick` every `POLL_S` seconds while a job started by `start`
+is active; `run` (a script, Blender in background mode) and `wait` run the same `tick` until the job
+is done.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ class Job:
     ended: float | None = None
     tail: list[str] = field(default_factory=list)
     log: list[str] = field(default_factory=list)
+    logged: int = 0  #: logging lines read so far (`log` keeps the last `LOG_LINES`)
     _process: subprocess.Popen | None = None
     _offset: int = 0
     _partial: str = ""
@@ -118,6 +120,7 @@ class Job:
             if logged and logged["message"] != self.status:  # (a partial line is read again when complete)
                 self.status = logged["message"]
                 self.log = (self.log + [self.status])[-LOG_LINES:]
+                self.logged += 1
 
 
 _jobs: list[Job] = []
@@ -142,8 +145,26 @@ def find(job_id: int) -> Job | None:
 
 
 def start(job: Job, python: str, cwd: Path) -> Job:
-    """Start `job` with the interpreter `python` in folder `cwd` (the project root); one active job
-    per kind (ValueError otherwise)."""
+    """Start `job` with the interpreter `python` in folder `cwd` (the project root), in the background
+    (Blender's timer follows it); one active job per kind (ValueError otherwise)."""
+    _spawn(job, python, cwd)
+    _ensure_timer()
+    return job
+
+
+def run(job: Job, python: str, cwd: Path, echo: Callable[[str], None] | None = None) -> Job:
+    """Run `job` as `start` does, but to its end (a script, Blender in background mode): `wait`
+    without a time limit, `echo` taking its log lines; interrupted (Ctrl+C), the job is cancelled."""
+    _spawn(job, python, cwd)
+    try:
+        return wait(job, None, echo)
+    except KeyboardInterrupt:
+        cancel(job)
+        wait(job, 2 * KILL_AFTER_S)
+        raise
+
+
+def _spawn(job: Job, python: str, cwd: Path) -> None:
     busy = active(job.kind)
     if busy:
         raise ValueError(f"{busy[0].label} is still running: wait for it or cancel it first")
@@ -163,8 +184,6 @@ def start(job: Job, python: str, cwd: Path) -> Job:
         os.close(fd)
     job.started = time.monotonic()
     _jobs.append(job)
-    _ensure_timer()
-    return job
 
 
 def cancel(job: Job) -> None:
@@ -254,14 +273,22 @@ def remove_temporaries(folder: Path) -> list[Path]:
     return removed
 
 
-def wait(job: Job, timeout_s: float) -> Job:
-    """Run `tick` until `job` is done (what the timer does in Blender); TimeoutError after `timeout_s`."""
-    deadline = time.monotonic() + timeout_s
+def wait(job: Job, timeout_s: float | None, echo: Callable[[str], None] | None = None) -> Job:
+    """Run `tick` until `job` is done (what the timer does in Blender), passing each new log line and
+    the outcome to `echo`; TimeoutError after `timeout_s` (None: no limit)."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    shown = 0
     while True:
         tick()
+        if echo is not None:
+            for line in job.log[len(job.log) - min(job.logged - shown, len(job.log)):]:
+                echo(f"{job.label}: {line}")
+            shown = job.logged
         if not job.active:
+            if echo is not None:
+                echo(f"{job.label}: {job.state.lower()}: {job.message if job.state == FINISHED else job.error}")
             return job
-        if time.monotonic() > deadline:
+        if deadline is not None and time.monotonic() > deadline:
             raise TimeoutError(f"{job.label} did not finish within {timeout_s:g} s: {job.progress_text} {job.status}")
         time.sleep(0.1)
 

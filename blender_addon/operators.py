@@ -1,15 +1,23 @@
 """Operators: thin shells over the project's CLIs (background jobs) and result importers.
 
-A background operator builds the CLI's arguments from the scene's settings (`commands`), starts the
-job (`jobs`) and returns at once; when the run succeeds its results are imported into the scene it was
-started from (`results`).  Bad settings are reported as errors before anything starts; a failing run
-shows the CLI's ``error: ...`` line in its panel.
+A background operator builds the CLI's arguments from the scene's settings (`commands`) and runs the
+CLI as a job (`jobs`); when the run succeeds its results are imported into the scene it was started
+from (`results`).  As Blender's own operators do, it runs in one of two ways:
+
+- its button in Blender's window (`invoke`): the job runs in the background and the operator returns
+  at once; the panel shows its progress, and the import happens when it ends;
+- a script, or Blender in background mode (`execute`; ``bpy.ops.clothcapture.simulate()``,
+  ``blender -b -P``): the operator returns when the job has ended and its results are imported,
+  printing the job's log lines meanwhile; a failed run raises (RuntimeError, the CLI's error).
+
+Bad settings are reported as errors before anything starts; a failing run shows the CLI's
+``error: ...`` line in its panel.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import bpy
 from bpy.props import IntProperty
@@ -25,35 +33,67 @@ def _results():
     return results
 
 
-def _start(context, kind: str, label: str, argv: list[str], out: Path, importer: Callable,
-           extras: tuple[str, ...] = ()) -> jobs.Job:
-    """Start a background job whose tools need the project's base install and `extras`
-    (`library.check_python`); `importer(scene)` imports its results into this scene when it succeeds
-    (unless another .blend file has been opened meanwhile: the results stay on disk)."""
-    python = library.check_python(extras)
+class JobSpec(NamedTuple):
+    """What an operator runs: the job's kind and label, the CLI's arguments and output folder,
+    `importer(scene)` (imports the results, returns a message) and the install's `extras` its tools
+    need (`library.check_python`)."""
+
+    kind: str
+    label: str
+    argv: list[str]
+    out: Path
+    importer: Callable
+    extras: tuple[str, ...] = ()
+
+
+def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
+    """Run `spec` as a job whose results are imported into this scene when it succeeds (unless another
+    .blend file has been opened meanwhile: the results stay on disk): in the background, or when
+    `wait`, to its end (printing its log lines)."""
+    python = library.check_python(spec.extras)
     scene_name, blend = context.scene.name, bpy.data.filepath
 
     def on_success(job: jobs.Job) -> str:
         scene = bpy.data.scenes.get(scene_name)
         if bpy.data.filepath != blend or scene is None:
-            return f"finished in {out}; not imported: the scene it was started from is no longer open"
-        return importer(scene)
+            return f"finished in {spec.out}; not imported: the scene it was started from is no longer open"
+        return spec.importer(scene)
 
-    return jobs.start(jobs.Job(kind, label, argv, out, on_success=on_success), python, library.project_root())
+    job = jobs.Job(spec.kind, spec.label, spec.argv, spec.out, on_success=on_success)
+    if wait:
+        return jobs.run(job, python, library.project_root(), echo=print)
+    return jobs.start(job, python, library.project_root())
 
 
 class _Background:
-    """Mixin of the background operators: their `prepare(context)` returns (kind, label, argv, out
-    folder, importer[, extras]) for `_start`."""
+    """Mixin of the background operators: their static `prepare(context)` returns their `JobSpec`
+    (`start(context, CLOTHCAPTURE_OT_simulate.prepare(context))` runs it in the background, as a button
+    of Blender's window does)."""
+
+    def invoke(self, context, event):
+        return self.launch(context, wait=bpy.app.background)
 
     def execute(self, context):
+        return self.launch(context, wait=True)
+
+    def launch(self, context, wait: bool) -> set[str]:
         try:
             library.ensure_importable()
-            job = _start(context, *self.prepare(context))
+            return self.report_job(start(context, self.prepare(context), wait))
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"{job.label}: started in the background")
+
+    def report_job(self, job: jobs.Job) -> set[str]:
+        """Report how `job` went (or that it started) as an operator's outcome."""
+        if job.active:
+            self.report({"INFO"}, f"{job.label}: started in the background")
+        elif job.state == jobs.FINISHED:
+            self.report({"INFO"}, f"{job.label}: {job.message}")
+        else:
+            self.report({"ERROR"} if job.state == jobs.FAILED else {"WARNING"},
+                        f"{job.label}: {job.error or job.state.lower()}")
+            return {"CANCELLED"}
         return {"FINISHED"}
 
 
@@ -63,14 +103,15 @@ class CLOTHCAPTURE_OT_generate_pattern(_Background, bpy.types.Operator):
     bl_idname = "clothcapture.generate_pattern"
     bl_label = "Generate Pattern"
 
-    def prepare(self, context):
+    @staticmethod
+    def prepare(context) -> JobSpec:
         argv, out = commands.pattern_command(context.scene.clothcapture)
 
         def importer(scene):
             width, height = _results().import_pattern(out).size
             return f"pattern.png {width} x {height} px in {out}"
 
-        return "pattern", "pattern", argv, out, importer
+        return JobSpec("pattern", "pattern", argv, out, importer)
 
 
 def _garment_job(settings, source: str, out: Path, level_mm: int, name: str | None):
@@ -81,23 +122,23 @@ def _garment_job(settings, source: str, out: Path, level_mm: int, name: str | No
         obj["clothcapture_garment_source"] = source
         return f"{obj.name}: {len(obj.data.vertices)} vertices at {level_mm} mm, texture {out / 'pattern_texture.png'}"
 
-    return "garment", f"garment {Path(source).stem}", argv, out, importer
+    return JobSpec("garment", f"garment {Path(source).stem}", argv, out, importer)
 
 
-class CLOTHCAPTURE_OT_apply_pattern(bpy.types.Operator):
+class CLOTHCAPTURE_OT_apply_pattern(_Background, bpy.types.Operator):
     """Apply the pattern to the selected meshes: a garment of this add-on is rebuilt with the pattern's
     pitch and seed (its texture is laid out per panel); any other mesh gets the printable pattern
     through its UV map"""
 
     bl_idname = "clothcapture.apply_pattern"
     bl_label = "Apply to Selected"
-    bl_options = {"REGISTER", "UNDO"}
+    bl_options = {"UNDO"}
 
     @classmethod
     def poll(cls, context):
         return any(obj.type == "MESH" for obj in context.selected_objects)
 
-    def execute(self, context):
+    def launch(self, context, wait: bool) -> set[str]:
         settings = context.scene.clothcapture
         meshes = [obj for obj in context.selected_objects if obj.type == "MESH"]
         garments = [obj for obj in meshes if "clothcapture_garment_source" in obj]
@@ -110,14 +151,13 @@ class CLOTHCAPTURE_OT_apply_pattern(bpy.types.Operator):
                     _results().apply_pattern(obj, commands.pattern_dir(settings))
             if garments:
                 obj = garments[0]
-                _start(context, *_garment_job(settings, obj["clothcapture_garment_source"],
-                                              Path(obj["clothcapture_template"]).parent,
-                                              int(obj["clothcapture_level_mm"]), obj.name))
+                return self.report_job(start(context, _garment_job(
+                    settings, obj["clothcapture_garment_source"], Path(obj["clothcapture_template"]).parent,
+                    int(obj["clothcapture_level_mm"]), obj.name), wait))
         except ValueError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self.report({"INFO"}, f"pattern applied to {len(meshes) - len(garments)} mesh(es)"
-                    + (f", rebuilding {garments[0].name}" if garments else ""))
+        self.report({"INFO"}, f"pattern applied to {len(meshes)} mesh(es)")
         return {"FINISHED"}
 
 
@@ -127,11 +167,12 @@ class CLOTHCAPTURE_OT_import_motion(_Background, bpy.types.Operator):
     bl_idname = "clothcapture.import_motion"
     bl_label = "Import Motion"
 
-    def prepare(self, context):
+    @staticmethod
+    def prepare(context) -> JobSpec:
         settings = context.scene.clothcapture
         argv, out = commands.motion_command(settings)
-        return "motion", f"motion {commands.motion_name(settings)}", argv, out, \
-            lambda scene: _results().import_motion(scene, out)
+        return JobSpec("motion", f"motion {commands.motion_name(settings)}", argv, out,
+                       lambda scene: _results().import_motion(scene, out))
 
 
 class CLOTHCAPTURE_OT_import_garment(_Background, bpy.types.Operator):
@@ -141,7 +182,8 @@ class CLOTHCAPTURE_OT_import_garment(_Background, bpy.types.Operator):
     bl_idname = "clothcapture.import_garment"
     bl_label = "Import Garment"
 
-    def prepare(self, context):
+    @staticmethod
+    def prepare(context) -> JobSpec:
         settings = context.scene.clothcapture
         return _garment_job(settings, commands.garment_source(settings), commands.garment_dir(settings),
                             int(settings.garment.level_mm), None)
@@ -154,10 +196,12 @@ class CLOTHCAPTURE_OT_simulate(_Background, bpy.types.Operator):
     bl_idname = "clothcapture.simulate"
     bl_label = "Dress & Simulate"
 
-    def prepare(self, context):
+    @staticmethod
+    def prepare(context) -> JobSpec:
         settings = context.scene.clothcapture
         argv, out = commands.simulation_command(settings)
-        return "simulation", f"simulation {out.name}", argv, out, lambda scene: _results().import_simulation(scene, out)
+        return JobSpec("simulation", f"simulation {out.name}", argv, out,
+                       lambda scene: _results().import_simulation(scene, out))
 
 
 class CLOTHCAPTURE_OT_render(_Background, bpy.types.Operator):
@@ -166,12 +210,13 @@ class CLOTHCAPTURE_OT_render(_Background, bpy.types.Operator):
     bl_idname = "clothcapture.render"
     bl_label = "Render"
 
-    def prepare(self, context):
+    @staticmethod
+    def prepare(context) -> JobSpec:
         settings = context.scene.clothcapture
         rig = settings.render.rig
         argv, out = commands.render_command(settings)
-        return "render", f"{rig.lower()} {out.name}", argv, out, lambda scene: _results().import_render(scene, out, rig), \
-            ("factory",)
+        return JobSpec("render", f"{rig.lower()} {out.name}", argv, out,
+                       lambda scene: _results().import_render(scene, out, rig), ("factory",))
 
 
 def _review_options(settings) -> dict:
@@ -197,13 +242,14 @@ class CLOTHCAPTURE_OT_reconstruct(_Background, bpy.types.Operator):
     bl_idname = "clothcapture.reconstruct"
     bl_label = "Reconstruct"
 
-    def prepare(self, context):
+    @staticmethod
+    def prepare(context) -> JobSpec:
         settings = context.scene.clothcapture
         argv, out = commands.reconstruction_command(settings)
         capture, options = _review_capture(settings), _review_options(settings)
         extras = ("reconstruction",) + (("networks",) if settings.review.detections == "networks" else ())
-        return "reconstruction", f"reconstruction {out.name}", argv, out, \
-            lambda scene: _results().import_reconstruction(scene, out, capture, **options), extras
+        return JobSpec("reconstruction", f"reconstruction {out.name}", argv, out,
+                       lambda scene: _results().import_reconstruction(scene, out, capture, **options), extras)
 
 
 class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):

@@ -66,12 +66,13 @@ def addon_modules(name: str) -> SimpleNamespace:
 @pytest.fixture(scope="module")
 def addon(addon_zip, tmp_path_factory):
     """The add-on enabled from its zip (an extension in a temporary repository), its output folder a
-    temporary one; disabled and removed afterwards."""
+    temporary one; disabled and removed afterwards, the scene's settings back at their defaults."""
     import bpy
 
     name, repo = install_extension(addon_zip, tmp_path_factory.mktemp("repo"))
     bpy.context.scene.clothcapture.output_dir = str(tmp_path_factory.mktemp("output"))
     yield addon_modules(name)
+    bpy.context.scene.property_unset("clothcapture")
     uninstall_extension(name, repo)
 
 

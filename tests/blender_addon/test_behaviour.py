@@ -94,3 +94,20 @@ def test_the_projects_python_is_checked_before_the_first_job_and_what_it_lacks_i
         assert module in message
     assert f"{python} -m pip install -e {addon.library.project_root()}" in message
     assert len(addon.jobs.jobs()) == before  # nothing started
+
+
+@pytest.mark.parametrize("runner", ["bpy", "blender"])
+def test_a_script_runs_the_operators_to_the_end_and_blender_b_produces_the_outputs(addon_zip, tmp_path, runner):
+    """From a script (``python script.py`` with the bpy module, ``blender -b -P script.py``) an operator
+    returns when its run is done and its results are imported, as Blender's own operators do."""
+    out = tmp_path / "out"
+    result = script_result(run_script(f"""
+        settings = bpy.context.scene.clothcapture
+        settings.output_dir = {str(out)!r}
+        settings.pattern.rows, settings.pattern.cols, settings.pattern.dpi = 2, 3, 50.0
+        returned = bpy.ops.clothcapture.generate_pattern()
+        image = bpy.data.images.get("clothcapture pattern")
+        print("RESULT", json.dumps({{"returned": sorted(returned), "image": list(image.size) if image else None}}))
+    """, addon_zip, tmp_path, runner))
+    assert result == {"returned": ["FINISHED"], "image": [284, 189]}
+    assert (out / "pattern" / "pattern.png").is_file()
