@@ -30,8 +30,8 @@ The crops are cut as each network's checkpoint says (`assets.pattern.CropGeometr
 network as `crops`): the recognizer's `crops.recognizer`, the crosspoint network's `crops.crosspoints`.
 All crops of one call go through the recognizer and crosspoint networks in batches of `batch_size`,
 under `torch.inference_mode()`, on `device`: on the CPU OpenCV cuts them (`unwarp_markers`, exactly the
-training crops); on a GPU each image is moved there once and the crops are cut there
-(`unwarp_markers_on_device`: the same homographies, bilinear, unrounded).
+training crops); on a GPU each image is moved there once, the crops are cut there and the
+crosspoints smoothed and mapped there (`networks.device_geometry`: the same homographies and fits).
 Pixels are continuous image coordinates (x right, y down, pixel centres at integer + 0.5).
 """
 
@@ -64,6 +64,8 @@ from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_S
                              crop_px_problem, keep_own_problem, marker_px_problem, neighbour_fit_problem)
 from networks.decode import decode_localizer
 from networks.detections import Detections
+from networks.device_geometry import (crop_to_image_on_device, images_on_device, smooth_crosspoints_on_device,
+                                      unwarp_markers_on_device)
 from networks.homography import (
     auto_localizer_scale,
     crop_to_image,
@@ -235,43 +237,6 @@ def unwarp_markers(images: Sequence[np.ndarray], image_index: np.ndarray, points
         pick = np.flatnonzero(image_index == i)
         out[pick] = unwarp(images[i], spec, crop, np.asarray(points_px[pick], dtype=np.float64))
     return out
-
-
-def unwarp_markers_on_device(images: Sequence[torch.Tensor], image_index: np.ndarray, points_px: np.ndarray,
-                             spec: PatternSpec, crop: CropSpec) -> torch.Tensor:
-    """`unwarp_markers` where the images already are: images uint8 (3, H, W) tensors on one device
-    (see `images_on_device`).  Returns (N, 3, S, S) float32 in [0, 255] there: the same crop
-    homographies, bilinear, zero outside the image, sampled at the crop's pixel centres (one
-    `grid_sample` per image) and not rounded to uint8 as `unwarp`'s are."""
-    count, size = len(image_index), crop.size_px
-    device = images[0].device if len(images) else torch.device("cpu")
-    out = torch.zeros((count, 3, size, size), dtype=torch.float32, device=device)
-    if count == 0:
-        return out
-    # crop pixel centres -> image coordinates through the inverse crop homographies, in float64
-    to_image = torch.as_tensor(np.linalg.inv(crop_homography(spec, crop, np.asarray(points_px, np.float64))),
-                               device=device)
-    centres = torch.arange(size, dtype=torch.float64, device=device) + 0.5
-    v, u = torch.meshgrid(centres, centres, indexing="ij")
-    crop_xy1 = torch.stack([u, v, torch.ones_like(u)], dim=-1).reshape(-1, 3)  # (S*S, 3), row-major
-    xyw = torch.einsum("nij,pj->npi", to_image, crop_xy1)
-    xy = xyw[..., :2] / xyw[..., 2:]
-    index = torch.as_tensor(np.asarray(image_index), device=device)
-    for i in torch.unique(index).tolist():
-        pick = torch.nonzero(index == i)[:, 0]
-        height, width = images[i].shape[1:]
-        # grid_sample's align_corners=False puts -1 and 1 on the image's outer edges: our convention
-        scale = torch.tensor([2.0 / width, 2.0 / height], dtype=torch.float64, device=device)
-        grid = (xy[pick] * scale - 1.0).to(torch.float32).reshape(1, len(pick) * size, size, 2)
-        sampled = nn.functional.grid_sample(images[i][None].float(), grid, mode="bilinear", padding_mode="zeros",
-                                            align_corners=False)
-        out[pick] = sampled[0].reshape(3, len(pick), size, size).permute(1, 0, 2, 3)
-    return out
-
-
-def images_on_device(images: Sequence[np.ndarray], device: torch.device) -> list[torch.Tensor]:
-    """uint8 (H, W, 3) images -> uint8 (3, H, W) tensors on `device`, each moved once."""
-    return [torch.tensor(np.ascontiguousarray(image), device=device).permute(2, 0, 1) for image in images]
 
 
 def usable_points(spec: PatternSpec, points_px: np.ndarray) -> np.ndarray:
@@ -523,7 +488,16 @@ class Detector:
             for part in _batches(len(image_index), self.batch_size):
                 references = self._to_device(self.references(marker_id[part]))
                 crops = self._crops(images, on_device, image_index[part], points_px[part], crop)
-                output = self.crosspoints(crops, references).float().cpu().numpy()
+                output = self.crosspoints(crops, references).float()
+                if on_device is not None:  # the per-marker geometry where the output is, one copy back
+                    shown = torch.sigmoid(output[:, 0]) > self.config.visibility_threshold
+                    crop_xy = output[:, 1:].permute(0, 2, 3, 1)
+                    if self.config.smooth_crosspoints_px is not None:
+                        crop_xy = smooth_crosspoints_on_device(crop_xy, shown, self.config.smooth_crosspoints_px)
+                    xy[part] = crop_to_image_on_device(self.spec, crop, points_px[part], crop_xy).cpu().numpy()
+                    visible[part] = shown.cpu().numpy()
+                    continue
+                output = output.cpu().numpy()
                 crop_xy = output[:, 1:].transpose(0, 2, 3, 1)
                 with np.errstate(over="ignore"):
                     visible[part] = 1.0 / (1.0 + np.exp(-output[:, 0])) > self.config.visibility_threshold
@@ -608,8 +582,9 @@ class Detector:
             clock = now
 
         located = self.localize(images)
-        # on a GPU the crops are cut there, from images moved once (OpenCV on the host took most of the
-        # crosspoint stage's time); on the CPU OpenCV cuts them, 5-7x faster than grid_sample there
+        # on a GPU the crops are cut there, from images moved once, and the crosspoints' smoothing and
+        # mapping run there (`networks.device_geometry`); on the CPU OpenCV cuts the crops, 5-7x faster
+        # than grid_sample there
         on_device = images_on_device(images, self.device) if self.device.type == "cuda" else None
         lap("localize")
         image_index = np.concatenate([np.full(len(s), i, dtype=np.int64) for i, (_, s) in enumerate(located)])

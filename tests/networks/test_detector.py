@@ -25,8 +25,10 @@ from assets.pattern import (
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.detections import Detections
-from networks.detector import (AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, images_on_device, pad_images,
-                               unwarp_markers, unwarp_markers_on_device, usable_points)
+from networks.detector import (AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers,
+                               usable_points)
+from networks.device_geometry import (crop_to_image_on_device, images_on_device, smooth_crosspoints_on_device,
+                                      unwarp_markers_on_device)
 from networks.homography import (
     auto_localizer_scale,
     crop_to_image,
@@ -174,6 +176,23 @@ def test_smoothing_averages_noise_out_of_a_smooth_field_and_keeps_what_it_cannot
         homography_module.smooth_crosspoints(predicted, visible, 0.0)
     with pytest.raises(ValueError, match="must be in \\(0, 8\\]"):
         DetectorConfig(smooth_crosspoints_px=0.0)
+    # the device version (CPU tensors here): the same fits, in float64, so the same values
+    on_device = smooth_crosspoints_on_device(torch.from_numpy(predicted), torch.from_numpy(visible), 1.0)
+    assert on_device.dtype == torch.float64 and np.abs(on_device.numpy() - smoothed).max() < 1e-9
+    assert torch.equal(smooth_crosspoints_on_device(torch.zeros(0, k, k, 2), torch.zeros(0, k, k, dtype=torch.bool),
+                                                    1.0), torch.zeros(0, k, k, 2, dtype=torch.float64))
+    with pytest.raises(ValueError, match="tolerance_px must be > 0"):
+        smooth_crosspoints_on_device(torch.from_numpy(predicted), torch.from_numpy(visible), 0.0)
+
+
+def test_crop_to_image_on_device_is_the_host_map(scene):
+    _, points, crosspoints = scene
+    for crop in (RECOGNIZER_CROP, CROSSPOINT_CROP):
+        canonical = np.broadcast_to(crop_crosspoints_px(SPEC, crop), crosspoints.shape) + 0.3
+        host = crop_to_image(SPEC, crop, points, canonical)
+        device = crop_to_image_on_device(SPEC, crop, points, torch.from_numpy(np.ascontiguousarray(canonical)))
+        assert device.shape == host.shape and np.abs(device.numpy() - host).max() < 1e-9
+    assert crop_to_image_on_device(SPEC, CROSSPOINT_CROP, np.zeros((0, 5, 2)), torch.zeros(0, 25, 25, 2)).shape == (0, 25, 25, 2)
 
 
 def test_masked_homography_fit_ignores_masked_points():

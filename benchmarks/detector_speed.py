@@ -1,0 +1,168 @@
+"""The chained Detector's images/s beside its three networks' alone, on the same images (issue 47).
+
+The issue's target: the Detector at >= 90% of its networks' bf16 rate at 1920 x 1080 with ~150
+markers an image on one H200.  Each frame here is `--images` renders of a factory dataset (`--data`),
+scaled by `--upscale` into a 1920 x 1080 grey canvas, so the localizer's automatic scale, the marker
+count and the crop work are those of a capture.  Timed in one run, each the median of `--repeats` after a warm-up:
+
+- the Detector (`Detector.detect`, default settings but `--localizer-scale`, the garment's tables
+  from the dataset's template.npz), images/s and seconds per stage;
+- the networks alone: the localizer on the images resized and padded as the Detector does, the
+  recognizer and the crosspoint network on as many crops as the Detector cut, in its batches, from
+  tensors already on the device (float32, then bf16 autocast): the rate the Detector could reach.
+
+    python benchmarks/detector_speed.py --localizer out/weights/localizer.pt \\
+        --recognizer out/weights/recognizer.pt --crosspoints out/weights/crosspoints.pt \\
+        --data out/datasets/modules_reader/train/shirt-default --device cuda
+
+The speed does not depend on what the weights learned, except through the markers found.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the packages, not benchmarks/networks.py
+
+from networks.detector import Detector, DetectorConfig, pad_images, resize_for_localizer  # noqa: E402
+from networks.evaluate import resolve_device  # noqa: E402
+from networks.evaluate_detector import garment_tables  # noqa: E402
+
+CANVAS = (1920, 1080)
+
+
+def frame_images(data: Path, count: int, upscale: float) -> list[np.ndarray]:
+    """`count` canvases (1080, 1920, 3) uint8: the dataset's first renders, scaled by `upscale`, at the centre."""
+    entries = [json.loads(line) for line in (data / "manifest.jsonl").read_text().splitlines() if line.strip()]
+    if len(entries) < count:
+        raise ValueError(f"{data}: {len(entries)} images, fewer than --images {count}")
+    images = []
+    for entry in entries[:count]:
+        render = cv2.cvtColor(cv2.imread(str(data / entry["image"]), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        render = cv2.resize(render, None, fx=upscale, fy=upscale, interpolation=cv2.INTER_CUBIC)
+        height, width = min(render.shape[0], CANVAS[1]), min(render.shape[1], CANVAS[0])
+        canvas = np.full((CANVAS[1], CANVAS[0], 3), 96, np.uint8)
+        top, left = (CANVAS[1] - height) // 2, (CANVAS[0] - width) // 2
+        canvas[top:top + height, left:left + width] = render[:height, :width]
+        images.append(canvas)
+    return images
+
+
+def synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_detector(detector: Detector, images: list[np.ndarray], repeats: int) -> tuple[float, dict, int]:
+    """(median seconds per call over `images`, median seconds per stage, markers found)."""
+    found = detector.detect(images)[0]  # warm-up
+    seconds, stages = [], []
+    for _ in range(repeats):
+        detector.stage_seconds = dict.fromkeys(detector.stage_seconds, 0.0)
+        synchronize(detector.device)
+        start = time.perf_counter()
+        found = detector.detect(images)[0]
+        synchronize(detector.device)
+        seconds.append(time.perf_counter() - start)
+        stages.append(dict(detector.stage_seconds))
+    median_stages = {k: statistics.median(s[k] for s in stages) for k in stages[0]}
+    return statistics.median(seconds), median_stages, sum(len(d.marker_id) for d in found)
+
+
+def time_networks(detector: Detector, images: list[np.ndarray], markers: int, repeats: int,
+                  bf16: bool) -> float:
+    """Median seconds of the three networks alone on device tensors of the Detector's sizes."""
+    device = detector.device
+    scales = detector.localizer_scales or [1.0] * len(images)
+    batches = []
+    for start in range(0, len(images), detector.config.image_batch_size):
+        chunk = [resize_for_localizer(image, scale)[0]
+                 for image, scale in zip(images[start:start + detector.config.image_batch_size],
+                                         scales[start:start + detector.config.image_batch_size])]
+        batches.append(detector._to_device(pad_images(chunk)))
+    rec, xp = detector.recognizer.crops.recognizer.size_px, detector.crosspoints.crop.size_px
+    generator = torch.Generator(device="cpu").manual_seed(0)
+    rec_crops = torch.randn(markers, 3, rec, rec, generator=generator).to(device)
+    xp_crops = torch.randn(markers, 3, xp, xp, generator=generator).to(device)
+    references = torch.randn(markers, 3, xp, xp, generator=generator).to(device)
+
+    def run() -> None:
+        with torch.inference_mode(), torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
+            for batch in batches:
+                detector.localizer(batch)
+            for start in range(0, markers, detector.batch_size):
+                part = slice(start, start + detector.batch_size)
+                detector.recognizer(rec_crops[part])
+                detector.crosspoints(xp_crops[part], references[part])
+
+    run()
+    seconds = []
+    for _ in range(repeats):
+        synchronize(device)
+        start = time.perf_counter()
+        run()
+        synchronize(device)
+        seconds.append(time.perf_counter() - start)
+    return statistics.median(seconds)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--localizer", type=Path, required=True)
+    parser.add_argument("--recognizer", type=Path, required=True)
+    parser.add_argument("--crosspoints", type=Path, required=True)
+    parser.add_argument("--data", type=Path, required=True,
+                        help="a factory dataset folder: its first renders make the frame, its template.npz the tables")
+    parser.add_argument("--device", default=None, help="cuda or cpu (default: cuda when available)")
+    parser.add_argument("--images", type=int, default=8, help="images a frame (one Detector call; default 8)")
+    parser.add_argument("--upscale", type=float, default=2.0,
+                        help="the renders' scale in the 1920 x 1080 frame (default 2: 512 px renders, markers ~28 px)")
+    parser.add_argument("--localizer-scale", type=float, default=None,
+                        help="a fixed localizer scale (default: the Detector's automatic one)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--json", type=Path, help="write the numbers here")
+    args = parser.parse_args()
+    if args.images < 1 or args.repeats < 1:
+        parser.error("--images and --repeats must be >= 1")
+    if not 0.1 <= args.upscale <= 4:
+        parser.error(f"--upscale must be in [0.1, 4], got {args.upscale}")
+
+    device = resolve_device(args.device)
+    config = DetectorConfig(localizer_scale=args.localizer_scale)
+    detector = Detector.from_checkpoints(args.localizer, args.recognizer, args.crosspoints, device=device)
+    detector = Detector(detector.localizer, detector.recognizer, detector.crosspoints, detector.spec,
+                        device=detector.device, tables=garment_tables(args.data, detector.codebook), config=config,
+                        codebook=detector.codebook)
+    images = frame_images(args.data, args.images, args.upscale)
+
+    seconds, stages, markers = time_detector(detector, images, args.repeats)
+    rows = [("Detector (float32)", seconds)]
+    rows.append(("networks alone, float32", time_networks(detector, images, markers, args.repeats, bf16=False)))
+    if detector.device.type == "cuda":
+        rows.append(("networks alone, bf16", time_networks(detector, images, markers, args.repeats, bf16=True)))
+    name = torch.cuda.get_device_name(detector.device) if detector.device.type == "cuda" else "CPU"
+    print(f"\n{args.images} images of {CANVAS[0]} x {CANVAS[1]}, {markers / args.images:.0f} markers an image, "
+          f"localizer scales {sorted(set(round(s, 3) for s in detector.localizer_scales))}, {name}")
+    print("| what | s a frame | images/s |\n|---|---|---|")
+    for what, s in rows:
+        print(f"| {what} | {s:.3f} | {args.images / s:.1f} |")
+    print("\nDetector stages, s a frame: " + ", ".join(f"{k} {v:.3f}" for k, v in stages.items()))
+    best = rows[-1][1]
+    print(f"Detector / best networks-alone rate: {best / seconds:.2f} (target >= 0.9)")
+    if args.json:
+        args.json.write_text(json.dumps({"device": name, "images": args.images, "markers": markers,
+                                         "rows": dict(rows), "stages": stages,
+                                         "localizer_scales": detector.localizer_scales}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
