@@ -248,7 +248,7 @@ def _succeed(job: Job) -> None:
     try:
         job.message = job.on_success(job) if job.on_success else ""
     except Exception as exc:  # the import into Blender failed: show why, keep the log
-        _fail(job, f"the run finished but importing its results failed: {type(exc).__name__}: {exc}")
+        _fail(job, f"the run finished but importing its results failed: {exc}")
         return
     job.state, job.progress = FINISHED, 1.0
     if job.log_path is not None:

@@ -46,10 +46,25 @@ class JobSpec(NamedTuple):
     extras: tuple[str, ...] = ()
 
 
+class _Import(NamedTuple):
+    """How a job's results are imported: its spec and the scene it was started from."""
+
+    spec: JobSpec
+    scene_name: str
+
+
+#: job id -> how its results are imported (`CLOTHCAPTURE_OT_import_results`)
+_imports: dict[int, _Import] = {}
+
+
 def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
     """Run `spec` as a job whose results are imported into this scene when it succeeds (unless another
     .blend file has been opened meanwhile: the results stay on disk): in the background, or when
-    `wait`, to its end (printing its log lines)."""
+    `wait`, to its end (printing its log lines).
+
+    The import is `CLOTHCAPTURE_OT_import_results`: after a background run it is one undo step of its
+    own (Ctrl+Z takes back the import, not the user's change made meanwhile); inside an operator that
+    waits, it is part of that operator's step."""
     python = library.check_python(spec.extras)
     scene_name, blend = context.scene.name, bpy.data.filepath
 
@@ -57,9 +72,14 @@ def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
         scene = bpy.data.scenes.get(scene_name)
         if bpy.data.filepath != blend or scene is None:
             return f"finished in {spec.out}; not imported: the scene it was started from is no longer open"
-        return spec.importer(scene)
+        try:
+            bpy.ops.clothcapture.import_results("EXEC_DEFAULT", not wait, job_id=job.id)
+        except RuntimeError as exc:  # the operator's error report
+            raise RuntimeError(str(exc).strip().removeprefix("Error: ")) from None
+        return job.message
 
     job = jobs.Job(spec.kind, spec.label, spec.argv, spec.out, on_success=on_success)
+    _imports[job.id] = _Import(spec, scene_name)
     if wait:
         return jobs.run(job, python, library.project_root(), echo=print)
     return jobs.start(job, python, library.project_root())
@@ -273,6 +293,29 @@ class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class CLOTHCAPTURE_OT_import_results(bpy.types.Operator):
+    """Import the results of this finished run"""
+
+    bl_idname = "clothcapture.import_results"
+    bl_label = "Import Results"
+    bl_options = {"UNDO", "INTERNAL"}
+
+    job_id: IntProperty()
+
+    def execute(self, context):
+        job, found = jobs.find(self.job_id), _imports.get(self.job_id)
+        if job is None or found is None or job.returncode != 0:
+            self.report({"ERROR"}, "no finished run to import")
+            return {"CANCELLED"}
+        try:
+            job.message = found.spec.importer(bpy.data.scenes[found.scene_name])
+        except Exception as exc:  # bad or missing results: say what, keep the scene usable
+            self.report({"ERROR"}, f"{type(exc).__name__}: {exc}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, job.message)
+        return {"FINISHED"}
+
+
 class CLOTHCAPTURE_OT_cancel_job(bpy.types.Operator):
     """Stop this background run (files it finished stay whole; nothing half-written remains)"""
 
@@ -302,11 +345,12 @@ class CLOTHCAPTURE_OT_dismiss_job(bpy.types.Operator):
         if job is None or job.active:
             return {"CANCELLED"}
         jobs.dismiss(job)
+        _imports.pop(job.id, None)
         return {"FINISHED"}
 
 
 CLASSES = (CLOTHCAPTURE_OT_generate_pattern, CLOTHCAPTURE_OT_apply_pattern, CLOTHCAPTURE_OT_import_motion,
            CLOTHCAPTURE_OT_import_garment, CLOTHCAPTURE_OT_simulate, CLOTHCAPTURE_OT_render,
-           CLOTHCAPTURE_OT_reconstruct, CLOTHCAPTURE_OT_import_reconstruction, CLOTHCAPTURE_OT_cancel_job,
-           CLOTHCAPTURE_OT_dismiss_job)
+           CLOTHCAPTURE_OT_reconstruct, CLOTHCAPTURE_OT_import_reconstruction, CLOTHCAPTURE_OT_import_results,
+           CLOTHCAPTURE_OT_cancel_job, CLOTHCAPTURE_OT_dismiss_job)
 register, unregister = bpy.utils.register_classes_factory(CLASSES)

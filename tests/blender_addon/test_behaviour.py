@@ -12,8 +12,15 @@ from tests.blender_addon.conftest import run_script, script_result
 
 
 @pytest.fixture(scope="module")
-def settings(addon):
+def output(tmp_path_factory):
+    return tmp_path_factory.mktemp("output")
+
+
+@pytest.fixture
+def settings(addon, output):
+    """The current scene's settings (undo and file loads replace the scene) for the quickest runs."""
     settings = bpy.context.scene.clothcapture
+    settings.output_dir = str(output)
     settings.pattern.rows, settings.pattern.cols, settings.pattern.dpi = 2, 3, 50.0
     motion = settings.motion
     motion.body_source, motion.source, motion.builtin = "DEFAULT", "BUILTIN", "walk"
@@ -21,9 +28,16 @@ def settings(addon):
     return settings
 
 
-def finish(addon, kind, timeout_s=120.0):
-    """The latest job of `kind`, waited for while it runs; it must have succeeded."""
-    job = addon.jobs.wait(addon.jobs.latest(kind), timeout_s)
+def begin(addon, operator):
+    """Start `operator`'s job in the background, as its button in Blender's window does."""
+    job = addon.operators.start(bpy.context, getattr(addon.operators, f"CLOTHCAPTURE_OT_{operator}").prepare(bpy.context))
+    assert job.active
+    return job
+
+
+def finish(addon, job, timeout_s=120.0):
+    """`job` waited for while it runs (what Blender's timer does); it must have succeeded."""
+    addon.jobs.wait(job, timeout_s)
     assert job.state == addon.jobs.FINISHED, job.error
     return job
 
@@ -35,7 +49,6 @@ def test_the_default_output_folder_works_on_an_unsaved_file(addon, settings, tmp
     try:
         assert bpy.data.filepath == ""
         assert bpy.ops.clothcapture.generate_pattern() == {"FINISHED"}
-        finish(addon, "pattern")
     finally:
         settings.output_dir, paths.temporary_directory = folder, temporary
     assert (tmp_path / "clothcapture" / "pattern" / "pattern.png").is_file()
@@ -111,3 +124,22 @@ def test_a_script_runs_the_operators_to_the_end_and_blender_b_produces_the_outpu
     """, addon_zip, tmp_path, runner))
     assert result == {"returned": ["FINISHED"], "image": [284, 189]}
     assert (out / "pattern" / "pattern.png").is_file()
+
+
+def test_an_import_is_one_undo_step_of_its_own(addon, settings):
+    """The user changes something while a run goes on; Ctrl+Z after the import undoes the import alone."""
+    if "Body" in bpy.data.objects:
+        bpy.data.objects.remove(bpy.data.objects["Body"])
+    bpy.ops.ed.undo_push(message="before")
+    job = begin(addon, "import_motion")
+    bpy.ops.mesh.primitive_cube_add("EXEC_DEFAULT", True, location=(3.0, 0.0, 0.0))  # the user's change
+    cube = bpy.context.active_object.name
+    finish(addon, job)
+    assert {"Body", cube} <= set(bpy.data.objects.keys())
+    bpy.ops.ed.undo()
+    assert cube in bpy.data.objects and "Body" not in bpy.data.objects
+    bpy.ops.ed.undo()
+    assert cube not in bpy.data.objects
+    bpy.ops.ed.redo()
+    bpy.ops.ed.redo()
+    assert {"Body", cube} <= set(bpy.data.objects.keys())

@@ -17,7 +17,7 @@ from tests.blender_addon.conftest import ADDON_ID, install_extension, uninstall_
 ADDON = Path(__file__).resolve().parents[2] / "blender_addon"
 PANELS = ("main", "pattern", "motion", "garment", "render", "review")
 OPERATORS = ("generate_pattern", "apply_pattern", "import_motion", "import_garment", "simulate", "render",
-             "reconstruct", "import_reconstruction", "cancel_job", "dismiss_job")
+             "reconstruct", "import_reconstruction", "import_results", "cancel_job", "dismiss_job")
 
 
 def registered() -> dict:
@@ -116,4 +116,4 @@ def test_panels_use_only_settings_and_operators_that_exist():
               for e in node.iter.elts}  # `for name in ("pitch_mm", ...): column.prop(pattern, name)`
     operators = {node.args[0].value for node in calls if node.func.attr == "operator"}
     assert len(drawn) > 30 and drawn <= known, sorted(drawn - known)
-    assert operators == {f"clothcapture.{o}" for o in OPERATORS}
+    assert operators == {f"clothcapture.{o}" for o in OPERATORS if o != "import_results"}  # (called by a job)
