@@ -78,6 +78,7 @@ class Job:
     tail: list[str] = field(default_factory=list)
     log: list[str] = field(default_factory=list)
     logged: int = 0  #: logging lines read so far (`log` keeps the last `LOG_LINES`)
+    offered: bool = False  #: finished, its results wait for the user to import them
     _process: subprocess.Popen | None = None
     _offset: int = 0
     _partial: str = ""

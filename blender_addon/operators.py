@@ -47,31 +47,47 @@ class JobSpec(NamedTuple):
 
 
 class _Import(NamedTuple):
-    """How a job's results are imported: its spec and the scene it was started from."""
+    """How a job's results are imported: its spec, the scene it was started from and the file opened
+    then (`_files_opened`)."""
 
     spec: JobSpec
     scene_name: str
+    file: int
+
+    def scene(self):
+        """The scene it was started from, None when another file was opened since."""
+        return bpy.data.scenes.get(self.scene_name) if self.file == _files_opened else None
 
 
 #: job id -> how its results are imported (`CLOTHCAPTURE_OT_import_results`)
 _imports: dict[int, _Import] = {}
+#: files opened in this session (File > Open, New, Revert; not Save, which keeps the scene open)
+_files_opened = 0
+
+
+@bpy.app.handlers.persistent
+def _file_opened(*args) -> None:
+    global _files_opened
+    _files_opened += 1
 
 
 def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
-    """Run `spec` as a job whose results are imported into this scene when it succeeds (unless another
-    .blend file has been opened meanwhile: the results stay on disk): in the background, or when
-    `wait`, to its end (printing its log lines).
+    """Run `spec` as a job whose results are imported into this scene when it succeeds: in the
+    background, or when `wait`, to its end (printing its log lines).
 
     The import is `CLOTHCAPTURE_OT_import_results`: after a background run it is one undo step of its
     own (Ctrl+Z takes back the import, not the user's change made meanwhile); inside an operator that
-    waits, it is part of that operator's step."""
+    waits, it is part of that operator's step.  Saving the file meanwhile changes nothing; when another
+    file was opened, or the scene is gone, the results are offered (`Job.offered`: the panel's Import
+    button puts them into the scene of the day)."""
     python = library.check_python(spec.extras)
-    scene_name, blend = context.scene.name, bpy.data.filepath
+    found = _Import(spec, context.scene.name, _files_opened)
 
     def on_success(job: jobs.Job) -> str:
-        scene = bpy.data.scenes.get(scene_name)
-        if bpy.data.filepath != blend or scene is None:
-            return f"finished in {spec.out}; not imported: the scene it was started from is no longer open"
+        if found.scene() is None:
+            job.offered = True
+            return f"finished in {spec.out}; another file was opened since it started: Import puts its results " \
+                   "into this one"
         try:
             bpy.ops.clothcapture.import_results("EXEC_DEFAULT", not wait, job_id=job.id)
         except RuntimeError as exc:  # the operator's error report
@@ -79,7 +95,7 @@ def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
         return job.message
 
     job = jobs.Job(spec.kind, spec.label, spec.argv, spec.out, on_success=on_success)
-    _imports[job.id] = _Import(spec, scene_name)
+    _imports[job.id] = found
     if wait:
         return jobs.run(job, python, library.project_root(), echo=print)
     return jobs.start(job, python, library.project_root())
@@ -294,7 +310,8 @@ class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):
 
 
 class CLOTHCAPTURE_OT_import_results(bpy.types.Operator):
-    """Import the results of this finished run"""
+    """Import the results of this finished run (into the scene it was started from, or this one when
+    another file was opened since)"""
 
     bl_idname = "clothcapture.import_results"
     bl_label = "Import Results"
@@ -308,10 +325,11 @@ class CLOTHCAPTURE_OT_import_results(bpy.types.Operator):
             self.report({"ERROR"}, "no finished run to import")
             return {"CANCELLED"}
         try:
-            job.message = found.spec.importer(bpy.data.scenes[found.scene_name])
+            job.message = found.spec.importer(found.scene() or context.scene)
         except Exception as exc:  # bad or missing results: say what, keep the scene usable
             self.report({"ERROR"}, f"{type(exc).__name__}: {exc}")
             return {"CANCELLED"}
+        job.offered = False
         self.report({"INFO"}, job.message)
         return {"FINISHED"}
 
@@ -353,4 +371,15 @@ CLASSES = (CLOTHCAPTURE_OT_generate_pattern, CLOTHCAPTURE_OT_apply_pattern, CLOT
            CLOTHCAPTURE_OT_import_garment, CLOTHCAPTURE_OT_simulate, CLOTHCAPTURE_OT_render,
            CLOTHCAPTURE_OT_reconstruct, CLOTHCAPTURE_OT_import_reconstruction, CLOTHCAPTURE_OT_import_results,
            CLOTHCAPTURE_OT_cancel_job, CLOTHCAPTURE_OT_dismiss_job)
-register, unregister = bpy.utils.register_classes_factory(CLASSES)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+
+
+def register() -> None:
+    _register_classes()
+    bpy.app.handlers.load_post.append(_file_opened)
+
+
+def unregister() -> None:
+    if _file_opened in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_file_opened)
+    _unregister_classes()

@@ -40,6 +40,8 @@ def draw_jobs(layout, kind: str) -> None:
         column = box.column()
         column.alert = job.state == jobs.FAILED
         _lines(column, job.error if job.state == jobs.FAILED else job.message)
+        if job.offered:
+            box.operator("clothcapture.import_results", text="Import", icon="IMPORT").job_id = job.id
 
 
 def _describe(layout, label: str, describe) -> None:

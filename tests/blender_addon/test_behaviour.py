@@ -143,3 +143,25 @@ def test_an_import_is_one_undo_step_of_its_own(addon, settings):
     bpy.ops.ed.redo()
     bpy.ops.ed.redo()
     assert {"Body", cube} <= set(bpy.data.objects.keys())
+
+
+def test_a_run_whose_file_was_saved_meanwhile_is_still_imported(addon, settings, tmp_path):
+    if "Body" in bpy.data.objects:
+        bpy.data.objects.remove(bpy.data.objects["Body"])
+    job = begin(addon, "import_motion")
+    try:
+        assert bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "first.blend")) == {"FINISHED"}
+        finish(addon, job)
+        assert "Body" in bpy.data.objects and job.message.startswith("walk on the default body")
+    finally:
+        bpy.ops.wm.read_homefile()  # unsaved again, for the tests that follow
+
+
+def test_a_run_whose_file_was_replaced_meanwhile_offers_its_results_to_the_new_one(addon, settings):
+    job = begin(addon, "import_motion")
+    bpy.ops.wm.read_homefile()  # File > New while it runs
+    finish(addon, job)
+    assert "Body" not in bpy.data.objects and job.offered
+    assert "another file was opened" in job.message
+    assert bpy.ops.clothcapture.import_results(job_id=job.id) == {"FINISHED"}
+    assert "Body" in bpy.data.objects and not job.offered and job.message.startswith("walk on the default body")

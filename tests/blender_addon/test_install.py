@@ -116,4 +116,4 @@ def test_panels_use_only_settings_and_operators_that_exist():
               for e in node.iter.elts}  # `for name in ("pitch_mm", ...): column.prop(pattern, name)`
     operators = {node.args[0].value for node in calls if node.func.attr == "operator"}
     assert len(drawn) > 30 and drawn <= known, sorted(drawn - known)
-    assert operators == {f"clothcapture.{o}" for o in OPERATORS if o != "import_results"}  # (called by a job)
+    assert operators == {f"clothcapture.{o}" for o in OPERATORS}
