@@ -6,8 +6,6 @@ button while a run is active, then its outcome (the imported result, or the erro
 
 from __future__ import annotations
 
-import textwrap
-
 import bpy
 
 from . import commands, jobs, library
@@ -16,12 +14,47 @@ from .settings import FILE, UNAVAILABLE
 _ICONS = {jobs.FINISHED: "CHECKMARK", jobs.FAILED: "ERROR", jobs.CANCELLED: "CANCEL"}
 
 
-def _lines(layout, text: str, width: int = 48) -> None:
-    for line in textwrap.wrap(text, width) or [""]:
+#: pixels of the sidebar's width that a label in a box cannot use (the panel's margins, the box, the
+#: label's own padding), at UI scale 1
+MARGIN_PX = 44
+
+
+def wrap(text: str, width_px: float, scale: float = 1.0) -> list[str]:
+    """`text` as lines that Blender's UI font at `scale` draws within `width_px` pixels: words stay whole
+    where they fit; a longer one (a path) is cut, after a '/' where it can be."""
+    import blf
+
+    blf.size(0, bpy.context.preferences.ui_styles[0].widget.points * scale)
+
+    def fits(line: str) -> bool:
+        return blf.dimensions(0, line)[0] <= width_px
+
+    lines: list[str] = []
+    for word in text.split():
+        if lines and fits(f"{lines[-1]} {word}"):
+            lines[-1] += f" {word}"
+            continue
+        while len(word) > 1 and not fits(word):
+            low, high = 1, len(word) - 1  # the longest prefix that fits (at least one character)
+            while low < high:
+                middle = (low + high + 1) // 2
+                low, high = (middle, high) if fits(word[:middle]) else (low, middle - 1)
+            cut = word.rfind("/", 1, low) + 1 or low
+            lines.append(word[:cut])
+            word = word[cut:]
+        lines.append(word)
+    return lines or [""]
+
+
+def _lines(layout, text: str, context) -> None:
+    """`text` as labels wrapped to the width of the region drawn (the sidebar, as wide as the user made it)."""
+    scale = context.preferences.system.ui_scale or 1.0
+    width = context.region.width if context.region is not None else 300
+    for line in wrap(text, width - MARGIN_PX * scale, scale):
         layout.label(text=line)
 
 
-def draw_jobs(layout, kind: str) -> None:
+def draw_jobs(layout, kind: str, context) -> None:
     """The runs of `kind`: progress and cancel while active, then the outcome (dismissable)."""
     for job in jobs.jobs(kind)[-3:]:
         box = layout.box()
@@ -33,26 +66,28 @@ def draw_jobs(layout, kind: str) -> None:
             row.progress(factor=job.progress or 0.0, type="BAR", text=text)
             row.operator("clothcapture.cancel_job", text="", icon="CANCEL").job_id = job.id
             if job.status:
-                _lines(box, job.status)
+                _lines(box, job.status, context)
             continue
         row.label(text=f"{job.label}: {job.state.lower()} ({job.seconds:.0f} s)", icon=_ICONS[job.state])
         row.operator("clothcapture.dismiss_job", text="", icon="X").job_id = job.id
         column = box.column()
         column.alert = job.state == jobs.FAILED
-        _lines(column, job.error if job.state == jobs.FAILED else job.message)
+        _lines(column, job.error if job.state == jobs.FAILED else job.message, context)
         if job.offered:
             box.operator("clothcapture.import_results", text="Import", icon="IMPORT").job_id = job.id
 
 
-def _describe(layout, label: str, describe) -> None:
-    """A line naming what an operator will use (or why it cannot)."""
+def _describe(layout, label: str, describe, context) -> None:
+    """Lines naming what an operator will use (or, in red, why it cannot)."""
+    column = layout.column(align=True)
     try:
-        layout.label(text=f"{label}: {describe()}")
+        _lines(column, f"{label}: {describe()}", context)
     except ValueError as exc:
-        layout.label(text=str(exc), icon="ERROR")
+        column.alert = True
+        _lines(column, str(exc), context)
 
 
-def _why_empty(layout, value: str, module: str) -> None:
+def _why_empty(layout, value: str, module: str, context) -> None:
     """Why a list the project fills is empty (in red), when it is."""
     if value == UNAVAILABLE:
         try:
@@ -60,7 +95,7 @@ def _why_empty(layout, value: str, module: str) -> None:
         except ValueError as exc:
             column = layout.column()
             column.alert = True
-            _lines(column, str(exc))
+            _lines(column, str(exc), context)
 
 
 class _Panel:
@@ -76,7 +111,7 @@ class CLOTHCAPTURE_PT_main(_Panel, bpy.types.Panel):
         settings = context.scene.clothcapture
         self.layout.prop(settings, "output_dir")
         if settings.output_dir.startswith("//") and not bpy.data.filepath:
-            _describe(self.layout, "Unsaved file: runs go to", lambda: commands.output_root(settings))
+            _describe(self.layout, "Unsaved file: runs go to", lambda: commands.output_root(settings), context)
 
 
 class CLOTHCAPTURE_PT_pattern(_Panel, bpy.types.Panel):
@@ -93,8 +128,8 @@ class CLOTHCAPTURE_PT_pattern(_Panel, bpy.types.Panel):
         row.prop(pattern, "cols")
         layout.operator("clothcapture.generate_pattern", icon="TEXTURE")
         layout.operator("clothcapture.apply_pattern", icon="MATERIAL")
-        _describe(layout, "Into", lambda: commands.pattern_dir(settings))
-        draw_jobs(layout, "pattern")
+        _describe(layout, "Into", lambda: commands.pattern_dir(settings), context)
+        draw_jobs(layout, "pattern", context)
 
 
 class CLOTHCAPTURE_PT_motion(_Panel, bpy.types.Panel):
@@ -109,7 +144,7 @@ class CLOTHCAPTURE_PT_motion(_Panel, bpy.types.Panel):
         layout.prop(motion, "source")
         layout.prop(motion, "file" if motion.source == FILE else "builtin")
         if motion.source != FILE:
-            _why_empty(layout, motion.builtin, "assets.motion.builtin")
+            _why_empty(layout, motion.builtin, "assets.motion.builtin", context)
         column = layout.column(align=True)
         if motion.source != FILE:
             column.prop(motion, "seconds")
@@ -117,7 +152,7 @@ class CLOTHCAPTURE_PT_motion(_Panel, bpy.types.Panel):
         column.prop(motion, "fps")
         layout.prop(motion, "transition")
         layout.operator("clothcapture.import_motion", icon="ARMATURE_DATA")
-        draw_jobs(layout, "motion")
+        draw_jobs(layout, "motion", context)
 
 
 class CLOTHCAPTURE_PT_garment(_Panel, bpy.types.Panel):
@@ -129,20 +164,20 @@ class CLOTHCAPTURE_PT_garment(_Panel, bpy.types.Panel):
         layout.prop(garment, "source")
         if garment.source == FILE:
             layout.prop(garment, "file")
-        _why_empty(layout, garment.source, "assets.garments.defaults")
+        _why_empty(layout, garment.source, "assets.garments.defaults", context)
         row = layout.row(align=True)
         row.prop(garment, "level_mm")
         row.prop(garment, "texture_dpi")
         layout.operator("clothcapture.import_garment", icon="MOD_CLOTH")
-        draw_jobs(layout, "garment")
+        draw_jobs(layout, "garment", context)
         layout.separator()
         row = layout.row(align=True)
         row.prop(garment, "sim_frames")
         row.prop(garment, "sim_level_mm", text="")
-        _describe(layout, "Garment", lambda: commands.garment_spec(settings))
-        _describe(layout, "Into", lambda: commands.simulation_dir(settings))
+        _describe(layout, "Garment", lambda: commands.garment_spec(settings), context)
+        _describe(layout, "Into", lambda: commands.simulation_dir(settings), context)
         layout.operator("clothcapture.simulate", icon="PHYSICS")
-        draw_jobs(layout, "simulation")
+        draw_jobs(layout, "simulation", context)
 
 
 class CLOTHCAPTURE_PT_render(_Panel, bpy.types.Panel):
@@ -170,9 +205,9 @@ class CLOTHCAPTURE_PT_render(_Panel, bpy.types.Panel):
         column.prop(render, "texture_dpi")
         column.prop(render, "seed")
         layout.prop(render, "output_dir")
-        _describe(layout, "Into", lambda: commands.render_dir(settings))
+        _describe(layout, "Into", lambda: commands.render_dir(settings), context)
         layout.operator("clothcapture.render", icon="RENDER_ANIMATION")
-        draw_jobs(layout, "render")
+        draw_jobs(layout, "render", context)
 
 
 class CLOTHCAPTURE_PT_review(_Panel, bpy.types.Panel):
@@ -196,7 +231,7 @@ class CLOTHCAPTURE_PT_review(_Panel, bpy.types.Panel):
         row.prop(review, "levels")
         row.prop(review, "neighbour_check")
         box.operator("clothcapture.reconstruct", icon="OUTLINER_OB_POINTCLOUD")
-        draw_jobs(box, "reconstruction")
+        draw_jobs(box, "reconstruction", context)
         row = layout.row(align=True)
         row.prop(review, "show_groundtruth")
         row.prop(review, "groundtruth_offset")

@@ -165,3 +165,22 @@ def test_a_run_whose_file_was_replaced_meanwhile_offers_its_results_to_the_new_o
     assert "another file was opened" in job.message
     assert bpy.ops.clothcapture.import_results(job_id=job.id) == {"FINISHED"}
     assert "Body" in bpy.data.objects and not job.offered and job.message.startswith("walk on the default body")
+
+
+def test_messages_wrap_to_the_width_of_the_sidebar(addon):
+    """The sidebar is about 35 characters wide by default and as wide as the user drags it: each line
+    of a message fits the region's width in Blender's UI font (whole words; a long path is cut at a
+    '/'), at any UI scale."""
+    import blf
+
+    message = ("the run finished but importing its results failed: ValueError: /tmp/pytest-of-root/clothcapture/"
+               "simulations/skirt-walk/sequence.npz: positions (3, 5248, 3), expected (T, 5249, 3)")
+    points = bpy.context.preferences.ui_styles[0].widget.points
+    for width_px, scale in ((180, 1.0), (400, 1.0), (360, 2.0)):
+        lines = addon.panels.wrap(message, width_px, scale)
+        blf.size(0, points * scale)
+        assert all(blf.dimensions(0, line)[0] <= width_px for line in lines), lines
+        assert "".join(lines).replace(" ", "") == message.replace(" ", "")  # nothing lost
+        assert len(lines) > 1
+    narrow = addon.panels.wrap(message, 180)
+    assert max(map(len, narrow)) <= 35 and "/tmp/pytest-of-root/" in narrow
