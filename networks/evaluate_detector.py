@@ -33,6 +33,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Iterable, Iterator
 
 import numpy as np
 import torch
@@ -82,39 +83,54 @@ def load_detector(localizer: str | Path, recognizer: str | Path, crosspoints: st
                     codebook=detector.codebook)
 
 
-def evaluate_detector(detector: Detector, data: str | Path, split: str = "test", progress: bool = True,
-                      limit: int | None = None, radius_px: float = MATCH_RADIUS_PX) -> dict:
-    """Run `detector` on the images of `split` of the factory dataset folder `data` (the first `limit`
-    only, when given), one image at a time, and pool `networks.metrics.match_detections` over them.
+def evaluate_images(detector: Detector, pairs: Iterable[tuple[np.ndarray, ImageGroundTruth]],
+                    radius_px: float = MATCH_RADIUS_PX) -> dict:
+    """Run `detector` on each (image (H, W, 3) uint8, its ground truth) of `pairs`, one image at a
+    time, and pool `networks.metrics.match_detections` over them.
 
-    Returns the dict of `networks.metrics.detector_metrics` with "data", "split", "radius_px",
-    "tables" (whether the Detector knows the garment), "presence_threshold" (the localizer's), "seconds" (in the Detector), "seconds_per_image"
-    and "stage_seconds" (per stage of the Detector, `Detector.stage_seconds`) added."""
-    if limit is not None and limit < 1:
-        raise ValueError(f"limit must be >= 1 or None, got {limit}")
-    root = Path(data)
-    entries = split_entries(root, split)[:limit]
+    Returns the dict of `networks.metrics.detector_metrics` with "radius_px", "tables" (whether the
+    Detector knows the garment), "presence_threshold" (the localizer's), "seconds" (in the Detector),
+    "seconds_per_image", "localizer_scale" (the configured one and the median, min and max chosen, with
+    "per_image" the scale of each image) and "stage_seconds" (per stage of the Detector,
+    `Detector.stage_seconds`) added."""
     records, seconds, scales = [], 0.0, []
     stages_before = dict(detector.stage_seconds)
-    for entry in tqdm(entries, desc="evaluate detector", unit="image", disable=not progress):
-        if "gt" not in entry:
-            raise ValueError(f"{root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' (ground truth) entry")
-        gt = ImageGroundTruth.load(root / entry["gt"])
-        image = read_png(root / entry["image"])
-        if image.shape[:2] != (gt.height, gt.width):
-            raise ValueError(f"{root / entry['image']}: {image.shape[1]} x {image.shape[0]} pixels, its ground "
-                             f"truth {root / entry['gt']} is {gt.width} x {gt.height}")
+    for image, gt in pairs:
         start = time.perf_counter()
         (detections,), ((localized, _),) = detector.detect([image])  # localized: the points the cut test saw
         seconds += time.perf_counter() - start
         scales += detector.localizer_scales
         records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
     metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
-    return {"data": str(root), "split": split, "radius_px": float(radius_px), "tables": detector.layout is not None,
-            "presence_threshold": detector.config.presence_threshold, **metrics, "seconds": seconds, "seconds_per_image": seconds / len(records),
+    return {"radius_px": float(radius_px), "tables": detector.layout is not None,
+            "presence_threshold": detector.config.presence_threshold, **metrics, "seconds": seconds,
+            "seconds_per_image": seconds / len(records),
             "localizer_scale": {"config": detector.config.localizer_scale, "median": float(np.median(scales)),
-                                "min": min(scales), "max": max(scales)},
+                                "min": min(scales), "max": max(scales), "per_image": scales},
             "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()}}
+
+
+def evaluate_detector(detector: Detector, data: str | Path, split: str = "test", progress: bool = True,
+                      limit: int | None = None, radius_px: float = MATCH_RADIUS_PX) -> dict:
+    """`evaluate_images` on the images of `split` of the factory dataset folder `data` (the first
+    `limit` only, when given), with "data" and "split" added."""
+    if limit is not None and limit < 1:
+        raise ValueError(f"limit must be >= 1 or None, got {limit}")
+    root = Path(data)
+    entries = split_entries(root, split)[:limit]
+
+    def pairs() -> Iterator[tuple[np.ndarray, ImageGroundTruth]]:
+        for entry in tqdm(entries, desc="evaluate detector", unit="image", disable=not progress):
+            if "gt" not in entry:
+                raise ValueError(f"{root / 'manifest.jsonl'}: image {entry['name']} has no 'gt' (ground truth) entry")
+            gt = ImageGroundTruth.load(root / entry["gt"])
+            image = read_png(root / entry["image"])
+            if image.shape[:2] != (gt.height, gt.width):
+                raise ValueError(f"{root / entry['image']}: {image.shape[1]} x {image.shape[0]} pixels, its ground "
+                                 f"truth {root / entry['gt']} is {gt.width} x {gt.height}")
+            yield image, gt
+
+    return {"data": str(root), "split": split, **evaluate_images(detector, pairs(), radius_px)}
 
 
 def main(argv: list[str] | None = None) -> int:

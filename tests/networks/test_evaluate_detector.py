@@ -210,7 +210,7 @@ def test_evaluate_detector_counts_add_up(dataset, checkpoints):
     assert set(result) == {"data", "split", "radius_px", "tables", "presence_threshold", "images", "detections",
                            "markers", "id_accuracy", "partial", "point_error_px", "crosspoints",
                            "layout_residual_cells", "grown", "seconds", "seconds_per_image", "stage_seconds", "localizer_scale"}
-    assert result["localizer_scale"] == {"config": 1.0, "median": 1.0, "min": 1.0, "max": 1.0}
+    assert result["localizer_scale"] == {"config": 1.0, "median": 1.0, "min": 1.0, "max": 1.0, "per_image": [1.0, 1.0]}
     assert result["images"] == 2 and result["tables"] is True and result["seconds"] > 0
     assert set(result["stage_seconds"]) == set(detector.stage_seconds)
     assert 0 < sum(result["stage_seconds"].values()) <= result["seconds"]
