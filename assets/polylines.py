@@ -33,19 +33,30 @@ def first_crossing(points: np.ndarray) -> tuple[int, int] | None:
         side = np.where(np.abs(distance) <= tolerance, 0.0, np.sign(distance))
         return side, (side == 0) & (along >= -tolerance) & (along <= length + tolerance)
 
-    block = max(1, _PAIRS_PER_BLOCK // max(n, 1))
-    for start in range(0, n, block):  # blocks of rows of the n x n pair matrix, in row-major order
-        rows = slice(start, start + block)
-        overlap = ((low_x[rows, None] <= high_x) & (low_x <= high_x[rows, None])
-                   & (low_y[rows, None] <= high_y) & (low_y <= high_y[rows, None]))
-        i, j = np.nonzero(overlap)
-        i += start
-        keep = (j >= i + 2) & ~((i == 0) & (j == n - 1))  # neither adjacent segments nor the segment itself
+    # candidate pairs by a sweep along x: with the segments sorted by their low x, segment r's x range
+    # overlaps exactly those after it whose low x is at most its high x (no n x n matrix: the outlines
+    # of a pattern's panels have thousands of points, and drafting validates every panel)
+    order = np.argsort(low_x, kind="stable")
+    end = np.searchsorted(low_x[order], high_x[order], side="right")
+    count = np.maximum(end - np.arange(n) - 1, 0)
+    first_pair = np.cumsum(count) - count  # of each r, in the flat list of all candidate pairs
+    best = None
+    r0 = 0
+    while r0 < n:  # blocks of consecutive r with about _PAIRS_PER_BLOCK candidate pairs
+        r1 = max(r0 + 1, int(np.searchsorted(first_pair, first_pair[r0] + _PAIRS_PER_BLOCK)))
+        counts = count[r0:r1]
+        r = np.repeat(np.arange(r0, r1), counts)
+        s = r + 1 + np.arange(len(r)) - np.repeat(first_pair[r0:r1] - first_pair[r0], counts)
+        i, j = np.minimum(order[r], order[s]), np.maximum(order[r], order[s])
+        keep = ((low_y[i] <= high_y[j]) & (low_y[j] <= high_y[i])
+                & (j >= i + 2) & ~((i == 0) & (j == n - 1)))  # neither adjacent segments nor the segment itself
         i, j = i[keep], j[keep]
         (side_ja, on_ja), (side_jb, on_jb) = side_and_on(i, a[j]), side_and_on(i, b[j])
         (side_ia, on_ia), (side_ib, on_ib) = side_and_on(j, a[i]), side_and_on(j, b[i])
         hit = ((side_ja * side_jb < 0) & (side_ia * side_ib < 0)) | on_ja | on_jb | on_ia | on_ib
-        first = np.flatnonzero(hit)
-        if len(first):
-            return int(i[first[0]]), int(j[first[0]])
-    return None
+        if hit.any():
+            k = np.flatnonzero(hit)[np.argmin(i[hit].astype(np.int64) * n + j[hit])]  # the first in (i, j) order
+            if best is None or (i[k], j[k]) < best:
+                best = (int(i[k]), int(j[k]))
+        r0 = r1
+    return best
