@@ -1,7 +1,8 @@
 """The scene's settings -> the project's command lines and the folders they write.
 
 Every long step of the add-on is one of the project's CLIs, given exactly the arguments a person would
-type; nothing here computes anything else.  Folders, below the output folder ``<output>``:
+type, and the progress bars it shows (`jobs.Job.stages`); nothing here computes anything else.
+Folders, below the output folder ``<output>``:
 
   pattern/                       python -m assets.pattern
   garments/<garment>/            python -m assets.garments build (template.npz, pattern_texture.png)
@@ -61,6 +62,13 @@ def output_root(settings) -> Path:
 
 def _number(value: float) -> str:
     return f"{value:.6g}"
+
+
+#: the progress bars of each CLI, in order (the beginnings of their descriptions)
+PATTERN_STAGES = ("render",)
+GARMENT_STAGES = ("sheet",)
+SIMULATION_STAGES = ("sewing", "simulating")
+RECONSTRUCTION_STAGES = ("detect", "triangulate", "refine pass 1", "refine pass 2", "export obj", "export ply")
 
 
 # ---- pattern ---------------------------------------------------------------------------------------
@@ -197,6 +205,15 @@ def render_command(settings) -> tuple[list[str], Path]:
         argv += ["--frame-list", r.frame_list.replace(" ", "")] if r.frame_list.strip() else []
         argv += ["--reuse-simulation", f"{motion}={simulation}"] if reuse else []
     return argv + common, out
+
+
+def render_stages(settings) -> tuple[str, ...]:
+    """A capture: the garment's texture, the simulation (unless reused), then each camera's images and
+    ground truth; a dataset: one bar over its tasks."""
+    r = settings.render
+    if r.rig != "CAPTURE":
+        return ("dataset",)
+    return ("sheet",) + SIMULATION_STAGES + ("render", "ground truth") * r.cameras
 
 
 # ---- reconstruction --------------------------------------------------------------------------------

@@ -3,8 +3,11 @@
 A `Job` is one CLI run (``python -m factory.simulate ...``) whose stdout and stderr go to a log file.
 `tick` reads what each running job has written since the last call:
 
-- progress: the last tqdm bar line (``simulating shirt:  40%|####  | 2/5 [...]``) gives the fraction
-  and the text ``simulating shirt 2/5``; a stage with several bars shows the current one;
+- progress: of the whole job, from its tqdm bars (``simulating shirt:  40%|####  | 2/5 [...]``): a job
+  knows the bars its CLI shows, in order (`Job.stages`, their descriptions' beginnings), and its
+  progress is the current bar's place among them plus that bar's fraction; a bar that is cleared
+  (``leave=False``: sewing that converged early) or followed by a later one counts as done, and
+  progress never goes back.  The text is the current bar's (``simulating shirt 2/5``);
 - status: the last logging line (``INFO factory.dressing: dressed shirt ...``), and `Job.log` the
   last `LOG_LINES` of them;
 - errors: a CLI reports bad input as ``error: ...`` on stderr with a non-zero exit status
@@ -57,13 +60,15 @@ _ids = itertools.count(1)
 class Job:
     """One background CLI run.  argv: the arguments after the Python executable (``-m module ...``);
     out: the folder it writes (cleaned of temporaries when cancelled); on_success: called with the
-    job when the process exits with status 0, returns a message for the UI."""
+    job when the process exits with status 0, returns a message for the UI; stages: the beginnings of
+    the descriptions of the progress bars the CLI shows, in order (module docstring)."""
 
     kind: str
     label: str
     argv: list[str]
     out: Path
     on_success: Callable[["Job"], str] | None = None
+    stages: tuple[str, ...] = ()
     id: int = field(default_factory=lambda: next(_ids))
     state: str = RUNNING
     progress: float | None = None
@@ -83,6 +88,8 @@ class Job:
     _offset: int = 0
     _partial: str = ""
     _kill_at: float | None = None
+    _stage: int = -1
+    _bar_n: int = 0
 
     @property
     def active(self) -> bool:
@@ -103,6 +110,8 @@ class Job:
         parts = re.split(r"[\r\n]", self._partial + chunk.decode("utf-8", errors="replace"))
         self._partial = parts.pop()  # a tqdm bar is rewritten after a carriage return: read it as it stands
         for line in parts + [self._partial]:
+            if line and not line.strip():  # a bar cleared on closing
+                self._advance(self._stage + 1.0)
             self._parse(line.strip())
         self.tail = (self.tail + [p.strip() for p in parts if p.strip()])[-TAIL_LINES:]
 
@@ -111,9 +120,7 @@ class Job:
             return
         bar = _TQDM.match(line)
         if bar:
-            n, total = int(bar["n"]), int(bar["total"])
-            self.progress = n / total if total else None
-            self.progress_text = f"{bar['desc'].strip()} {n}/{total}"
+            self._bar(bar["desc"].strip(), int(bar["n"]), int(bar["total"]))
         elif line.startswith("error: "):
             self.error = line[len("error: "):]
         else:
@@ -122,6 +129,27 @@ class Job:
                 self.status = logged["message"]
                 self.log = (self.log + [self.status])[-LOG_LINES:]
                 self.logged += 1
+
+
+    def _bar(self, desc: str, n: int, total: int) -> None:
+        self.progress_text = f"{desc} {n}/{total}"
+        if not self.stages:
+            self.progress = n / total if total else None
+            return
+        same = self._stage >= 0 and desc.startswith(self.stages[self._stage]) and n >= self._bar_n
+        if not same:  # a new bar: the next stage it begins (those skipped were done before, a resumed run)
+            later = [i for i in range(self._stage + 1, len(self.stages)) if desc.startswith(self.stages[i])]
+            if later:
+                self._stage = later[0]
+            elif not (self._stage >= 0 and desc.startswith(self.stages[self._stage])):
+                return  # a bar of no stage: its text shows, the progress stays
+        self._bar_n = n
+        self._advance(self._stage + (n / total if total else 0.0))
+
+    def _advance(self, stages_done: float) -> None:
+        """Progress at `stages_done` stages of `stages` (never backwards)."""
+        if self.stages and self._stage >= 0:
+            self.progress = max(self.progress or 0.0, min(1.0, stages_done / len(self.stages)))
 
 
 _jobs: list[Job] = []

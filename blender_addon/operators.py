@@ -35,8 +35,8 @@ def _results():
 
 class JobSpec(NamedTuple):
     """What an operator runs: the job's kind and label, the CLI's arguments and output folder,
-    `importer(scene)` (imports the results, returns a message) and the install's `extras` its tools
-    need (`library.check_python`)."""
+    `importer(scene)` (imports the results, returns a message), the install's `extras` its tools
+    need (`library.check_python`) and the progress bars the CLI shows (`jobs.Job.stages`)."""
 
     kind: str
     label: str
@@ -44,6 +44,7 @@ class JobSpec(NamedTuple):
     out: Path
     importer: Callable
     extras: tuple[str, ...] = ()
+    stages: tuple[str, ...] = ()
 
 
 class _Import(NamedTuple):
@@ -94,7 +95,7 @@ def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
             raise RuntimeError(str(exc).strip().removeprefix("Error: ")) from None
         return job.message
 
-    job = jobs.Job(spec.kind, spec.label, spec.argv, spec.out, on_success=on_success)
+    job = jobs.Job(spec.kind, spec.label, spec.argv, spec.out, on_success=on_success, stages=spec.stages)
     _imports[job.id] = found
     if wait:
         return jobs.run(job, python, library.project_root(), echo=print)
@@ -147,7 +148,7 @@ class CLOTHCAPTURE_OT_generate_pattern(_Background, bpy.types.Operator):
             width, height = _results().import_pattern(out).size
             return f"pattern.png {width} x {height} px in {out}"
 
-        return JobSpec("pattern", "pattern", argv, out, importer)
+        return JobSpec("pattern", "pattern", argv, out, importer, stages=commands.PATTERN_STAGES)
 
 
 def _garment_job(settings, source: str, out: Path, level_mm: int, name: str | None):
@@ -158,7 +159,7 @@ def _garment_job(settings, source: str, out: Path, level_mm: int, name: str | No
         obj["clothcapture_garment_source"] = source
         return f"{obj.name}: {len(obj.data.vertices)} vertices at {level_mm} mm, texture {out / 'pattern_texture.png'}"
 
-    return JobSpec("garment", f"garment {Path(source).stem}", argv, out, importer)
+    return JobSpec("garment", f"garment {Path(source).stem}", argv, out, importer, stages=commands.GARMENT_STAGES)
 
 
 class CLOTHCAPTURE_OT_apply_pattern(_Background, bpy.types.Operator):
@@ -237,7 +238,7 @@ class CLOTHCAPTURE_OT_simulate(_Background, bpy.types.Operator):
         settings = context.scene.clothcapture
         argv, out = commands.simulation_command(settings)
         return JobSpec("simulation", f"simulation {out.name}", argv, out,
-                       lambda scene: _results().import_simulation(scene, out))
+                       lambda scene: _results().import_simulation(scene, out), stages=commands.SIMULATION_STAGES)
 
 
 class CLOTHCAPTURE_OT_render(_Background, bpy.types.Operator):
@@ -252,7 +253,8 @@ class CLOTHCAPTURE_OT_render(_Background, bpy.types.Operator):
         rig = settings.render.rig
         argv, out = commands.render_command(settings)
         return JobSpec("render", f"{rig.lower()} {out.name}", argv, out,
-                       lambda scene: _results().import_render(scene, out, rig), ("factory",))
+                       lambda scene: _results().import_render(scene, out, rig), ("factory",),
+                       commands.render_stages(settings))
 
 
 def _review_options(settings) -> dict:
@@ -285,7 +287,8 @@ class CLOTHCAPTURE_OT_reconstruct(_Background, bpy.types.Operator):
         capture, options = _review_capture(settings), _review_options(settings)
         extras = ("reconstruction",) + (("networks",) if settings.review.detections == "networks" else ())
         return JobSpec("reconstruction", f"reconstruction {out.name}", argv, out,
-                       lambda scene: _results().import_reconstruction(scene, out, capture, **options), extras)
+                       lambda scene: _results().import_reconstruction(scene, out, capture, **options), extras,
+                       commands.RECONSTRUCTION_STAGES)
 
 
 class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):

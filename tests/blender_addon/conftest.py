@@ -113,8 +113,8 @@ def run_script(body: str, zip_path: Path, folder: Path, runner: str = "bpy", blo
         if blender is None:
             pytest.fail("no `blender` executable on PATH: `apt-get install blender` (Debian's 3.4) to run this test")
         command = [blender, "-b", "--factory-startup", "-P", str(script)]
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(folder / "user"), "BLENDER_USER_SCRIPTS": str(folder / "scripts"),
-           "BLENDER_USER_CONFIG": str(folder / "config")}
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(folder / "user"),
+           "BLENDER_USER_SCRIPTS": str(folder / "scripts"), "BLENDER_USER_CONFIG": str(folder / "config")}
     return subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=timeout_s)
 
 

@@ -30,7 +30,8 @@ def settings(addon, output):
 
 def begin(addon, operator):
     """Start `operator`'s job in the background, as its button in Blender's window does."""
-    job = addon.operators.start(bpy.context, getattr(addon.operators, f"CLOTHCAPTURE_OT_{operator}").prepare(bpy.context))
+    spec = getattr(addon.operators, f"CLOTHCAPTURE_OT_{operator}").prepare(bpy.context)
+    job = addon.operators.start(bpy.context, spec)
     assert job.active
     return job
 
@@ -184,3 +185,30 @@ def test_messages_wrap_to_the_width_of_the_sidebar(addon):
         assert len(lines) > 1
     narrow = addon.panels.wrap(message, 180)
     assert max(map(len, narrow)) <= 35 and "/tmp/pytest-of-root/" in narrow
+
+
+def test_progress_reflects_the_whole_job_and_a_stage_that_ends_early_counts_as_done(addon, tmp_path):
+    """A simulation's bars as tqdm writes them: sewing converges after 30 of at most 200 steps and its
+    bar is cleared (``leave=False``), then the frames are simulated."""
+    from tqdm import tqdm
+
+    job = addon.jobs.Job("simulation", "simulation", [], tmp_path, stages=("sewing", "simulating"))
+    job.log_path = tmp_path / "job.log"
+    seen = []
+    with open(job.log_path, "w") as log:
+        def step(bar, n):
+            bar.update(n)
+            log.flush()
+            job.read_output()
+            seen.append(job.progress)
+
+        sewing = tqdm(total=200, desc="sewing skirt", file=log, leave=False, mininterval=0)
+        step(sewing, 30)
+        sewing.close()
+        step(sewing, 0)
+        print("INFO factory.simulate: dressed skirt in 30 steps", file=log)
+        simulating = tqdm(total=4, desc="simulating skirt", file=log, mininterval=0)
+        step(simulating, 2)
+        step(simulating, 2)
+    assert seen == pytest.approx([0.075, 0.5, 0.75, 1.0])
+    assert job.progress_text == "simulating skirt 4/4"
