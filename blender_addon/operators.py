@@ -102,6 +102,16 @@ def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
     return jobs.start(job, python, library.project_root())
 
 
+def _import(scene, importer: Callable[[], str]) -> str:
+    """Run `importer` (returns a message); what it made becomes the selection, framed (`scene.show`)."""
+    from . import scene as build
+
+    before = build.objects_state()
+    message = importer()
+    build.show(scene, build.made_since(before))
+    return message
+
+
 class _Background:
     """Mixin of the background operators: their static `prepare(context)` returns their `JobSpec`
     (`start(context, CLOTHCAPTURE_OT_simulate.prepare(context))` runs it in the background, as a button
@@ -303,8 +313,9 @@ class CLOTHCAPTURE_OT_import_reconstruction(bpy.types.Operator):
         settings = context.scene.clothcapture
         try:
             library.ensure_importable()
-            message = _results().import_reconstruction(context.scene, commands.reconstruction_dir(settings),
-                                                    _review_capture(settings), **_review_options(settings))
+            folder, capture = commands.reconstruction_dir(settings), _review_capture(settings)
+            message = _import(context.scene, lambda: _results().import_reconstruction(
+                context.scene, folder, capture, **_review_options(settings)))
         except (ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -327,8 +338,9 @@ class CLOTHCAPTURE_OT_import_results(bpy.types.Operator):
         if job is None or found is None or job.returncode != 0:
             self.report({"ERROR"}, "no finished run to import")
             return {"CANCELLED"}
+        scene = found.scene() or context.scene
         try:
-            job.message = found.spec.importer(found.scene() or context.scene)
+            job.message = _import(scene, lambda: found.spec.importer(scene))
         except Exception as exc:  # bad or missing results: say what, keep the scene usable
             self.report({"ERROR"}, f"{type(exc).__name__}: {exc}")
             return {"CANCELLED"}

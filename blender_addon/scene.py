@@ -89,6 +89,45 @@ def set_material(obj: bpy.types.Object, name: str, texture: Path | None,
     return material
 
 
+def _uid(datablock) -> int:
+    """A datablock's identity in this session (Blender < 4.0 has no `session_uid`: its address)."""
+    return getattr(datablock, "session_uid", None) or datablock.as_pointer()
+
+
+def objects_state() -> dict[int, int | None]:
+    """Every object's identity -> its data's: what `made_since` compares."""
+    return {_uid(obj): _uid(obj.data) if obj.data is not None else None for obj in bpy.data.objects}
+
+
+def made_since(before: dict[int, int | None]) -> list[bpy.types.Object]:
+    """The objects made, or given new data, since `before` (`objects_state`)."""
+    return [obj for obj in bpy.data.objects
+            if before.get(_uid(obj), -1) != (_uid(obj.data) if obj.data is not None else None)]
+
+
+def show(scene, objects: list[bpy.types.Object]) -> None:
+    """Make what an import made the selection, as Blender's importers do: its meshes (its cameras when
+    it made no mesh) selected, the first active, the rest deselected, in every view layer of `scene`;
+    and framed in every 3D view showing `scene` (not those looking through a camera)."""
+    shown = [obj for obj in objects if obj.type == "MESH" and obj.visible_get()] or objects
+    if not shown:
+        return
+    for layer in scene.view_layers:
+        for obj in layer.objects:
+            obj.select_set(obj in shown, view_layer=layer)
+        layer.objects.active = shown[0]
+    for window in bpy.context.window_manager.windows:
+        if window.scene != scene:
+            continue
+        for area in window.screen.areas:
+            region = next((r for r in area.regions if r.type == "WINDOW"), None)
+            if area.type != "VIEW_3D" or region is None or area.spaces.active.region_3d.view_perspective == "CAMERA":
+                continue
+            with bpy.context.temp_override(window=window, area=area, region=region, scene=scene,
+                                           view_layer=window.view_layer):
+                bpy.ops.view3d.view_selected()
+
+
 def remove_cameras(name: str) -> None:
     """Delete collection `name` with its camera objects (and their cameras that nothing else uses)."""
     old = bpy.data.collections.get(name)

@@ -7,6 +7,7 @@ import sys
 
 import bpy
 import pytest
+from mathutils import Vector
 
 from tests.blender_addon.conftest import run_script, script_result
 
@@ -212,3 +213,20 @@ def test_progress_reflects_the_whole_job_and_a_stage_that_ends_early_counts_as_d
         step(simulating, 2)
     assert seen == pytest.approx([0.075, 0.5, 0.75, 1.0])
     assert job.progress_text == "simulating skirt 4/4"
+
+
+def test_an_import_is_selected_active_and_framed_in_the_3d_view(addon, settings):
+    bpy.ops.mesh.primitive_cube_add(location=(0.0, 0.0, 0.0))  # the default cube, selected
+    cube = bpy.context.active_object
+    views = [area.spaces.active.region_3d for window in bpy.context.window_manager.windows
+             for area in window.screen.areas if area.type == "VIEW_3D"]
+    assert views  # the bpy module has a window with a 3D view, though nothing is drawn
+    for view in views:
+        view.view_location, view.view_distance = (0.0, 0.0, 0.0), 30.0
+    assert bpy.ops.clothcapture.import_motion() == {"FINISHED"}
+    body = bpy.data.objects["Body"]
+    assert body.select_get() and bpy.context.view_layer.objects.active == body and not cube.select_get()
+    corners = [body.matrix_world @ Vector(corner) for corner in body.bound_box]
+    centre = sum(corners, Vector()) / 8
+    for view in views:
+        assert (view.view_location - centre).length < 0.05 and view.view_distance < 5.0
