@@ -73,7 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--dropout", type=float, default=0.0, help="ground-truth mode: fraction of crosspoints dropped")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--frames", help="frames to use, e.g. 120-131 or 120,125 (default: all)")
-        p.add_argument("--device", help="networks mode: cuda or cpu (default: a GPU when there is one)")
+        p.add_argument("--device", help="networks mode: cuda or cpu (default: a GPU when there is one); several, "
+                       "comma-separated (cuda:0,cuda:1), shard the frames over them, one process each")
         p.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
                        help="networks mode: the marker localizer sees the views resized by this factor, so that "
                        "markers are 16 to 32 px across there (0.5 for 32 to 64 px markers), or 'auto' (the "

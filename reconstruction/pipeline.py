@@ -198,7 +198,6 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
             for camera, found in zip(cameras, capture.detections(frame, config)):
                 found.save(_detection_path(out, camera, frame))
     else:
-        from networks import Detector, DetectorConfig
         from reconstruction.views import Views
 
         if cameras is None and (Path(views) / "cameras.json").is_file():  # a folder laid out as a capture
@@ -207,24 +206,66 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
             cameras = read_cameras(Path(views) / "cameras.json", max_image_pixels=max_image_pixels)
         if cameras is None:
             raise ValueError(f"the networks mode needs the cameras: give --cameras, or put cameras.json in {views}")
-        opened = Views.open(views, cameras)
-        chosen = _frames(opened.frames, frames, views)
-        detector = None
-        for frame in tqdm(chosen, desc="detect", unit="frame", disable=not progress):
-            if all(_detection_path(out, c, frame).exists() for c in cameras):
-                continue
-            if detector is None:  # the garment's tables: its IDs only, and cut markers from their neighbours
-                tables = load_template(settings.template).layout.tables()
-                config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
-                                        smooth_crosspoints_px=settings.smooth_crosspoints_px,
-                                        keep_own_cells=settings.keep_own_cells,
-                                        neighbour_sigma_sides=settings.neighbour_sigma_sides,
-                                        neighbour_degree=settings.neighbour_degree)
-                detector = Detector.from_checkpoints(*settings.checkpoints, device=device, tables=tables, config=config)
-            for camera, found in zip(cameras, detector(opened.images(frame))):
-                found.save(_detection_path(out, camera, frame))
+        cameras = list(cameras)
+        chosen = _frames(Views.open(views, cameras).frames, frames, views)
+        devices = [d.strip() for d in device.split(",")] if device else [None]
+        todo = [f for f in chosen if not all(_detection_path(out, c, f).exists() for c in cameras)]
+        if len(devices) == 1 or len(todo) < 2:
+            _detect_networks(out, views, cameras, todo, devices[0], progress)
+        else:
+            _detect_on_devices(out, views, cameras, todo, devices, progress)
     save_json(out / "detections" / "cameras.json", {"cameras": [c.to_dict() for c in cameras]})
     return chosen
+
+
+def _detect_networks(out: Path, views: str | Path, cameras: list[Camera], frames: Sequence[int], device: str | None,
+                     progress: bool) -> None:
+    """The networks mode's detections of `frames` on one device, each frame's files written when done."""
+    from networks import Detector, DetectorConfig
+    from reconstruction.views import Views
+
+    if not frames:
+        return
+    settings = settings_of(out)
+    opened = Views.open(views, cameras)
+    # the garment's tables: its IDs only, and cut markers from their neighbours
+    config = DetectorConfig(localizer_scale=settings.localizer_scale, grow_missing=settings.grow_missing,
+                            smooth_crosspoints_px=settings.smooth_crosspoints_px, keep_own_cells=settings.keep_own_cells,
+                            neighbour_sigma_sides=settings.neighbour_sigma_sides,
+                            neighbour_degree=settings.neighbour_degree)
+    detector = Detector.from_checkpoints(*settings.checkpoints, device=device,
+                                         tables=load_template(settings.template).layout.tables(), config=config)
+    for frame in tqdm(frames, desc=f"detect ({detector.device})", unit="frame", disable=not progress):
+        for camera, found in zip(cameras, detector(opened.images(frame))):
+            found.save(_detection_path(out, camera, frame))
+
+
+def _detect_on_devices(out: Path, views: str | Path, cameras: list[Camera], frames: Sequence[int],
+                       devices: Sequence[str], progress: bool) -> None:
+    """`frames` sharded over `devices`, one spawned process each (frame i to device i mod n); the
+    parent counts the frames whose files are all written.  A process that fails fails the call, naming
+    its device; what the others wrote stays (a rerun detects only what is missing)."""
+    import multiprocessing
+    import time
+
+    context = multiprocessing.get_context("spawn")  # CUDA cannot be used in a forked process
+    workers = [context.Process(target=_detect_networks, args=(out, views, cameras, list(frames[i::len(devices)]),
+                                                               name, False), name=f"detect {name}")
+               for i, name in enumerate(devices)]
+    for worker in workers:
+        worker.start()
+    try:
+        with tqdm(total=len(frames), desc=f"detect ({len(devices)} devices)", unit="frame",
+                  disable=not progress) as bar:
+            while any(worker.is_alive() for worker in workers):
+                time.sleep(0.5)
+                bar.update(sum(all(_detection_path(out, c, f).exists() for c in cameras) for f in frames) - bar.n)
+    finally:
+        for worker in workers:
+            worker.join()
+    failed = [f"{name} (exit code {worker.exitcode})" for name, worker in zip(devices, workers) if worker.exitcode]
+    if failed:
+        raise RuntimeError(f"detection failed on {', '.join(failed)}; the frames of the others are kept")
 
 
 def _frames(available: Sequence[int], wanted: Sequence[int] | None, where: str | Path) -> list[int]:

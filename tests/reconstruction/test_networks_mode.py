@@ -59,6 +59,28 @@ def test_networks_mode_detects_with_the_garments_ids_at_the_localizer_scale(capt
     assert all(d.crosspoints_px.shape[1:] == (k, k, 2) for d in found)
 
 
+def test_detection_sharded_over_devices_writes_what_one_device_writes(capture_folder, tmp_path):
+    """--device cpu,cpu: the frames go to two spawned processes (as cuda:0,cuda:1 do on a GPU machine);
+    the detections are those of one process, and a rerun keeps them."""
+    template = capture_folder / "template.npz"
+    checkpoints = _checkpoints(tmp_path, load_template(template).layout.spec)
+    argv = ["detect", "--views", str(capture_folder), "--template", str(template), "--checkpoints", *checkpoints,
+            "--localizer-scale", "0.25", "--quiet"]
+    assert main([*argv, "--device", "cpu", "--out", str(tmp_path / "one")]) == 0
+    assert main([*argv, "--device", "cpu,cpu", "--out", str(tmp_path / "two")]) == 0
+    one = sorted((tmp_path / "one" / "detections").glob("*/*.npz"))
+    two = sorted((tmp_path / "two" / "detections").glob("*/*.npz"))
+    assert len(one) >= 4 and [p.relative_to(tmp_path / "one") for p in one] == \
+        [p.relative_to(tmp_path / "two") for p in two]
+    for a, b in zip(one, two):
+        first, second = Detections.load(a), Detections.load(b)
+        assert np.array_equal(first.marker_id, second.marker_id)
+        assert np.allclose(first.crosspoints_px, second.crosspoints_px, atol=1e-4)
+    written = {p: p.stat().st_mtime_ns for p in two}
+    assert main([*argv, "--device", "cpu,cpu", "--out", str(tmp_path / "two")]) == 0
+    assert {p: p.stat().st_mtime_ns for p in two} == written  # nothing left to detect
+
+
 def test_networks_mode_reads_the_cameras_of_a_capture_folder(capture_folder, tmp_path, capsys):
     """Without --cameras, the views folder's cameras.json (a factory capture's); a folder without one
     is refused, naming it."""
