@@ -36,8 +36,8 @@ def collection(scene) -> bpy.types.Collection:
 
 def put_object(scene, name: str, data: bpy.types.Mesh) -> bpy.types.Object:
     """Object `name` showing `data`: an existing mesh object of that name gets it (its old mesh with
-    its shape keys and materials, and its modifiers go; its transform and visibility stay), else a new
-    object is made in the add-on's collection."""
+    its shape keys, their animation and its materials, and its modifiers go; its transform and
+    visibility stay), else a new object is made in the add-on's collection."""
     obj = bpy.data.objects.get(name)
     if obj is None or obj.type != "MESH":
         obj = bpy.data.objects.new(name, data)
@@ -46,26 +46,38 @@ def put_object(scene, name: str, data: bpy.types.Mesh) -> bpy.types.Object:
     old = obj.data
     obj.data = data
     obj.modifiers.clear()
-    if old.users == 0:
-        bpy.data.meshes.remove(old)
+    _remove_unused_mesh(old)
+    data.name = name  # (it was "<name>.001" beside the old one)
     if obj.name not in scene.objects:
         collection(scene).objects.link(obj)
     return obj
 
 
 def remove_object(name: str) -> None:
-    """Delete object `name`, and its mesh and the mesh's materials when nothing else uses them."""
+    """Delete object `name`, and its mesh with what the mesh uses when nothing else uses them."""
     obj = bpy.data.objects.get(name)
     if obj is None:
         return
     data = obj.data
     bpy.data.objects.remove(obj)
-    if data is not None and data.users == 0 and isinstance(data, bpy.types.Mesh):
-        materials = [m for m in data.materials if m is not None]
-        bpy.data.meshes.remove(data)
-        for material in materials:
-            if material.users == 0:
-                bpy.data.materials.remove(material)
+    if isinstance(data, bpy.types.Mesh):
+        _remove_unused_mesh(data)
+
+
+def _remove_unused_mesh(mesh: bpy.types.Mesh) -> None:
+    """Delete `mesh` when nothing uses it, and then its materials and its shape keys' animation when
+    nothing else uses them (left behind, they would take their names from the next import's)."""
+    if mesh.users != 0:
+        return
+    materials = [m for m in mesh.materials if m is not None]
+    keys = mesh.shape_keys
+    action = keys.animation_data.action if keys is not None and keys.animation_data is not None else None
+    bpy.data.meshes.remove(mesh)
+    for material in materials:
+        if material.users == 0:
+            bpy.data.materials.remove(material)
+    if action is not None and action.users == 0:
+        bpy.data.actions.remove(action)
 
 
 def set_material(obj: bpy.types.Object, name: str, texture: Path | None,

@@ -123,3 +123,11 @@ def script_result(process: subprocess.CompletedProcess) -> dict:
     assert process.returncode == 0, process.stdout[-3000:] + process.stderr[-3000:]
     line = next(line for line in reversed(process.stdout.splitlines()) if line.startswith("RESULT "))
     return json.loads(line[len("RESULT "):])
+
+
+def orphans() -> list[str]:
+    """Datablocks nothing uses (they vanish on saving, and push new names to '.001')."""
+    import bpy
+
+    return [f"{kind} {block.name}" for kind in ("meshes", "materials", "images", "actions", "shape_keys", "cameras")
+            for block in getattr(bpy.data, kind) if block.users == 0]

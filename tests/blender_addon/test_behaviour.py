@@ -9,7 +9,7 @@ import bpy
 import pytest
 from mathutils import Vector
 
-from tests.blender_addon.conftest import run_script, script_result
+from tests.blender_addon.conftest import orphans, run_script, script_result
 
 
 @pytest.fixture(scope="module")
@@ -230,3 +230,14 @@ def test_an_import_is_selected_active_and_framed_in_the_3d_view(addon, settings)
     centre = sum(corners, Vector()) / 8
     for view in views:
         assert (view.view_location - centre).length < 0.05 and view.view_distance < 5.0
+
+
+def test_importing_again_replaces_and_leaves_no_orphans_or_renamed_copies(addon, settings):
+    before = orphans()
+    for _ in range(2):
+        assert bpy.ops.clothcapture.import_motion() == {"FINISHED"}
+    body = bpy.data.objects["Body"]
+    assert orphans() == before
+    assert body.data.name == "Body" and [m.name for m in body.data.materials] == ["clothcapture skin"]
+    assert body.data.shape_keys.animation_data.action.users == 1
+

@@ -19,6 +19,8 @@ import pytest
 from assets.fileio import load_npz
 from assets.garments import Template
 
+from tests.blender_addon.conftest import orphans
+
 pytestmark = pytest.mark.slow  # a dressing, a simulation, renders and a Newton refine
 
 SIM_FRAMES = 3
@@ -233,6 +235,7 @@ def test_applying_the_pattern_rebuilds_a_garment_with_the_new_seed(addon, settin
     bpy.ops.object.select_all(action="DESELECT")
     skirt.select_set(True)
     settings.pattern.seed = 5
+    unused = orphans()
     try:
         run(addon, bpy.ops.clothcapture.apply_pattern, "garment")
     finally:
@@ -240,6 +243,7 @@ def test_applying_the_pattern_rebuilds_a_garment_with_the_new_seed(addon, settin
     template = Template.load(addon.commands.garment_dir(settings) / "template.npz")
     assert template.layout.spec.seed == 5 and texture.read_bytes() != before
     assert bpy.data.objects["skirt"] == skirt and "skirt.001" not in bpy.data.objects
+    assert orphans() == unused and skirt.data.name == "skirt" and skirt.active_material.name == "skirt pattern"
 
 
 def test_dress_and_simulate_plays_the_garment_on_its_body(addon, settings, simulation):
@@ -317,12 +321,14 @@ def test_importing_again_replaces_the_review_without_the_ground_truth(addon, set
     review = settings.review
     review.show_groundtruth, review.heatmap, review.import_cameras = False, False, False
     bpy.data.objects.remove(bpy.data.objects["ground truth"])
+    unused = orphans()
     try:
         assert bpy.ops.clothcapture.import_reconstruction() == {"FINISHED"}
     finally:
         review.show_groundtruth, review.heatmap, review.import_cameras = True, True, True
     obj = bpy.data.objects["reconstruction"]
     assert "ground truth" not in bpy.data.objects and "reconstruction.001" not in bpy.data.objects
+    assert orphans() == unused and obj.data.name == "reconstruction" and obj.active_material.name == "reconstruction"
     assert "error" not in obj.data.attributes and obj.data.color_attributes.active_color.name == "captured"
 
 
