@@ -240,12 +240,30 @@ class CLOTHCAPTURE_PT_review(_Panel, bpy.types.Panel):
         row.prop(review, "heatmap_max_mm")
         layout.prop(review, "import_cameras")
         layout.operator("clothcapture.import_reconstruction", icon="IMPORT")
-        evaluation = next((obj["clothcapture_evaluation"] for obj in context.scene.objects
-                           if "clothcapture_evaluation" in obj), None)
-        if evaluation:
+        reviewed = next((obj for obj in context.scene.objects if "clothcapture_evaluation" in obj), None)
+        if reviewed is not None:
             box = layout.box()
-            for key, value in evaluation.items():
-                box.label(text=f"{key}: {value:.4g}")
+            for line, definition in evaluation_lines(reviewed):
+                box.label(text=line)
+                if definition:
+                    column = box.column(align=True)
+                    column.enabled = False  # grey: the definition under its number
+                    _lines(column, definition, context)
+
+
+#: the evaluation's numbers shown first, in this order
+_FIRST = ("garment_coverage", "captured_fraction")
+
+
+def evaluation_lines(obj) -> list[tuple[str, str]]:
+    """(number, its definition) per number of an imported reconstruction's evaluation
+    (`results.read_evaluation`), named as ``evaluation.json`` names them: garment coverage first, then
+    the captured fraction; fractions as percentages."""
+    numbers = obj["clothcapture_evaluation"].to_dict()
+    definitions = obj["clothcapture_definitions"].to_dict() if "clothcapture_definitions" in obj else {}
+    keys = [k for k in _FIRST if k in numbers] + [k for k in numbers if k not in _FIRST]
+    return [(f"{k}: {numbers[k]:.1%}" if k in _FIRST else f"{k}: {numbers[k]:.4g}", definitions.get(k, ""))
+            for k in keys]
 
 
 CLASSES = (CLOTHCAPTURE_PT_main, CLOTHCAPTURE_PT_pattern, CLOTHCAPTURE_PT_motion, CLOTHCAPTURE_PT_garment,

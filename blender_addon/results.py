@@ -11,7 +11,8 @@ Objects (in the "Cloth Capture" collection; importing again replaces them):
   "reconstruction"          a reconstructed sequence (`reconstruction.review.build_review_scene`'s
                             garment object: "captured" colours, "captured_fraction"; plus "error_mm"
                             and the "error" heat map against the ground truth,
-                            `reconstruction.groundtruth.vertex_errors`)
+                            `reconstruction.groundtruth.vertex_errors`; the evaluation's numbers and
+                            their definitions in "clothcapture_evaluation", "clothcapture_definitions")
   "ground truth"            the capture's ground-truth garment, moved beside the reconstruction
 Custom properties ``clothcapture_*`` on them say where they came from.
 """
@@ -165,17 +166,29 @@ def import_reconstruction(scene, folder: Path, capture: Path | None, groundtruth
                                      cameras_name="reconstruction cameras")
     obj = made.garment
     obj["clothcapture_reconstruction"] = str(folder)
-    notes = [f"{len(sequence)} frames, {sequence.num_vertices} vertices at {sequence.level_mm} mm "
-             f"({sequence.captured.mean():.0%} captured)"]
+    numbers, definitions = read_evaluation(folder)
+    if numbers:
+        obj["clothcapture_evaluation"], obj["clothcapture_definitions"] = numbers, definitions
+    coverage = f"garment coverage {numbers['garment_coverage']:.0%}" if "garment_coverage" in numbers else \
+        f"{sequence.captured.mean():.0%} of the vertices captured, mean over frames"
+    notes = [f"{len(sequence)} frames, {sequence.num_vertices} vertices at {sequence.level_mm} mm ({coverage})"]
     if capture is not None and (groundtruth_offset is not None or heatmap_max_mm is not None):
         notes += _compare(scene, obj, sequence, capture, folder, groundtruth_offset, heatmap_max_mm)
     if found is not None:
         notes.append(f"{len(found)} cameras")
-    evaluation = folder / "evaluation.json"
-    if evaluation.is_file():
-        summary = json.loads(evaluation.read_text())["summary"]
-        obj["clothcapture_evaluation"] = {k: v for k, v in summary.items() if isinstance(v, (int, float))}
     return "; ".join(notes)
+
+
+def read_evaluation(folder: Path) -> tuple[dict, dict]:
+    """The numbers of a reconstruction folder's ``evaluation.json`` summary (garment coverage,
+    captured fraction, errors; those it could compute) and the definitions it gives of them; empty
+    without an evaluation."""
+    path = folder / "evaluation.json"
+    if not path.is_file():
+        return {}, {}
+    evaluation = json.loads(path.read_text())
+    numbers = {k: v for k, v in evaluation["summary"].items() if isinstance(v, (int, float))}
+    return numbers, {k: v for k, v in evaluation.get("definitions", {}).items() if k in numbers}
 
 
 def _compare(scene, obj, sequence, capture_dir: Path, folder: Path, offset: float | None,

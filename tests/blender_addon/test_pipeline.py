@@ -313,8 +313,21 @@ def test_a_reconstruction_is_imported_beside_its_ground_truth_with_an_error_heat
     assert tuple(truth.location) == pytest.approx((0.8, 0.0, 0.0))
     np.testing.assert_allclose(evaluated_positions(truth, 2), garment["positions"][1], atol=1e-5)
     assert len(bpy.data.collections["reconstruction cameras"].objects) == 3
-    assert obj["clothcapture_evaluation"]["frames"] == 2
     assert bpy.context.scene.frame_start == 1 and bpy.context.scene.frame_end == 2
+
+
+def test_the_review_shows_garment_coverage_and_captured_fraction_with_the_evaluations_definitions(
+        addon, settings, reconstruction):
+    evaluation = json.loads((addon.commands.reconstruction_dir(settings) / "evaluation.json").read_text())
+    summary, definitions = evaluation["summary"], evaluation["definitions"]
+    obj = bpy.data.objects["reconstruction"]
+    assert obj["clothcapture_evaluation"]["frames"] == 2
+    assert f"(garment coverage {summary['garment_coverage']:.0%})" in reconstruction.message
+    lines = addon.panels.evaluation_lines(obj)
+    assert lines[:2] == [(f"garment_coverage: {summary['garment_coverage']:.1%}", definitions["garment_coverage"]),
+                         (f"captured_fraction: {summary['captured_fraction']:.1%}", definitions["captured_fraction"])]
+    assert definitions["garment_coverage"].startswith("triangulated crosspoints / all crosspoints")
+    assert {line.split(":")[0] for line, _ in lines} == {k for k, v in summary.items() if isinstance(v, (int, float))}
 
 
 def test_importing_again_replaces_the_review_without_the_ground_truth(addon, settings, reconstruction):
