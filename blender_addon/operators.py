@@ -80,7 +80,7 @@ def start(context, spec: JobSpec, wait: bool = False) -> jobs.Job:
     own (Ctrl+Z takes back the import, not the user's change made meanwhile); inside an operator that
     waits, it is part of that operator's step.  Saving the file meanwhile changes nothing; when another
     file was opened, or the scene is gone, the results are offered (`Job.offered`: the panel's Import
-    button puts them into the scene of the day)."""
+    button puts them into the current scene)."""
     python = library.check_python(spec.extras)
     found = _Import(spec, context.scene.name, _files_opened)
 

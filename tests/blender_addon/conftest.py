@@ -63,6 +63,17 @@ def addon_modules(name: str) -> SimpleNamespace:
     return SimpleNamespace(name=name, **{sub: importlib.import_module(f"{name}.{sub}") for sub in SUBMODULES})
 
 
+def begin(addon, operator: str):
+    """Start operator `operator`'s job ("simulate") in the background, as its button in Blender's window
+    does (a script's call waits for it); returns the job."""
+    import bpy
+
+    spec = getattr(addon.operators, f"CLOTHCAPTURE_OT_{operator}").prepare(bpy.context)
+    job = addon.operators.start(bpy.context, spec)
+    assert job.active
+    return job
+
+
 @pytest.fixture(scope="module")
 def addon(addon_zip, tmp_path_factory):
     """The add-on enabled from its zip (an extension in a temporary repository), its output folder a

@@ -9,7 +9,7 @@ import bpy
 import pytest
 from mathutils import Vector
 
-from tests.blender_addon.conftest import orphans, run_script, script_result
+from tests.blender_addon.conftest import begin, orphans, run_script, script_result
 
 
 @pytest.fixture(scope="module")
@@ -27,14 +27,6 @@ def settings(addon, output):
     motion.body_source, motion.source, motion.builtin = "DEFAULT", "BUILTIN", "walk"
     motion.seconds, motion.fps, motion.transition = 0.2, 30.0, "none"
     return settings
-
-
-def begin(addon, operator):
-    """Start `operator`'s job in the background, as its button in Blender's window does."""
-    spec = getattr(addon.operators, f"CLOTHCAPTURE_OT_{operator}").prepare(bpy.context)
-    job = addon.operators.start(bpy.context, spec)
-    assert job.active
-    return job
 
 
 def finish(addon, job, timeout_s=120.0):

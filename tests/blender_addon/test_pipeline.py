@@ -19,7 +19,7 @@ import pytest
 from assets.fileio import load_npz
 from assets.garments import Template
 
-from tests.blender_addon.conftest import orphans
+from tests.blender_addon.conftest import begin, orphans
 
 pytestmark = pytest.mark.slow  # a dressing, a simulation, renders and a Newton refine
 
@@ -41,8 +41,7 @@ def run(addon, operator, kind):
 def follow(addon, operator):
     """Start `operator`'s job in the background, as its button in Blender's window does, and tick it to
     its end, keeping its progress in `PROGRESS`; returns the job."""
-    spec = getattr(addon.operators, f"CLOTHCAPTURE_OT_{operator}").prepare(bpy.context)
-    job = addon.operators.start(bpy.context, spec)
+    job = begin(addon, operator)
     seen = PROGRESS.setdefault(job.kind, [])
     while job.active:
         seen.append(job.progress or 0.0)
@@ -125,8 +124,7 @@ def test_the_pattern_is_generated_and_applied_to_a_mesh_through_its_uvs(addon, s
 def test_a_pattern_run_can_be_cancelled_and_leaves_no_half_file(addon, settings):
     pattern = settings.pattern
     pattern.rows, pattern.cols, pattern.dpi = 32, 32, 600.0  # minutes of work
-    job = addon.operators.start(bpy.context, addon.operators.CLOTHCAPTURE_OT_generate_pattern.prepare(bpy.context))
-    assert job.active  # in the background, as the button in Blender's window runs it
+    job = begin(addon, "generate_pattern")
     with pytest.raises(RuntimeError, match="still running"):
         bpy.ops.clothcapture.generate_pattern()  # one run per kind at a time
     folder = addon.commands.pattern_dir(settings)
