@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import NamedTuple, Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from assets.fileio import atomic_path, load_npz, save_npz, staged_outputs
 
@@ -282,6 +281,7 @@ def write_frame_meshes(folder: str | os.PathLike, sequence: GarmentSequence, fmt
     if mtl_name:
         _write_mtl(folder / mtl_name, texture, Path(read_from) if read_from is not None else None)
     paths = []
+    from tqdm import tqdm  # here, not at import: Blender's own Python may lack it
     for t in tqdm(range(len(sequence)), desc=f"export {fmt}", unit="frame", disable=not progress):
         frame = int(sequence.frames[t])
         paths.append(frame_mesh_path(folder, frame, fmt))

@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from assets.cameras import MAX_IMAGE_PIXELS, Camera
 from assets.fileio import load_json, safe_name, save_json
@@ -192,6 +191,7 @@ def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None 
         cameras = list(cameras or capture.cameras)
         chosen = _frames(capture.frames, frames, views)
         config = settings.groundtruth_config()
+        from tqdm import tqdm  # here, not at import: Blender's own Python may lack it
         for frame in tqdm(chosen, desc="detect (ground truth)", unit="frame", disable=not progress):
             if all(_detection_path(out, c, frame).exists() for c in cameras):
                 continue
@@ -235,6 +235,7 @@ def _detect_networks(out: Path, views: str | Path, cameras: list[Camera], frames
                             neighbour_degree=settings.neighbour_degree)
     detector = Detector.from_checkpoints(*settings.checkpoints, device=device,
                                          tables=load_template(settings.template).layout.tables(), config=config)
+    from tqdm import tqdm
     for frame in tqdm(frames, desc=f"detect ({detector.device})", unit="frame", disable=not progress):
         for camera, found in zip(cameras, detector(opened.images(frame))):
             found.save(_detection_path(out, camera, frame))
@@ -255,6 +256,7 @@ def _detect_on_devices(out: Path, views: str | Path, cameras: list[Camera], fram
     for worker in workers:
         worker.start()
     try:
+        from tqdm import tqdm
         with tqdm(total=len(frames), desc=f"detect ({len(devices)} devices)", unit="frame",
                   disable=not progress) as bar:
             while any(worker.is_alive() for worker in workers):
@@ -310,6 +312,7 @@ def triangulate(out: str | Path, template: Template | None = None, config=None, 
     pending = [f for f in frames if not sequence_path(out / "points", f).exists()]
     if pending:
         crosspoints = CrosspointMap.build(template or load_template(settings.template), settings.level_mm)
+        from tqdm import tqdm
         for frame in tqdm(pending, desc="triangulate", unit="frame", disable=not progress):
             detections = [Detections.load(_detection_path(out, c, frame)) for c in cameras]
             points = triangulate_frame(crosspoints, cameras, detections, config or TriangulationConfig(), frame,

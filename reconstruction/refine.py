@@ -47,7 +47,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from assets.fileio import load_json, load_npz, save_json, save_npz
 from assets.garments.template import Template
@@ -296,6 +295,7 @@ class _Refiner:
         order = [(start_frame, None)] + [(t, t - 1) for t in range(start_frame + 1, count)]
         order += [(t, t + 1) for t in range(start_frame - 1, -1, -1)]
         solved: dict[int, dict[int, np.ndarray]] = {}  # frame -> level -> shape, only those still needed
+        from tqdm import tqdm  # here, not at import: Blender's own Python may lack it
         for t, neighbour in tqdm(order, desc="refine pass 1", unit="frame", disable=not self.progress):
             path = self._path("pass1", t)
             if path is not None and path.exists():
@@ -315,6 +315,7 @@ class _Refiner:
 
         if self.config.smoothing_pass and count > 1:
             first = positions.copy()
+            from tqdm import tqdm
             for t in tqdm(range(count), desc="refine pass 2", unit="frame", disable=not self.progress):
                 path = self._path("final", t)
                 if path is not None and path.exists():

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from assets.garments.sewing import SewingPattern
 from assets.pattern.codebook import generate_codebook
@@ -83,6 +82,7 @@ class SheetLayout:
         width, height = self.size_px
         sheet = np.empty((height, width, 3), dtype=np.uint8)
         sheet[:] = np.asarray(self.spec.background_rgb, dtype=np.uint8)
+        from tqdm import tqdm  # here, not at import: Blender's own Python may lack it
         for sheet_panel, table in tqdm(
             list(zip(self.panels, self.tables())), desc="sheet", unit="panel", disable=not progress
         ):

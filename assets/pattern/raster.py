@@ -24,7 +24,6 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 from PIL import Image
-from tqdm import tqdm
 
 from assets.fileio import atomic_path
 from assets.polylines import first_crossing
@@ -131,6 +130,7 @@ def render_grid_view(
     polys = [np.round((np.asarray(p, np.float64) - 0.5) * scale).astype(np.int32) for p in polygons_px]
     background = np.asarray(spec.background_rgb, dtype=np.uint8)
     starts = range(0, height, _STRIP_ROWS)
+    from tqdm import tqdm  # here, not at import: Blender's own Python may lack it
     for r0 in tqdm(starts, desc="render", unit="strip", disable=not progress):
         r1 = min(r0 + _STRIP_ROWS, height)
         fill = np.asarray(wu @ np.asarray(wv[r0:r1] @ cells).T).T

@@ -234,10 +234,6 @@ def test_importing_again_replaces_and_leaves_no_orphans_or_renamed_copies(addon,
     assert body.data.shape_keys.animation_data.action.users == 1
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "modules the importers load import tqdm at module level: assets/garments/layout.py, assets/pattern/raster.py, "
-    "reconstruction/export.py, refine.py and pipeline.py (outside the add-on; to move into the functions that "
-    "draw the bars)"))
 def test_results_import_in_a_blender_whose_python_lacks_tqdm(addon_zip, tmp_path):
     """A distribution's Blender (Python 3.13) cannot use the venv's packages: tqdm, which only draws
     the CLIs' bars, must not be needed to read results inside Blender."""
