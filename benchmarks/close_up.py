@@ -292,6 +292,8 @@ def measure(config: CloseUp, out: Path, localizer: Path, recognizer: Path, cross
     crop_marker_px = detector.crosspoints.crops.crosspoints.px_per_cell(detector.spec) * detector.spec.cells_per_side
     rows = []
     bar = tqdm(total=len(planned), desc="detect", unit="image", disable=not progress)
+    if progress:  # each row as it is measured: a long run shows what it has
+        bar.write("\n".join(TABLE_HEADER))
     for fold in config.folds_mm:
         for size in config.sizes_px:
             mine = [s for s in planned if s.fold_mm == fold and s.size_px == size]
@@ -308,6 +310,8 @@ def measure(config: CloseUp, out: Path, localizer: Path, recognizer: Path, cross
             rows.append({"fold_mm": fold, "size_px": size, "images": [s.name for s in mine],
                          "marker_px": float(np.median(sides)) if len(sides) else None, "crop_marker_px": crop_marker_px,
                          "render_seconds": [r for r in renders if r is not None], "metrics": metrics})
+            if progress:
+                bar.write(table_row(rows[-1]))
     bar.close()
     return rows
 
@@ -333,29 +337,38 @@ def summary(row: dict) -> dict:
     }
 
 
-def table(rows: list[dict]) -> str:
-    """The rows as a markdown table, the targets first; a value missing its target ends in '!'."""
-    def cell(value, digits: int, target: float | None = None, above: bool = True) -> str:
-        if value is None:
-            return "-"
-        missed = target is not None and (value < target if above else value >= target)
-        return f"{value:.{digits}f}{'!' if missed else ''}"
+def _cell(value: float | None, digits: int, target: float | None = None, above: bool = True) -> str:
+    """A number, '!' after it where it misses `target` (at least it when `above`, else below it)."""
+    if value is None:
+        return "-"
+    missed = target is not None and (value < target if above else value >= target)
+    return f"{value:.{digits}f}{'!' if missed else ''}"
 
-    lines = ["| fold mm | marker px | measured px | images | fully visible | precision | recall | ID top-1 | centre px "
-             "| worst corner px | crosspoint px | crosspoint crop px | localizer scale | detect s | render s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-             f"| target | | | | | >= {TARGET_DETECTION} | >= {TARGET_DETECTION} | >= {TARGET_ID} | < {TARGET_POINT_PX} "
-             f"| < {TARGET_POINT_PX} | | < {TARGET_CROSSPOINT_CROP_PX} | | | |"]
-    for s in map(summary, rows):
-        scales = ", ".join(f"{v:.2f}" for v in s["scales"])
-        lines.append(
-            f"| {s['fold_mm']:g} | {s['size_px']:g} | {cell(s['marker_px'], 1)} | {s['images']} | {s['full']} "
-            f"| {cell(s['precision'], 4, TARGET_DETECTION)} | {cell(s['recall'], 4, TARGET_DETECTION)} "
-            f"| {cell(s['id_top1'], 4, TARGET_ID)} | {cell(s['centre_px'], 3, TARGET_POINT_PX, False)} "
-            f"| {cell(s['corner_px'], 3, TARGET_POINT_PX, False)} | {cell(s['crosspoint_px'], 3)} "
-            f"| {cell(s['crosspoint_crop_px'], 3, TARGET_CROSSPOINT_CROP_PX, False)} | {scales} "
-            f"| {cell(s['detect_seconds'], 2)} | {cell(s['render_seconds'], 1)} |")
-    return "\n".join(lines)
+
+#: the table's header, the issue's targets in its first row
+TABLE_HEADER = (
+    "| fold mm | marker px | measured px | images | fully visible | precision | recall | ID top-1 | centre px "
+    "| worst corner px | crosspoint px | crosspoint crop px | localizer scale | detect s | render s |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    f"| target | | | | | >= {TARGET_DETECTION} | >= {TARGET_DETECTION} | >= {TARGET_ID} | < {TARGET_POINT_PX} "
+    f"| < {TARGET_POINT_PX} | | < {TARGET_CROSSPOINT_CROP_PX} | | | |")
+
+
+def table_row(row: dict) -> str:
+    """One row of the table (a value missing its target ends in '!')."""
+    s = summary(row)
+    return (f"| {s['fold_mm']:g} | {s['size_px']:g} | {_cell(s['marker_px'], 1)} | {s['images']} | {s['full']} "
+            f"| {_cell(s['precision'], 4, TARGET_DETECTION)} | {_cell(s['recall'], 4, TARGET_DETECTION)} "
+            f"| {_cell(s['id_top1'], 4, TARGET_ID)} | {_cell(s['centre_px'], 3, TARGET_POINT_PX, False)} "
+            f"| {_cell(s['corner_px'], 3, TARGET_POINT_PX, False)} | {_cell(s['crosspoint_px'], 3)} "
+            f"| {_cell(s['crosspoint_crop_px'], 3, TARGET_CROSSPOINT_CROP_PX, False)} "
+            f"| {', '.join(f'{v:.2f}' for v in s['scales'])} | {_cell(s['detect_seconds'], 2)} "
+            f"| {_cell(s['render_seconds'], 1)} |")
+
+
+def table(rows: list[dict]) -> str:
+    """The rows as a markdown table, the targets first."""
+    return "\n".join([*TABLE_HEADER, *map(table_row, rows)])
 
 
 # ---- the command line ---------------------------------------------------------------------------

@@ -21,11 +21,11 @@ def weights(tmp_path_factory):
     return fetch(tmp_path_factory.mktemp("weights"), names=("localizer", "recognizer", "crosspoints"))
 
 
-def test_a_flat_panel_close_up_is_found_and_identified(bench, weights, tmp_path):
+def test_a_flat_panel_close_up_is_found_and_identified(bench, weights, tmp_path, capsys):
     config = bench.CloseUp(sizes_px=(25.0,), folds_mm=(0.0,), resolution=256, panel_markers=5, texture_dpi=100.0)
     (shot,) = bench.shots(config)  # the whole panel (125 px) in one image
-    rows = bench.measure(config, tmp_path, weights["localizer"], weights["recognizer"], weights["crosspoints"],
-                         progress=False)
+    rows = bench.measure(config, tmp_path, weights["localizer"], weights["recognizer"], weights["crosspoints"])
+    assert bench.table_row(rows[0]) in capsys.readouterr().out  # each row as soon as it is measured
     row = bench.summary(rows[0])
     assert row["images"] == 1 and row["full"] == 25  # every marker fully visible, none cut
     assert row["marker_px"] == pytest.approx(25.0, rel=0.02)  # the camera's distance gives the asked size
