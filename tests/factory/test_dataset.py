@@ -46,9 +46,17 @@ def test_splits_keep_the_reference_ratio_and_never_share_a_frame():
     assert split != split_of_frames(units, seed=4)
 
 
-def test_build_writes_every_image_with_ground_truth_and_keeps_frames_within_a_split(tmp_path, shirt_run):
-    out = _seeded(tmp_path / "ds", shirt_run)
-    manifest = build(_config(), out, progress=False)
+@pytest.fixture(scope="module")
+def built(tmp_path_factory, shirt_run) -> Path:
+    """A dataset of `_config()` built once for the module's tests that only read it (or a copy)."""
+    out = _seeded(tmp_path_factory.mktemp("built") / "ds", shirt_run)
+    build(_config(), out, progress=False)
+    return out
+
+
+def test_build_writes_every_image_with_ground_truth_and_keeps_frames_within_a_split(built):
+    out = built
+    manifest = out / "manifest.jsonl"
     entries = [json.loads(line) for line in manifest.read_text().splitlines()]
     assert len(entries) == 3 * 2
     by_frame = {}
@@ -66,9 +74,8 @@ def test_build_writes_every_image_with_ground_truth_and_keeps_frames_within_a_sp
     assert sum(e["markers_visible"] for e in entries) > 0
 
 
-def test_a_killed_build_resumes_to_byte_identical_output(tmp_path, shirt_run):
-    whole = _seeded(tmp_path / "whole", shirt_run)
-    build(_config(), whole, progress=False)
+def test_a_killed_build_resumes_to_byte_identical_output(tmp_path, shirt_run, built):
+    whole = built
     broken = _seeded(tmp_path / "broken", shirt_run)
     command = [sys.executable, "-m", "factory.dataset", "build", "--garment", "shirt", "--motions", "walk",
                "--frame-list", "2,4,5", "--variations", "2", "--resolution", "64", "--engine", "WORKBENCH",
@@ -92,9 +99,9 @@ def test_a_killed_build_resumes_to_byte_identical_output(tmp_path, shirt_run):
         assert (whole / f).read_bytes() == (broken / f).read_bytes(), f
 
 
-def test_a_build_with_other_settings_is_refused(tmp_path, shirt_run):
-    out = _seeded(tmp_path / "ds", shirt_run)
-    build(_config(), out, progress=False)
+def test_a_build_with_other_settings_is_refused(tmp_path, built):
+    out = tmp_path / "ds"
+    shutil.copytree(built, out)
     with pytest.raises(ValueError, match="other settings"):
         build(_config(seed=1), out, progress=False)
 
@@ -145,17 +152,17 @@ def test_projected_crosspoints_agree_with_blenders_position_pass(tmp_path, shirt
     assert np.mean(errors) < 0.1, np.mean(errors)
 
 
-def test_a_capture_frames_the_garment_in_every_camera_and_its_files_agree(tmp_path, shirt_run):
-    """The synthetic capture reconstruction is measured on: every camera of the ring sees the whole
-    garment, large; the saved ground truth is what cameras.json and garment.npz give."""
+def test_a_capture_frames_the_garment_in_every_camera_and_its_files_agree(capture_folder, shirt_run):
+    """The synthetic capture reconstruction is measured on (the session's, which the reconstruction
+    tests share): every camera of the ring sees the whole garment, large; the saved ground truth is
+    what cameras.json and garment.npz give."""
     from assets.cameras import load_cameras
     from assets.garments import Template
     from assets.pattern.observation import ImageGroundTruth
     from factory.dataset import capture, read_depth
 
     _, sim, _ = shirt_run
-    out = capture("shirt", "walk", tmp_path / "cap", frames=2, first_frame=3, cameras=3, resolution=(96, 64),
-                  render=TINY, progress=False, simulation=sim)
+    out = capture_folder
     cameras = load_cameras(out / "cameras.json")
     garment = np.load(out / "garment.npz")
     assert [c.name for c in cameras] == ["cam00", "cam01", "cam02"]
@@ -226,15 +233,16 @@ def test_a_dataset_folder_made_before_the_simulation_options_is_still_taken_up(t
         _check_config(tmp_path, _config(level_mm=4))
 
 
-def test_a_smaller_fill_shows_smaller_markers_and_a_bad_one_is_refused(tmp_path, shirt_run, capsys):
+def test_a_smaller_fill_shows_smaller_markers_and_a_bad_one_is_refused(tmp_path, shirt_run, built, capsys):
     """`--fill`: the fixed camera backs off so the garment fills less of the image, and every marker
     shrinks by about the ratio (renders of small markers, where the localizer misses most)."""
     from assets.pattern.observation import ImageGroundTruth
     from factory.dataset import main
 
     reach = {}
+    assert DatasetConfig.fill == 0.85  # the module's dataset is the default fill's
     for fill in (0.85, 0.5):
-        out = _seeded(tmp_path / f"fill{fill}", shirt_run)
+        out = built if fill == 0.85 else _seeded(tmp_path / f"fill{fill}", shirt_run)
         entries = [json.loads(line) for line in build(_config(fill=fill), out, progress=False).read_text().splitlines()]
         gts = [ImageGroundTruth.load(out / e["gt"]) for e in entries]
         corners = np.concatenate([g.points_px[g.status == 2] for g in gts])
