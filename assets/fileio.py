@@ -209,21 +209,49 @@ def load_json(path: str | os.PathLike) -> object:
 
 
 def check_settings(path: str | os.PathLike, settings: Mapping[str, object]) -> None:
-    """Refuse to run a stage whose settings (JSON data; its `save_json` record, written by the stage)
-    differ from those of the earlier run recorded in `path`: a ValueError naming the file and the
-    settings that differ, so a rerun never mixes outputs of other settings or inputs with the earlier
-    ones.  Nothing to check where `path` does not exist."""
+    """Refuse to run a stage whose settings differ from the earlier run's recorded in `path` (a
+    ValueError naming the file and the settings that differ); nothing to check where `path` does not
+    exist.  `record_stage` checks and records in one call."""
+    record_stage(path, settings, write=False)
+
+
+def _json_data(settings: Mapping[str, object]) -> dict:
+    return json.loads(json.dumps(settings))
+
+
+def record_stage(path: str | os.PathLike, settings: Mapping[str, object], *, changeable: Iterable[str] = (),
+                 recompute: bool = False, write: bool = True) -> bool:
+    """The one way a stage records what it was made with: `settings` (JSON data) in `path` beside its
+    outputs.  A rerun with the same settings returns True: the outputs there are this run's and may be
+    reused.  Settings that differ from the recorded ones are refused with a ValueError naming the file
+    and each differing setting (``name: old -> new``), so a rerun never mixes outputs made two ways;
+    with `recompute` the record is replaced instead and False returned (the stage must then redo its
+    outputs).  Keys in `changeable` (those that do not change what the outputs are, e.g. a training
+    run's time limit) may differ: the record takes the new values.  A first run records and returns
+    False.  write=False only checks."""
     path = Path(path)
+    current = _json_data(settings)
     if not path.exists():
-        return
+        if write:
+            save_json(path, current)
+        return False
     saved = load_json(path)
     if not isinstance(saved, dict):
         raise ValueError(f"{path}: expected a JSON object of settings, got {type(saved).__name__}")
-    current = json.loads(json.dumps(settings))
-    differ = sorted(key for key in {*saved, *current} if saved.get(key) != current.get(key))
-    if differ:
-        raise ValueError(f"{path}: this folder holds a run with other settings or inputs ({', '.join(differ)} "
-                         "differ); use a new output folder, or delete this one to start over")
+    free = set(changeable)
+    differ = sorted(key for key in {*saved, *current} if key not in free and saved.get(key) != current.get(key))
+    if differ and not recompute:
+        detail = "; ".join(f"{key}: {_short(saved.get(key))} -> {_short(current.get(key))}" for key in differ)
+        raise ValueError(f"{path}: this folder holds a run made with other settings or inputs ({detail}); "
+                         "use a new output folder, or delete this one to start over")
+    if write and saved != current:
+        save_json(path, current)
+    return not differ
+
+
+def _short(value: object, limit: int = 60) -> str:
+    text = "(none)" if value is None else json.dumps(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def check_json_object(data: object, fields: Iterable[str], source: str) -> dict:
