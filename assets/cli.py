@@ -99,3 +99,53 @@ def localizer_scale_arg(text: str) -> float | None:
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number or 'auto', got {text!r}") from None
+
+
+# ---- the shared vocabulary: the same flag for the same thing in every CLI ----------------------------
+#   --out DIR          where a command writes (a folder; never an input)
+#   --device DEV       where torch/Cycles/warp work runs: cpu, cuda, cuda:1 (a CLI may accept a list)
+#   --workers N        worker processes (data loading, rendering, detection, Ray tasks)
+#   --no-progress      no progress bars (logging stays)
+#   --checkpoint PT    the one network a command reads
+#   --localizer PT --recognizer PT --crosspoints PT   the Detector's three networks
+def add_out(parser: argparse.ArgumentParser, help: str, required: bool = True, default: str | None = None) -> None:
+    parser.add_argument("--out", required=required, default=default, metavar="DIR", help=help)
+
+
+def add_device(parser: argparse.ArgumentParser, help: str = "cpu, cuda or cuda:N (default: a CUDA GPU when there is one)",
+               default: str | None = None) -> None:
+    parser.add_argument("--device", default=default, metavar="DEV", help=help)
+
+
+def add_workers(parser: argparse.ArgumentParser, help: str = "worker processes", default: int | None = None) -> None:
+    parser.add_argument("--workers", type=int, default=default, metavar="N", help=help)
+
+
+def add_progress(parser: argparse.ArgumentParser) -> None:
+    """--no-progress; `progress(args)` reads it back as the `progress` flag the project's functions take."""
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def progress(args: argparse.Namespace) -> bool:
+    return not args.no_progress
+
+
+NETWORKS = ("localizer", "recognizer", "crosspoints")
+
+
+def add_networks(parser: argparse.ArgumentParser, help_prefix: str = "") -> None:
+    """--localizer PT --recognizer PT --crosspoints PT: the Detector's three networks
+    (`networks_of(args)` reads them back, all three or none)."""
+    for name in NETWORKS:
+        parser.add_argument(f"--{name}", metavar="PT", help=f"{help_prefix}the {name} checkpoint")
+
+
+def networks_of(args: argparse.Namespace) -> tuple[str, ...]:
+    """The three checkpoints of `add_networks` in the Detector's order, () when none is given; a
+    ValueError names the missing ones when only some are."""
+    given = [getattr(args, name) for name in NETWORKS]
+    if not any(given):
+        return ()
+    if missing := [f"--{n}" for n, g in zip(NETWORKS, given) if not g]:
+        raise ValueError(f"the Detector needs all three networks: {', '.join(missing)} missing")
+    return tuple(given)
