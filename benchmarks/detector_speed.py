@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the packages, not benchmarks/networks.py
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project's packages
 
 from networks.detector import Detector, DetectorConfig, pad_images, resize_for_localizer  # noqa: E402
 from networks.evaluate import resolve_device  # noqa: E402

@@ -14,7 +14,7 @@ runs on the device machine's Python as well as here).
                                       and nothing is written)
     wait FILE [--timeout S]           return when FILE exists (exit 1 after S seconds)
 
-A device session's weights, for instance (`benchmarks/networks.py --export-weights`):
+A device session's weights, for instance (`benchmarks/train_networks.py --export-weights`):
 
     (a benchmark started in the background does not keep the machine: it goes back 30 s after a call
     returns, so the wait calls follow one another with nothing in between, or the benchmark is lost.
@@ -37,7 +37,7 @@ working tree, so each call copies its parts out of the tree at once):
                               mkdir -p /tmp/parts && cp .bench/parts/* /tmp/parts/
     call 3:                   carry the last parts and .bench/carry; cp as above, then
                               python3 benchmarks/device_files.py unpack /tmp/parts /tmp/init
-                              python3 benchmarks/networks.py ... --init /tmp/init
+                              python3 benchmarks/train_networks.py ... --init /tmp/init
 """
 
 from __future__ import annotations

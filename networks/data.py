@@ -543,7 +543,7 @@ class ShardDataset(_Items, Dataset):
         self.parts = shard_parts(self.root)
         if not self.parts:
             raise ValueError(f"{self.root}: no finished part_NNNNN folders; write some with "
-                             "`python -m networks.synth write`")
+                             "`python -m networks.shards write`")
         counts = [len(next(iter(open_shard_part(part, task).values()))) for part in self.parts]
         self._starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self.codebook = generate_codebook(self.spec) if task == "crosspoints" else None
@@ -597,7 +597,7 @@ def read_shard_meta(root: str | Path) -> dict:
     """shards.json of a shard folder, checked to be one."""
     path = Path(root) / SHARD_META
     if not path.is_file():
-        raise ValueError(f"{root}: no {SHARD_META} (not a shard folder of `python -m networks.synth write`)")
+        raise ValueError(f"{root}: no {SHARD_META} (not a shard folder of `python -m networks.shards write`)")
     meta = load_json(path)
     if not isinstance(meta, dict) or meta.get("format") != SHARD_FORMAT:
         raise ValueError(f"{path}: not a {SHARD_FORMAT} file")

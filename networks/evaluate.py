@@ -194,7 +194,7 @@ def folder_batches(task: str, root: str | Path, split: str, spec: PatternSpec, b
 
 def data_batches(task: str, data: str | Path, split: str, spec: PatternSpec, batch_size: int = 32,
                  crop: CropSpec = CROSSPOINT_CROP) -> Iterable[dict]:
-    """Batches of every item of a shard folder of synthesized samples (`networks.synth write`; `split`
+    """Batches of every item of a shard folder of synthesized samples (`networks.shards write`; `split`
     is not used), or of a factory dataset's split (`folder_batches`, whose crosspoint crops are cut in
     `crop`)."""
     if (Path(data) / SHARD_META).is_file():
@@ -348,7 +348,7 @@ def evaluate(checkpoint: str | Path, data: str | Path, split: str = "test", task
              device: str | torch.device | None = None, batch_size: int = 32, radius_px: float = MATCH_RADIUS_PX,
              threshold: float = 0.5, progress: bool = True, garment_ids: bool = False) -> dict:
     """Evaluate the checkpoint on `split` of the factory dataset folder `data`, or on every item of a
-    shard folder of synthesized samples (`networks.synth write`; `split` is then "shards"); a dict of
+    shard folder of synthesized samples (`networks.shards write`; `split` is then "shards"); a dict of
     metrics with the checkpoint's task, step and the data it was measured on.  garment_ids: a
     recognizer answers among the IDs printed on the dataset's garment (its template.npz), as the
     Detector restricts it to the garment it is given."""

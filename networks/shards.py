@@ -1,6 +1,6 @@
 """Pre-synthesized training data: shard folders of `PatternSynthesizer` samples for one task.
 
-    python -m networks.synth write --out shards/localizer --task localizer --count 20000 --workers 15 \\
+    python -m networks.shards write --out shards/localizer --task localizer --count 20000 --workers 15 \\
         --garment out/ds --image-size 256
 
 Synthesizing on the fly in DataLoader workers feeds a GPU poorly (about 50 localizer images/s from 3
@@ -181,10 +181,10 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m networks.synth write ...`: pre-synthesize a shard folder (`networks.shards`)."""
+    """`python -m networks.shards write ...`: pre-synthesize a shard folder."""
     from assets.cli import run_cli
 
-    parser = argparse.ArgumentParser(prog="python -m networks.synth", description="Pre-synthesized training data.")
+    parser = argparse.ArgumentParser(prog="python -m networks.shards", description="Pre-synthesized training data.")
     commands = parser.add_subparsers(dest="command", required=True)
     write = commands.add_parser("write", help="write (or extend) a shard folder of pre-synthesized samples",
                                 description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -46,7 +46,6 @@ leaves the others unchanged: tests compare such pairs.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from dataclasses import dataclass
 
 import cv2
@@ -575,10 +574,3 @@ def _light(rng: np.random.Generator, cfg: SynthConfig, image: np.ndarray, occlud
     gain = 1 + ys[:, None] * direction[1] + xs[None, :] * direction[0]
     cast = rng.uniform(*cfg.exposure) * (1 + rng.uniform(-cfg.colour_cast, cfg.colour_cast, 3))
     return image * gain[..., None].astype(np.float32) * cast.astype(np.float32)
-
-
-# ---- CLI: `python -m networks.synth write ...` is `networks.shards`' writer ------------------------
-if __name__ == "__main__":
-    from networks.shards import main
-
-    sys.exit(main())

@@ -11,7 +11,7 @@
 Data: `--data DIR [DIR ...]` are factory dataset folders (their train splits joined for training,
 their val splits for validation), mixed with synthesized samples at `--synth-weight`; `--data synth` trains and validates on
 the synthesizer alone.  Synthesized training samples come from the synthesizer on the fly, or from a
-shard folder written before (`--shards`, `python -m networks.synth write`; validation stays on the
+shard folder written before (`--shards`, `python -m networks.shards write`; validation stays on the
 rendered val split, or on the fly).  The garment (`--garment`, default the dataset's template.npz)
 gives the marker IDs that are synthesized and that the recognizer classifies among
 (`TrainConfig.recognizer_classes`, `--recognizer-ids`: "garment", the reference's; "codebook"; or "modules",
@@ -686,7 +686,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, help="a TrainConfig JSON file (flags below override it)")
     parser.add_argument("--synth-weight", type=float, help="share of synthesized samples mixed into a dataset (0-1)")
     parser.add_argument("--shards", type=Path, help="a shard folder of pre-synthesized samples of the task "
-                        "(python -m networks.synth write) to draw the synthesized training samples from")
+                        "(python -m networks.shards write) to draw the synthesized training samples from")
     parser.add_argument("--garment", type=Path, help="a factory dataset folder or template.npz: the marker IDs to "
                         "synthesize and to recognize (default: the dataset's template.npz)")
     parser.add_argument("--recognizer-ids", "--recognizer-classes", dest="recognizer_classes",
@@ -713,7 +713,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
     parser.add_argument("--whole-markers-only", action="store_true",
                         help="recognizer: train on crops of whole markers only, the reference's (default: partial "
-                        "markers with a visible centre too; shards need the same: networks.synth write "
+                        "markers with a visible centre too; shards need the same: networks.shards write "
                         "--whole-markers-only)")
     parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")
     parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
@@ -759,7 +759,7 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     # Ctrl-C (SIGINT) writes last.pt and stops, also where the trainer started with SIGINT ignored: a
-    # shell starts `cmd &` so (and `nohup`'d benchmarks pass it on), and benchmarks/networks.py stops a
+    # shell starts `cmd &` so (and `nohup`'d benchmarks pass it on), and benchmarks/train_networks.py stops a
     # run past its budget with SIGINT; an ignored one left such a run training and the caller waiting.
     # Here only: a program calling main() keeps its own handler.
     signal.signal(signal.SIGINT, signal.default_int_handler)

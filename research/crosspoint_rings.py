@@ -1,6 +1,6 @@
 """Where in the crop does the crosspoint network err?  Its error by ring of the 25 x 25 crosspoint grid:
 ring 0 the outermost crosspoints (nearest the crop's edge, least context around them), ring 12 the
-marker's centre.  On a shard folder of synthesized samples (`networks.synth write`: exact ground
+marker's centre.  On a shard folder of synthesized samples (`networks.shards write`: exact ground
 truth, unlimited) or the crosspoint crops of a factory dataset's split.
 
     python research/crosspoint_rings.py --checkpoint .bench/weights15/crosspoints_jitter.pt --data /tmp/xs_exact

@@ -1,4 +1,4 @@
-"""`benchmarks/networks.py`: the GPU placement of its runs (which GPU each training process gets), its
+"""`benchmarks/train_networks.py`: the GPU placement of its runs (which GPU each training process gets), its
 run table for one call, its evaluation stages kept apart, and the presence threshold chosen on one
 split by F1 and checked on another."""
 
@@ -17,7 +17,7 @@ PROJECT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def bench(load_benchmark):
-    return load_benchmark("networks")
+    return load_benchmark("train_networks")
 
 
 MAIN3 = ["localizer_mix", "recognizer_partial", "crosspoints_rendered"]
@@ -117,7 +117,7 @@ def test_the_gpu_machine_s_imports_need_no_triangle():
     evaluation loads import without it."""
     code = ("import sys; sys.modules['triangle'] = None; sys.path[:0] = ['.', 'benchmarks']\n"
             "import importlib.util\n"
-            "spec = importlib.util.spec_from_file_location('bench_networks', 'benchmarks/networks.py')\n"
+            "spec = importlib.util.spec_from_file_location('bench_train_networks', 'benchmarks/train_networks.py')\n"
             "spec.loader.exec_module(importlib.util.module_from_spec(spec))\n"
             "import networks.recognizer_top1, networks.evaluate_detector\n"
             "print('assets.garments' in sys.modules)")

@@ -49,8 +49,8 @@ inference.  One call fits a 10-minute device command; calling it again with the 
    scale it was trained on, `DetectorConfig.localizer_scale` = 512 / side), on the GPU and on the CPU,
    which run the same first image (the number of markers found there must agree).
 
-    python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
-    python benchmarks/networks.py --rendered .bench/rendered --out /tmp/bn --final   # the last call
+    python benchmarks/train_networks.py --rendered .bench/rendered --out /tmp/bn [--budget-minutes 9]
+    python benchmarks/train_networks.py --rendered .bench/rendered --out /tmp/bn --final   # the last call
 
 Each main run is also written as a compact int8 checkpoint and evaluated on the held-out renders
 beside its float weights (`evaluate_compact`, "compact" in results.json): the form the repository
@@ -827,7 +827,7 @@ def main() -> None:
                         "held out (other resolutions, unseen motions): the Detector's networks evaluated on it too")
     args = parser.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
-        sys.exit("benchmarks/networks.py trains on a CUDA GPU; none is visible")
+        sys.exit("benchmarks/train_networks.py trains on a CUDA GPU; none is visible")
     smoke = args.max_steps is not None
     if args.init_lr is not None and not args.init_lr > 0:
         sys.exit(f"--init-lr must be > 0, got {args.init_lr}")
