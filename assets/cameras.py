@@ -3,7 +3,8 @@
 Convention (DESIGN.md): OpenCV camera frame, x right, y down, z forward.  A world point X (metres)
 goes to the camera frame as ``Xc = R X + t`` (R world -> camera), then to continuous pixel
 coordinates ``(u, v) = K (x', y', 1)`` with ``(x', y')`` the distorted normalised coordinates of
-``(Xc.x / Xc.z, Xc.y / Xc.z)`` (OpenCV's k1, k2, p1, p2, k3 model).  Pixel (row r, col c) covers
+``(Xc.x / Xc.z, Xc.y / Xc.z)`` (OpenCV's model: its 5 coefficients k1, k2, p1, p2, k3, or 8 with the
+rational k4, k5, k6, 12 with the thin prism s1..s4, or 14 with the sensor tilt tauX, tauY).  Pixel (row r, col c) covers
 [c, c + 1] x [r, r + 1], so its centre is at (c + 0.5, r + 0.5) and an undistorted camera whose
 principal point is the middle of a W x H image has cx = W / 2, cy = H / 2.  OpenCV's own image
 functions put pixel centres at integers: subtract 0.5 from cx and cy before handing K to them
@@ -23,7 +24,9 @@ Blender (no bpy needed here, `blender_params` / `Camera.from_blender`)::
 Blender renders square pixels with no skew and no lens distortion, so only such cameras convert.
 
 `cameras.json` holds ``{"cameras": [camera.to_dict(), ...]}``; each camera is
-``{"name", "width", "height", "K" (3x3), "dist" (5), "R" (3x3), "t" (3)}`` in metres and pixels.
+``{"name", "width", "height", "K" (3x3), "dist" (5, 8, 12 or 14), "R" (3x3), "t" (3)}`` in metres and
+pixels.  A camera keeps the shortest of OpenCV's coefficient counts that holds its non-zero ones (a
+14-coefficient dist of a plain radial lens is stored as 5), so equal lenses compare equal.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ from assets.fileio import check_json_object, check_limit, load_json, safe_name, 
 #: Blender's local camera axes expressed in OpenCV's: x stays, y and z flip.
 _CV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
 _ROTATION_TOLERANCE = 1e-6
+#: OpenCV's distortion coefficient counts (4 is read as 5 with k3 = 0)
+DIST_LENGTHS = (5, 8, 12, 14)
 #: the largest image (width x height) a calibration file may declare: 16 times an 8K frame
 MAX_IMAGE_PIXELS = 16 * 7680 * 4320
 
@@ -50,13 +55,35 @@ def _frozen(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
     return array
 
 
+def distortion_coefficients(value: Any, where: str) -> np.ndarray:
+    """OpenCV distortion coefficients (4, 5, 8, 12 or 14 finite numbers, any nesting such as 1 x 5) as
+    the shortest (5,), (8,), (12,) or (14,) float64 array that holds all non-zero ones; ValueError
+    naming `where` otherwise."""
+    try:
+        array = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: expected numbers, got {value!r}") from None
+    if array.size not in (4,) + DIST_LENGTHS:
+        raise ValueError(f"{where}: expected 4, 5, 8, 12 or 14 OpenCV distortion coefficients, got {array.size}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{where}: not finite")
+    nonzero = np.flatnonzero(array)
+    used = int(nonzero[-1]) + 1 if nonzero.size else 0
+    length = next(n for n in DIST_LENGTHS if n >= used)
+    out = np.zeros(length)
+    out[:min(length, array.size)] = array[:length]
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated pinhole camera with OpenCV distortion.
 
     K (3, 3) float64 intrinsics in pixels (continuous coordinates, pixel centres at +0.5);
     R (3, 3) float64 world -> camera rotation; t (3,) float64 metres (``Xc = R X + t``);
-    width, height in pixels; dist (5,) float64 OpenCV (k1, k2, p1, p2, k3); name for files and logs.
+    width, height in pixels; dist (5,), (8,), (12,) or (14,) float64 OpenCV (k1, k2, p1, p2, k3[, k4, k5,
+    k6[, s1, s2, s3, s4[, tauX, tauY]]]) (4 given are read as 5; kept at the shortest length that holds
+    the non-zero ones); name for files and logs.
     """
 
     K: np.ndarray
@@ -71,7 +98,8 @@ class Camera:
         K = _frozen(self.K, (3, 3), "K")
         R = _frozen(self.R, (3, 3), "R")
         t = _frozen(self.t, (3,), "t")
-        dist = _frozen(self.dist, (5,), "dist")
+        dist = distortion_coefficients(self.dist, f"Camera {self.name!r}: dist")
+        dist.setflags(write=False)
         if not np.array_equal(K[2], [0.0, 0.0, 1.0]):
             raise ValueError(f"Camera {self.name!r}: K's last row must be (0, 0, 1), got {K[2].tolist()}")
         if not (K[0, 0] > 0 and K[1, 1] > 0) or K[1, 0] != 0 or abs(np.linalg.det(K)) < 1e-12:
@@ -255,13 +283,11 @@ class Camera:
                 raise ValueError(f"{source}: field '{key}' must be a positive integer, got {value!r}")
             size[key] = int(value)
         arrays = {}
-        for key, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,)), ("dist", (5,))):
+        for key, shape in (("K", (3, 3)), ("R", (3, 3)), ("t", (3,))):
             if key not in data:
-                if key == "dist":
-                    arrays[key] = np.zeros(5)
-                    continue
                 raise ValueError(f"{source}: missing field '{key}'")
             arrays[key] = _field(data[key], shape, f"{source}: field '{key}'")
+        arrays["dist"] = distortion_coefficients(data.get("dist", np.zeros(5)), f"{source}: field 'dist'")
         try:
             return cls(name=name, **size, **arrays)
         except ValueError as exc:
@@ -289,13 +315,24 @@ def _points(points: np.ndarray, name: str) -> np.ndarray:
 
 
 def _distort(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """OpenCV's distortion of normalised coordinates (N, 2) with (k1, k2, p1, p2, k3)."""
-    k1, k2, p1, p2, k3 = dist
+    """OpenCV's distortion (`cv2.projectPoints`) of normalised coordinates (N, 2) with 5, 8, 12 or 14
+    coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tauX, tauY)."""
+    c = np.zeros(14)
+    c[:dist.size] = dist
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y = c
     x, y = xy[:, 0], xy[:, 1]
     r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + s2 * r2)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + s4 * r2)
+    if tau_x or tau_y:
+        # the tilted sensor: a rotation of the image plane, projected back along z (OpenCV's
+        # computeTiltProjectionMatrix)
+        cx, sx, cy, sy = np.cos(tau_x), np.sin(tau_x), np.cos(tau_y), np.sin(tau_y)
+        rot_xy = np.array([[cy, 0, -sy], [0, 1, 0], [sy, 0, cy]]) @ np.array([[1, 0, 0], [0, cx, sx], [0, -sx, cx]])
+        proj_z = np.array([[rot_xy[2, 2], 0, -rot_xy[0, 2]], [0, rot_xy[2, 2], -rot_xy[1, 2]], [0, 0, 1]])
+        tilted = np.stack([xd, yd, np.ones_like(xd)], axis=1) @ (proj_z @ rot_xy).T
+        return tilted[:, :2] / tilted[:, 2:]
     return np.stack([xd, yd], axis=1)
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from assets.cli import (add_completion_options, add_crosspoint_options, completion_options, crosspoint_options,
                         localizer_scale_arg, run_cli)
+from reconstruction import cameras_cli
 
 
 def _frames(text: str | None) -> list[int] | None:
@@ -119,11 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = sub.add_parser("evaluate", help="accuracy against a factory capture's ground truth")
     common(evaluate)
     evaluate.add_argument("--groundtruth", required=True, help="the factory capture folder")
+    cameras_cli.add_parser(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "cameras":  # calibration files and rig calibration: reconstruction/cameras_cli.py
+        return cameras_cli.main(args)
 
     def action() -> None:
         from reconstruction import pipeline

@@ -9,9 +9,8 @@ Two formats are read (`read_cameras` picks by suffix):
   Accepted keys per camera (the first present of each group is used):
 
     intrinsics     camera_matrix | K | cameraMatrix             3 x 3
-    distortion     distortion_coefficients | D | dist | distCoeffs   4, 5, 8, 12 or 14 numbers;
-                   only OpenCV's (k1, k2, p1, p2, k3) model is supported, so any further
-                   coefficient must be 0 (optional: no distortion when absent)
+    distortion     distortion_coefficients | D | dist | distCoeffs   4, 5, 8, 12 or 14 numbers,
+                   OpenCV's model (optional: no distortion when absent)
     rotation       R | rotation_matrix (3 x 3, world -> camera; 3 numbers are read as a
                    Rodrigues vector) or rvec | rotation_vector (Rodrigues, 3 numbers)
     translation    T | t | tvec | translation_vector            3 numbers (world -> camera)
@@ -36,7 +35,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import cv2
 import numpy as np
 
-from assets.cameras import MAX_IMAGE_PIXELS, Camera, check_camera_file_fields, load_cameras
+from assets.cameras import MAX_IMAGE_PIXELS, Camera, check_camera_file_fields, distortion_coefficients, load_cameras
 from assets.fileio import atomic_path
 
 _KEYS = {
@@ -113,9 +112,10 @@ def read_opencv(path: str | Path, translation_scale: float = 1.0, pixel_centre: 
         storage.release()
 
 
-def write_opencv(path: str | Path, cameras: Iterable[Camera]) -> None:
-    """Write `cameras` as an OpenCV YAML / XML file (by suffix) with a sequence ``cameras``, in this
-    project's pixel convention: read it back with ``pixel_centre=0.5``."""
+def write_opencv(path: str | Path, cameras: Iterable[Camera], pixel_centre: float = 0.5) -> None:
+    """Write `cameras` as an OpenCV YAML / XML file (by suffix) with a sequence ``cameras``, with pixel
+    centres at integer + `pixel_centre`: by default this project's convention (read it back with
+    ``pixel_centre=0.5``), 0.0 for OpenCV's own (what `read_opencv` assumes by default)."""
     path = Path(path)
     if path.suffix.lower() not in _YAML_SUFFIXES:
         raise ValueError(f"{path}: an OpenCV calibration file ends in .yaml, .yml or .xml")
@@ -130,8 +130,10 @@ def write_opencv(path: str | Path, cameras: Iterable[Camera]) -> None:
                 storage.write("name", camera.name)
                 storage.write("image_width", camera.width)
                 storage.write("image_height", camera.height)
-                storage.write("camera_matrix", camera.K)
-                storage.write("distortion_coefficients", camera.dist.reshape(1, 5))
+                K = camera.K.copy()
+                K[:2, 2] -= 0.5 - pixel_centre
+                storage.write("camera_matrix", K)
+                storage.write("distortion_coefficients", camera.dist.reshape(1, -1))
                 storage.write("R", camera.R)
                 storage.write("T", camera.t.reshape(3, 1))
                 storage.endWriteStruct()
@@ -248,11 +250,7 @@ def _camera(values: dict[str, Any], where: str, default_name: str, translation_s
     picked = _pick(values, "dist", where, required=False)
     if picked is not None:
         key, coefficients = picked
-        coefficients = _numbers(coefficients, f"{where}: {key}", (4, 5, 8, 12, 14))
-        if np.any(coefficients[5:] != 0):
-            raise ValueError(f"{where}: {key} has non-zero coefficients beyond (k1, k2, p1, p2, k3): only "
-                             f"OpenCV's 5-coefficient model is supported, got {coefficients.tolist()}")
-        dist[:min(5, coefficients.size)] = coefficients[:5]
+        dist = distortion_coefficients(coefficients, f"{where}: {key}")
     rotation = _pick(values, "R", where, required=False)
     if rotation is not None:
         key, R = rotation

@@ -147,3 +147,19 @@ def test_blender_params_round_trip_and_refuse_what_blender_cannot_render():
         oblique_camera(dist=np.array([0.01, 0, 0, 0, 0])).blender_params()
     with pytest.raises(ValueError, match="sheared or mirrored"):
         Camera.from_blender(np.diag([1.0, 1.0, -1.0, 1.0]), 50.0, 36.0, 0.0, 0.0, 64, 64)
+
+
+@pytest.mark.parametrize("count", [8, 12, 14])
+def test_longer_opencv_distortion_models_project_as_opencv_and_keep_their_length(count):
+    """Rational (8), thin-prism (12) and tilted-sensor (14) coefficients project as cv2.projectPoints;
+    a camera keeps the shortest OpenCV length that holds its non-zero coefficients."""
+    dist = np.array([-0.21, 0.07, 1.5e-3, -8e-4, -0.012, 0.1, -0.02, 0.004, 1e-3, -2e-3, 5e-4, -3e-4, 0.02, -0.01])[:count]
+    cam = oblique_camera(dist=dist)
+    assert cam.dist.shape == (count,)
+    points = np.random.default_rng(1).uniform(-0.5, 0.5, (100, 3)) + [0.1, 0.2, 0.9]
+    expected, _ = cv2.projectPoints(points, cv2.Rodrigues(cam.R)[0], cam.t, cam.K, dist)
+    np.testing.assert_allclose(cam.project(points)[0], expected[:, 0], atol=1e-9)
+    padded = oblique_camera(dist=np.r_[dist[:5], np.zeros(9)])
+    assert padded.dist.shape == (5,) and oblique_camera(dist=dist[:4]).dist.tolist() == dist[:4].tolist() + [0.0]
+    with pytest.raises(ValueError, match="expected 4, 5, 8, 12 or 14 OpenCV distortion coefficients, got 6"):
+        oblique_camera(dist=dist[:6])

@@ -1,0 +1,88 @@
+"""``python -m reconstruction cameras``: calibration files in and out, and rig calibration.
+
+    python -m reconstruction cameras convert calib/ cameras.json              # EasyMocap intri/extri.yml -> ours
+    python -m reconstruction cameras convert cameras.json sparse/ --format colmap
+    python -m reconstruction cameras convert calibration.toml rig.json --in-units mm
+    python -m reconstruction cameras calibrate --board 9x7,0.05,0.037,DICT_4X4_50 --images boards/ \\
+        --out cameras.json
+
+Formats (`reconstruction.calibration_formats`): json (ours), opencv (one YAML / XML file), easymocap
+(a folder with intri.yml and extri.yml), toml (anipose / caliscope), multical (calibration.json),
+colmap (a folder with cameras.txt and images.txt).  The input's format is found from the path; the
+output's from its name (.json is ours, .toml, .yaml / .yml / .xml), or named with --format.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+def add_parser(sub: "argparse._SubParsersAction") -> None:
+    """Add ``cameras convert`` and ``cameras calibrate`` to the reconstruction CLI's subcommands."""
+    from reconstruction.calibration_formats import FORMATS
+
+    cameras = sub.add_parser("cameras", help="convert calibration files between tools; calibrate a rig from "
+                             "ChArUco board images", description=__doc__,
+                             formatter_class=argparse.RawDescriptionHelpFormatter)
+    action = cameras.add_subparsers(dest="cameras_command", required=True)
+    convert = action.add_parser("convert", help="read a calibration in one format and write it in another")
+    convert.add_argument("input", type=Path, help="calibration file or folder (format found from the path)")
+    convert.add_argument("output", type=Path, help="file or folder to write")
+    convert.add_argument("--format", choices=FORMATS, help="the output's format (default: from its name)")
+    convert.add_argument("--in-format", choices=FORMATS, help="the input's format (default: from the path)")
+    convert.add_argument("--in-units", choices=_UNITS, default="m", help="unit of the input's translations "
+                         "(anipose calibrations are often mm; default %(default)s)")
+    convert.add_argument("--out-units", choices=_UNITS, default="m", help="unit of the output's translations "
+                         "(default %(default)s)")
+    convert.add_argument("--image-size", type=int, nargs=2, metavar=("WIDTH", "HEIGHT"),
+                         help="image size for inputs that do not record it (EasyMocap without H_/W_)")
+    calibrate = action.add_parser("calibrate", help="intrinsics and extrinsics of a rig from ChArUco board "
+                                  "images, one folder per camera")
+    calibrate.add_argument("--board", required=True, metavar="SPEC",
+                           help="COLSxROWS,SQUARE_M,MARKER_M[,DICTIONARY][,legacy]: squares across and down, "
+                           "square and marker side in metres, OpenCV's ArUco dictionary (default DICT_4X4_50), "
+                           "'legacy' for boards made before OpenCV 4.6; e.g. 9x7,0.05,0.037,DICT_4X4_50")
+    calibrate.add_argument("--images", required=True, type=Path,
+                           help="folder with one sub-folder of board images per camera (the folder's name is the "
+                           "camera's); images with the same file name were taken at the same instant")
+    calibrate.add_argument("--out", required=True, type=Path, help="calibration to write (cameras.json, or any "
+                           "format of convert)")
+    calibrate.add_argument("--format", choices=FORMATS, help="the output's format (default: from its name)")
+    calibrate.add_argument("--reference", help="camera whose frame is the world (default: the one sharing the "
+                           "most board views)")
+    calibrate.add_argument("--min-corners", type=int, default=8, help="board corners a view needs to count "
+                           "(default %(default)s)")
+    calibrate.add_argument("--no-refine", action="store_true", help="keep the chained poses, without the bundle "
+                           "adjustment of poses and board views")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run ``cameras convert`` or ``cameras calibrate`` parsed by `add_parser`."""
+    from assets.cli import run_cli
+
+    def action() -> None:
+        from reconstruction.calibration_formats import read_calibration, write_calibration
+
+        if args.cameras_command == "convert":
+            cameras = read_calibration(args.input, args.in_format, _UNITS[args.in_units],
+                                       tuple(args.image_size) if args.image_size else None)
+            written = write_calibration(args.output, cameras, args.format, _UNITS[args.out_units])
+            print(f"{len(cameras)} cameras from {args.input} written to {written}")
+            return
+        from reconstruction.charuco import CharucoBoard, RigCalibrationConfig, calibrate_rig, find_images
+
+        board = CharucoBoard.parse(args.board)
+        config = RigCalibrationConfig(min_corners=args.min_corners, refine=not args.no_refine,
+                                      reference=args.reference)
+        cameras, reports = calibrate_rig(board, find_images(args.images), config)
+        written = write_calibration(args.out, cameras, args.format)
+        print(f"{'camera':<16} {'views':>5} {'corners':>7} {'intrinsic RMS px':>16} {'rig RMS px':>10}  chained from")
+        for r in reports:
+            print(f"{r.name:<16} {r.views:>5} {r.corners:>7} {r.intrinsic_rms_px:>16.3f} {r.rig_rms_px:>10.3f}  "
+                  f"{r.chained_from or '(reference: the world frame)'}")
+        print(f"{len(cameras)} cameras written to {written}")
+
+    return run_cli(action)
