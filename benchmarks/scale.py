@@ -115,7 +115,7 @@ def train_run(task: str, gpus: int, args: argparse.Namespace, workers: int) -> d
     command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(gpus),
                "-m", "networks.train", task, "--data", "synth", "--garment", str(args.rendered),
                "--shards", str(args.out / "shards" / task),
-               "--config", str(folder / "config.in.json"), "--out", str(folder / "run"), "--device", args.device, "--quiet"]
+               "--config", str(folder / "config.in.json"), "--out", str(folder / "run"), "--device", args.device, "--no-progress"]
     env = dict(os.environ, OMP_NUM_THREADS="2")
     if args.device == "cuda":
         env["CUDA_VISIBLE_DEVICES"] = ",".join(map(str, range(gpus)))

@@ -466,8 +466,8 @@ def train_all(out: Path, rendered: Path, device: str, cores: int, seconds: float
         if ranks[name] > 1:  # DDP: one process per GPU (`networks.distributed`)
             launcher += ["-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(ranks[name])]
         command = [*launcher, "-m", "networks.train", task, "--data", str(rendered), "--out", str(folder / "run"),
-                   "--config", str(folder / "config.in.json"), "--device", device, "--resume", "--quiet",
-                   "--num-workers", str(workers[name]), "--until-step", str(targets[name]),
+                   "--config", str(folder / "config.in.json"), "--device", device, "--resume", "--no-progress",
+                   "--workers", str(workers[name]), "--until-step", str(targets[name]),
                    "--time-limit", str(max(1.0, deadline - START_S - time.monotonic()))]
         if name in fitted:
             command += ["--fit-time-limit"]

@@ -400,7 +400,7 @@ def format_table(metrics: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from assets.cli import run_cli
+    from assets.cli import add_device, add_progress, progress, run_cli
 
     parser = argparse.ArgumentParser(prog="python -m networks.evaluate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -409,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, required=True, help="a factory dataset folder (manifest.jsonl), or "
                         "a shard folder of synthesized samples (shards.json; every item, no --split)")
     parser.add_argument("--split", default="test", help="train, val, test or all (default test)")
-    parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
+    add_device(parser)
     parser.add_argument("--batch-size", type=int, default=32, help="crops per batch (localizer: one image)")
     parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX,
                         help="localizer: match radius between predicted and true centres, pixels")
@@ -418,13 +418,14 @@ def main(argv: list[str] | None = None) -> int:
                         "dataset's garment (its template.npz), as the Detector does for the garment it is given")
     parser.add_argument("--json", type=Path, help="where to write the metrics (default: beside the checkpoint, "
                                                   "eval_<task>_<split>.json)")
+    add_progress(parser)
     args = parser.parse_args(argv)
 
     def action() -> None:
         if args.batch_size < 1 or not 0 < args.threshold < 1 or not args.radius > 0:
             raise ValueError("--batch-size must be >= 1, --threshold in (0, 1), --radius > 0")
         metrics = evaluate(args.checkpoint, args.data, args.split, args.task, args.device, args.batch_size,
-                           args.radius, args.threshold, garment_ids=args.garment_ids)
+                           args.radius, args.threshold, progress(args), garment_ids=args.garment_ids)
         out = args.json or args.checkpoint.with_name(f"eval_{args.task}_{args.split}.json")
         save_json(out, metrics)
         print(format_table(metrics))

@@ -134,17 +134,15 @@ def evaluate_detector(detector: Detector, data: str | Path, split: str = "test",
 
 
 def main(argv: list[str] | None = None) -> int:
-    from assets.cli import run_cli
+    from assets.cli import NETWORKS, add_device, add_networks, add_progress, networks_of, progress, run_cli
 
     parser = argparse.ArgumentParser(prog="python -m networks.evaluate_detector", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--localizer", type=Path, required=True, metavar="PT", help="Marker Localizer checkpoint (best.pt)")
-    parser.add_argument("--recognizer", type=Path, required=True, metavar="PT", help="Marker Recognizer checkpoint")
-    parser.add_argument("--crosspoints", type=Path, required=True, metavar="PT", help="Crosspoint Localizer checkpoint")
+    add_networks(parser, "(required) ")
     parser.add_argument("--data", type=Path, required=True, metavar="DIR", help="a factory dataset folder (manifest.jsonl, gt/)")
     parser.add_argument("--split", default="test", help="train, val or test (default test)")
     parser.add_argument("--limit", type=int, metavar="N", help="evaluate the first N images of the split only")
-    parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
+    add_device(parser)
     parser.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto", metavar="S",
                         help="the localizer sees the image resized by this factor, so markers fall in the "
                              "size range it was trained on (0.5 for markers 32 to 64 px across), or 'auto' "
@@ -169,13 +167,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX, metavar="PX",
                         help="match radius between detected and true marker centres, pixels (default %(default)s)")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the metrics to this JSON file")
+    add_progress(parser)
     args = parser.parse_args(argv)
 
     def action() -> None:
         if not args.radius > 0:
             raise ValueError(f"--radius must be > 0, got {args.radius}")
+        checkpoints = networks_of(args)
+        if not checkpoints:
+            raise ValueError("give the three networks: --localizer, --recognizer and --crosspoints")
         split_entries(args.data, args.split)  # a bad folder or split fails before the checkpoints load
-        detector = load_detector(args.localizer, args.recognizer, args.crosspoints, args.data, args.device,
+        detector = load_detector(*checkpoints, args.data, args.device,
                                  DetectorConfig(localizer_scale=args.localizer_scale, nms_radius_px=args.nms_radius,
                                                 presence_threshold=args.presence_threshold,
                                                 max_layout_residual_cells=args.max_layout_residual,
@@ -183,9 +185,8 @@ def main(argv: list[str] | None = None) -> int:
                                                 vote_ids=not args.no_id_votes, grow_missing=not args.no_grow,
                                                 **crosspoint_options(args)),
                                  args.batch_size)
-        metrics = evaluate_detector(detector, args.data, args.split, limit=args.limit, radius_px=args.radius)
-        metrics = {"checkpoints": {"localizer": str(args.localizer), "recognizer": str(args.recognizer),
-                                   "crosspoints": str(args.crosspoints)}, **metrics}
+        metrics = evaluate_detector(detector, args.data, args.split, progress(args), args.limit, args.radius)
+        metrics = {"checkpoints": dict(zip(NETWORKS, map(str, checkpoints))), **metrics}
         print(format_table(metrics))
         if args.json is not None:
             save_json(args.json, metrics)

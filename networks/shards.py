@@ -33,19 +33,23 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from assets.fileio import save_json
+from assets.fileio import record_stage
 from assets.pattern.observation import localizer_targets
 from assets.pattern.spec import PatternSpec
 from networks.checkpoint import codebook_hash
 from networks.config import TASKS
 from networks.data import (SHARD_ARRAYS, SHARD_FORMAT, SHARD_META, dataset_spec, garment_marker_ids, read_shard_meta,
                            shard_parts, synth_crops)
+from networks.flags import CROP_JITTER, SEED, WHOLE_MARKERS_ONLY, add_config_flags, config_overrides
 from networks.synth import PatternSynthesizer, SynthConfig
 from networks.workers import one_thread, worker_context
 
 log = logging.getLogger(__name__)
 
 VERSION = 1
+#: the SynthConfig fields `python -m networks.shards write` sets by flags (`networks.flags`; the image
+#: size is a flag of its own, one side for a square)
+SHARD_FLAGS = (SEED, CROP_JITTER, WHOLE_MARKERS_ONLY)
 #: the generator part of the crop subset of a sample (distinct from the synthesizer's parts)
 _SUBSET = 101
 
@@ -110,8 +114,8 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     marker_ids: the IDs drawn (default all of the codebook); workers: processes of one thread each
     (`networks.workers`); time_limit_s: submit no part that would end after that many seconds (a part's time is the
     median of those finished; parts under way finish; an empty folder gets one part whatever the
-    limit).  A folder
-    written before must have been written with the same settings.  Returns {"parts", "items" (in the
+    limit).  The folder's shards.json records the settings (`shard_meta`, through
+    `assets.fileio.record_stage`): a folder written before with other settings is refused, naming them.  Returns {"parts", "items" (in the
     folder), "written_parts", "written_images", "seconds", "images_per_s", "images_per_s_per_worker",
     "complete", "worker_seconds_per_image" (a worker's median time per image of a part, its start
     excluded; None when none was written), "first_part_s" (seconds to the first finished part, the
@@ -125,14 +129,8 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
     out = Path(out)
     meta = shard_meta(task, spec, config, marker_ids, images_per_part, crops_per_image)
     if (out / SHARD_META).exists():
-        old = read_shard_meta(out)
-        differ = sorted(k for k in set(old) | set(meta) if old.get(k) != meta.get(k))
-        if differ:
-            raise ValueError(f"{out}: holds shards written with other settings ({', '.join(differ)}); "
-                             "use another --out")
-    else:
-        out.mkdir(parents=True, exist_ok=True)
-        save_json(out / SHARD_META, meta)
+        read_shard_meta(out)  # a shard folder at all
+    record_stage(out / SHARD_META, meta)
     done = {int(p.name.split("_")[1]) for p in shard_parts(out)}
     todo = [n for n in range(-(-count // images_per_part)) if n not in done]
     started = time.perf_counter()
@@ -182,33 +180,28 @@ def write_shards(out: str | Path, task: str, spec: PatternSpec, count: int, conf
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m networks.shards write ...`: pre-synthesize a shard folder."""
-    from assets.cli import run_cli
+    from assets.cli import add_out, add_progress, add_workers, progress, run_cli
 
     parser = argparse.ArgumentParser(prog="python -m networks.shards", description="Pre-synthesized training data.")
     commands = parser.add_subparsers(dest="command", required=True)
     write = commands.add_parser("write", help="write (or extend) a shard folder of pre-synthesized samples",
                                 description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    write.add_argument("--out", type=Path, required=True, help="the shard folder")
+    add_out(write, "the shard folder (extended when it holds shards of the same settings)")
     write.add_argument("--task", choices=TASKS, required=True, help="the network whose items to write")
     write.add_argument("--count", type=int, required=True, help="synthetic images (rounded up to whole parts)")
-    write.add_argument("--workers", type=int, default=1, help="processes, one thread each")
+    add_workers(write, "processes, one thread each", default=1)
     write.add_argument("--garment", type=Path, help="a factory dataset folder or template.npz: its pattern, and "
                        "only its garment's marker IDs (unless --all-ids)")
     write.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the garment's, else PatternSpec())")
     write.add_argument("--all-ids", action="store_true", help="draw every codebook ID, not only the garment's")
     write.add_argument("--config", type=Path, help="SynthConfig JSON (fields given override the defaults)")
-    write.add_argument("--image-size", type=int, help="side of the synthesized images, pixels")
-    write.add_argument("--seed", type=int, help="synthesizer seed")
-    write.add_argument("--crop-jitter", type=float, metavar="PX", help="crop tasks: cut crops from five points "
-                       "jittered by Gaussian noise of this standard deviation, as the Detector cuts them from the "
-                       "localizer's (SynthConfig.crop_jitter_px; default 0: exact points)")
-    write.add_argument("--whole-markers-only", action="store_true", help="recognizer: crops of whole markers only, "
-                       "the reference's (default: partial markers with a visible centre too; "
-                       "SynthConfig.recognizer_partial)")
+    write.add_argument("--image-size", type=int, metavar="PX",
+                       help="side of the synthesized images, pixels (SynthConfig.image_size)")
+    add_config_flags(write, SynthConfig, SHARD_FLAGS)
     write.add_argument("--images-per-part", type=int, default=64)
     write.add_argument("--crops-per-image", type=int, default=32, help="crop tasks: crops kept per image")
     write.add_argument("--time-limit", type=float, help="start no part after this many seconds")
-    write.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_progress(write)
     args = parser.parse_args(argv)
 
     def action() -> None:
@@ -216,19 +209,14 @@ def main(argv: list[str] | None = None) -> int:
             json.loads(args.config.read_text()), source=str(args.config))
         if args.image_size is not None:
             config = config.replace(image_size=(args.image_size, args.image_size))
-        if args.seed is not None:
-            config = config.replace(seed=args.seed)
-        if args.crop_jitter is not None:
-            config = config.replace(crop_jitter_px=args.crop_jitter)
-        if args.whole_markers_only:
-            config = config.replace(recognizer_partial=False)
+        config = config.replace(**config_overrides(args, SHARD_FLAGS))
         if args.pattern is not None:
             spec = PatternSpec.load(args.pattern)
         else:
             spec = dataset_spec(args.garment) if args.garment is not None else PatternSpec()
         ids = garment_marker_ids(args.garment) if args.garment is not None and not args.all_ids else None
         result = write_shards(args.out, args.task, spec, args.count, config, ids, args.workers,
-                              args.images_per_part, args.crops_per_image, args.time_limit, not args.quiet)
+                              args.images_per_part, args.crops_per_image, args.time_limit, progress(args))
         print(f"{args.out}: {result['parts']} parts, {result['items']} {args.task} items "
               f"({'complete' if result['complete'] else 'incomplete: run again to continue'}); wrote "
               f"{result['written_images']} images in {result['seconds']:.0f} s = {result['images_per_s']:.1f} "

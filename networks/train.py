@@ -16,7 +16,9 @@ rendered val split, or on the fly).  The garment (`--garment`, default the datas
 gives the marker IDs that are synthesized and that the recognizer classifies among
 (`TrainConfig.recognizer_classes`, `--recognizer-ids`: "garment", the reference's; "codebook"; or "modules",
 a reader of the code modules decoded against the codebook, whose synthesized crops are of every
-codebook ID unless `--garment` is given).  The run folder gets `config.json`, `log.jsonl` (one JSON line per logged step
+codebook ID unless `--garment` is given).  The run folder gets `config.json` (the run's settings, recorded
+by `assets.fileio.record_stage`: a later call with other settings is refused, naming each, except
+those of `RESUMABLE_CHANGES`), `log.jsonl` (one JSON line per logged step
 with the loss and its parts, one per validation with the metrics of `networks.evaluate`, and one
 per call at its first step, `startup`: seconds from the call's start to the training loop, then to the
 first batch and the first finished step),
@@ -60,7 +62,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 from tqdm import tqdm
 
-from assets.fileio import load_json, save_json
+from assets.fileio import record_stage
 from assets.pattern import PatternSpec, generate_codebook
 from networks.augment import Augment, ViewWarp
 from networks.checkpoint import check_pattern, checkpoint_spec, read_checkpoint, save_checkpoint
@@ -70,6 +72,7 @@ from networks.distributed import RankBatches, Ranks, any_rank, join, leave, mean
 from networks.data import (JoinedDataset, MixedDataset, RenderedDataset, ShardDataset, SynthDataset, dataset_spec,
                            garment_marker_ids, shard_geometry_problem)
 from networks.evaluate import evaluate_model, resolve_device
+from networks.flags import CROP_JITTER, SEED, WHOLE_MARKERS_ONLY, ConfigFlag, add_config_flags, config_overrides
 from networks.recipe import check_data_folder, load_recipe, stored_init
 from networks.synth import SynthConfig
 from networks.tasks import autocast, build_model, forward
@@ -77,8 +80,38 @@ from networks.workers import one_thread, worker_context
 
 log = logging.getLogger(__name__)
 
-#: config fields a resumed run may change (they do not alter what the network learns from)
+#: config fields a resumed run may change (they do not alter what the network learns from); any other
+#: difference from the run folder's record (`RUN_RECORD`) is refused by name
 RESUMABLE_CHANGES = ("steps", "num_workers", "log_every", "val_every", "val_samples", "checkpoint_every")
+#: the run folder's record of its config (`assets.fileio.record_stage`), beside its checkpoints
+RUN_RECORD = "config.json"
+#: the TrainConfig fields the CLI sets, as flags made from the fields (`networks.flags`); the others
+#: (TRAIN_CONFIG_ONLY; the task is the positional argument) come from --config, a recipe or the defaults
+TRAIN_FLAGS = (
+    ConfigFlag("steps", "optimizer steps in total"),
+    ConfigFlag("batch_size", "samples per step (crops for the crop networks), over all ranks"),
+    ConfigFlag("lr", "peak learning rate (Adam, cosine decay)"),
+    ConfigFlag("pretrained", "torchvision ImageNet ResNet state-dict file for the backbone", metavar="PTH"),
+    ConfigFlag("init", "a checkpoint of this task to start a new run from (its weights; new optimizer and "
+               "schedule): fine-tuning, or training continued elsewhere", metavar="PT"),
+    ConfigFlag("synth_weight", "share of synthesized samples mixed into a dataset (0-1)"),
+    ConfigFlag("recognizer_classes", "recognizer: 'garment' classifies the garment's marker IDs (the reference; "
+               "default), 'codebook' every codebook ID, 'modules' reads the marker's code modules and decodes them "
+               "against the codebook, so garments never trained on are recognised",
+               flag="--recognizer-ids", aliases=("--recognizer-classes",), choices=RECOGNIZER_CLASSES),
+    CROP_JITTER,
+    SEED,
+    ConfigFlag("num_workers", "data loading processes (per rank)", flag="--workers", metavar="N"),
+    ConfigFlag("image_size", "side of the localizer's training images, pixels", metavar="PX"),
+    ConfigFlag("augment", "train without augmentation (photometric, and the localizer's view warp)",
+               flag="--no-augment", sets=False),
+    ConfigFlag("view_warp", "localizer: no random zoom, rotation and compression of rendered images (ViewWarp)",
+               flag="--no-view-warp", sets=False),
+    WHOLE_MARKERS_ONLY,
+    ConfigFlag("mixed_precision", "float32 on CUDA too", flag="--no-mixed-precision", sets=False),
+)
+TRAIN_CONFIG_ONLY = ("weight_decay", "warmup_steps", "min_lr_ratio", "log_every", "val_every", "val_samples",
+                     "checkpoint_every")
 #: the logit of the codebook IDs outside a recognizer's classes: never the arg max, nothing of the softmax
 MASKED_LOGIT = -1e4
 #: the validation synthesizer's seed is the training seed plus this, so the two never share samples
@@ -361,14 +394,14 @@ def _append_log(path: Path, record: dict) -> None:
         f.write(json.dumps(record) + "\n")
 
 
-def _check_resume(saved: dict, config: TrainConfig, path: Path) -> None:
-    old = TrainConfig.from_dict(saved["config"], source=f"{path}:config").to_dict()
-    new = config.to_dict()
-    differ = sorted(k for k in new if k not in RESUMABLE_CHANGES and old[k] != new[k])
-    if differ:
-        detail = ", ".join(f"{k}: {old[k]!r} -> {new[k]!r}" for k in differ)
-        raise ValueError(f"{path}: cannot resume with another config ({detail}); only "
-                         f"{', '.join(RESUMABLE_CHANGES)} may change; use a new --out")
+def record_run(out: Path, config: TrainConfig, write: bool = True) -> None:
+    """Check `config` against the run folder's record of its config (`RUN_RECORD`, written by the
+    calls before) and, with `write`, record it: a call with another config is refused, naming each
+    setting that differs, except the `RESUMABLE_CHANGES`, which the record takes."""
+    try:
+        record_stage(out / RUN_RECORD, config.to_dict(), changeable=RESUMABLE_CHANGES, write=write)
+    except ValueError as exc:
+        raise ValueError(f"{exc} (a resumed run may change only {', '.join(RESUMABLE_CHANGES)})") from None
 
 
 def train(config: TrainConfig, data: Data, out: str | Path, device: str | torch.device | None = None,
@@ -427,13 +460,13 @@ def _train(config: TrainConfig, data: Data, out: Path, device: torch.device, res
                              "resume from it; start a new run from its weights with --init")
         if saved["task"] != config.task:
             raise ValueError(f"{last_path}: a {saved['task']} run, cannot resume it as {config.task}")
-        _check_resume(saved, config, last_path)
         saved_spec = checkpoint_spec(saved)
         if spec is not None:
             check_pattern(saved, spec, source=str(last_path))
         spec = saved_spec
     elif resume:
         log.info("%s: no last.pt yet, starting a new run", out)
+    record_run(out, config, write=False)  # before any work; rank 0 writes the record once the folder is made
     if spec is None:
         spec = training_spec(data)
     if saved is not None and saved.get("recognizer_ids") is not None:  # the classes are the run's, once chosen
@@ -474,7 +507,7 @@ def _train(config: TrainConfig, data: Data, out: Path, device: torch.device, res
         log.info("resuming %s at step %d of %d", last_path, step, config.steps)
     if ranks.main:
         out.mkdir(parents=True, exist_ok=True)
-        config.save(out / "config.json")
+        record_run(out, config)
     if device.type == "cuda":
         torch.backends.cudnn.benchmark = True
 
@@ -542,7 +575,7 @@ def _train(config: TrainConfig, data: Data, out: Path, device: torch.device, res
         fits += 1
         probe = (step, now, FIT_REFIT_SHARE) if fits == 1 else None
         if ranks.main:
-            config.save(out / "config.json")
+            record_run(out, config)  # steps may change
 
     model.train()
     bar = tqdm(total=config.steps, initial=step, desc=f"train {config.task}", unit="step", disable=not progress)
@@ -619,17 +652,10 @@ def _config_from_args(args: argparse.Namespace, recipe_config: TrainConfig | Non
         base = TrainConfig(task=args.task)
     if base.task != args.task:
         raise ValueError(f"{args.config or last}: a {base.task} config, but the task given is {args.task}")
-    overrides = {"steps": args.steps, "batch_size": args.batch_size, "lr": args.lr, "pretrained": args.pretrained,
-                 "init": str(Path(args.init).resolve()) if args.init is not None else None,
-                 "synth_weight": args.synth_weight, "crop_jitter_px": args.crop_jitter, "seed": args.seed,
-                 "num_workers": args.num_workers,
-                 "image_size": args.image_size, "augment": False if args.no_augment else None,
-                 "view_warp": False if args.no_view_warp else None,
-                 "recognizer_partial": False if args.whole_markers_only else None,
-                 "recognizer_classes": args.recognizer_classes,
-                 "mixed_precision": False if args.no_mixed_precision else None}
-    if args.pretrained is not None:
-        overrides["pretrained"] = str(Path(args.pretrained).resolve())
+    overrides = config_overrides(args, TRAIN_FLAGS)
+    for name in ("pretrained", "init"):  # the run's config names the files wherever it is resumed from
+        if overrides.get(name) is not None:
+            overrides[name] = str(Path(overrides[name]).resolve())
     return base.replace(**overrides)
 
 
@@ -661,19 +687,13 @@ def _recipe_run(args: argparse.Namespace) -> tuple[TrainConfig, Data, dict]:
 
 
 def _save_recipe_record(out: Path, record: dict) -> None:
-    """Write `out`/recipe.json; a run folder of another recipe, or of another version of its file, is refused."""
-    path = out / "recipe.json"
-    if path.is_file():
-        old = load_json(path)
-        if (old.get("recipe"), old.get("file_sha256")) != (record["recipe"], record["file_sha256"]):
-            raise ValueError(f"{path}: a run of recipe {old.get('recipe')!r} (file {str(old.get('file_sha256'))[:12]}), "
-                             f"not of this {record['recipe']!r} ({record['file_sha256'][:12]}); use another --out")
-    out.mkdir(parents=True, exist_ok=True)
-    save_json(path, record)
+    """Record the recipe in `out`/recipe.json (`assets.fileio.record_stage`): a run folder of another
+    recipe, or of another version of its file, is refused by name; what the flags changed may differ."""
+    record_stage(out / "recipe.json", record, changeable=("changed",))
 
 
 def main(argv: list[str] | None = None) -> int:
-    from assets.cli import run_cli
+    from assets.cli import add_device, add_out, add_progress, progress, run_cli
 
     parser = argparse.ArgumentParser(prog="python -m networks.train", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -682,49 +702,25 @@ def main(argv: list[str] | None = None) -> int:
                         "its config is the base, its data the folder factory.dataset build --recipe made")
     parser.add_argument("--data", nargs="+", metavar="DIR", help="factory dataset folders (their train and val "
                         "splits joined), or 'synth' for synthesized data only; with --recipe: its built data folder")
-    parser.add_argument("--out", type=Path, required=True, help="run folder: config.json, log.jsonl, last.pt, best.pt")
-    parser.add_argument("--config", type=Path, help="a TrainConfig JSON file (flags below override it)")
-    parser.add_argument("--synth-weight", type=float, help="share of synthesized samples mixed into a dataset (0-1)")
+    add_out(parser, "run folder: config.json (the run's settings), log.jsonl, last.pt, best.pt")
+    parser.add_argument("--config", type=Path, help="a TrainConfig JSON file (flags below override it; the fields "
+                        f"without a flag: {', '.join(TRAIN_CONFIG_ONLY)})")
     parser.add_argument("--shards", type=Path, help="a shard folder of pre-synthesized samples of the task "
                         "(python -m networks.shards write) to draw the synthesized training samples from")
     parser.add_argument("--garment", type=Path, help="a factory dataset folder or template.npz: the marker IDs to "
                         "synthesize and to recognize (default: the dataset's template.npz)")
-    parser.add_argument("--recognizer-ids", "--recognizer-classes", dest="recognizer_classes",
-                        choices=RECOGNIZER_CLASSES,
-                        help="recognizer: 'garment' classifies the garment's marker IDs (the reference; default), "
-                        "'codebook' every codebook ID, 'modules' reads the marker's code modules and decodes them "
-                        "against the codebook, so garments never trained on are recognised")
-    parser.add_argument("--steps", type=int, help="optimizer steps in total")
-    parser.add_argument("--batch-size", type=int)
-    parser.add_argument("--lr", type=float, help="peak learning rate (Adam, cosine decay)")
-    parser.add_argument("--pretrained", help="torchvision ImageNet ResNet state-dict file for the backbone")
-    parser.add_argument("--init", help="a checkpoint of this task to start a new run from (its weights; new "
-                        "optimizer and schedule): fine-tuning, or training continued elsewhere")
-    parser.add_argument("--crop-jitter", type=float, metavar="PX", help="cut the recognizer's crops and the "
-                        "synthesized crosspoint crops from five points moved by this noise (px), as the Detector "
-                        "cuts them from the localizer's; shards need the same (default 0: exact crops)")
     parser.add_argument("--pattern", type=Path, help="PatternSpec JSON (default: the dataset's, or the default spec)")
-    parser.add_argument("--seed", type=int)
-    parser.add_argument("--num-workers", type=int, help="data loading processes")
-    parser.add_argument("--image-size", type=int, help="side of synthesized localizer images, pixels")
-    parser.add_argument("--no-augment", action="store_true",
-                        help="train without augmentation (photometric, and the localizer's view warp)")
-    parser.add_argument("--no-view-warp", action="store_true",
-                        help="localizer: no random zoom, rotation and compression of rendered images (ViewWarp)")
-    parser.add_argument("--whole-markers-only", action="store_true",
-                        help="recognizer: train on crops of whole markers only, the reference's (default: partial "
-                        "markers with a visible centre too; shards need the same: networks.shards write "
-                        "--whole-markers-only)")
-    parser.add_argument("--no-mixed-precision", action="store_true", help="float32 on CUDA too")
-    parser.add_argument("--device", help="cuda, cuda:1 or cpu (default: a CUDA GPU when there is one)")
+    add_config_flags(parser, TrainConfig, TRAIN_FLAGS)
+    add_device(parser)
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
     parser.add_argument("--until-step", type=int, help="stop at this step (writes last.pt; resume later)")
     parser.add_argument("--time-limit", type=float, help="stop after this many seconds (writes last.pt)")
     parser.add_argument("--fit-time-limit", action="store_true", help="shorten --steps so that the learning-rate "
                         "schedule ends within --time-limit, at the step rate measured early in the run and again at "
                         "its steady rate")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_progress(parser)
     args = parser.parse_args(argv)
+    args.out = Path(args.out)
 
     def action() -> None:
         ranks = Ranks.from_environment()
@@ -741,7 +737,7 @@ def main(argv: list[str] | None = None) -> int:
             data = args.data[0] if len(args.data) == 1 else [Path(d) for d in args.data]
         spec = PatternSpec.load(args.pattern) if args.pattern is not None else None
         result = train(config, data, args.out, args.device, args.resume, spec, args.until_step,
-                       args.time_limit, progress=not args.quiet, shards=args.shards, garment=args.garment,
+                       args.time_limit, progress=progress(args), shards=args.shards, garment=args.garment,
                        ranks=ranks, fit_to_time_limit=args.fit_time_limit)
         if not ranks.main:
             return

@@ -187,7 +187,7 @@ def fetch(out: str | Path, root: str | Path | None = None, names: tuple[str, ...
 
 
 def main(argv: list[str] | None = None) -> int:
-    from assets.cli import run_cli
+    from assets.cli import add_out, run_cli
 
     parser = argparse.ArgumentParser(prog="python -m networks.weights",
                                      description="The trained weights kept in the repository's history.")
@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     put.add_argument("folder", type=Path, help=f"a folder of {', '.join(n + '.pt' for n in NETWORKS)} (any)")
     put.add_argument("--source", default="", help="where they come from (a run, its data), kept in the manifest")
     get = commands.add_parser("fetch", help="write the stored checkpoints out, checked")
-    get.add_argument("--out", type=Path, default=Path("out/weights"), help="folder to write (default out/weights)")
+    add_out(get, "folder to write (default %(default)s)", required=False, default="out/weights")
     get.add_argument("--networks", default="", help=f"comma-separated names ({', '.join(NETWORKS)}; default all stored)")
     commands.add_parser("list", help="print the manifest")
     args = parser.parse_args(argv)

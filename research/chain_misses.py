@@ -13,7 +13,7 @@ and what the growth from neighbours (`DetectorConfig.grow_missing`) had to work 
 pattern neighbours were detected with their right ID, and whether its ID was claimed by a detection
 elsewhere (growth only places IDs not detected yet).
 
-    python research/chain_misses.py --checkpoints loc.pt rec.pt xp.pt --rendered .bench/rendered_m --split test
+    python research/chain_misses.py --localizer loc.pt --recognizer rec.pt --crosspoints xp.pt --rendered .bench/rendered_m --split test
 
 Prints a table per reason, one line per miss, and a `RESULT {json}` line.  CPU or GPU.
 """
@@ -32,10 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from assets.cli import localizer_scale_arg  # noqa: E402
+from assets.cli import add_device, add_networks, localizer_scale_arg, networks_of  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
 from networks.detector import Detector, DetectorConfig, usable_points  # noqa: E402
 from networks.metrics import MATCH_RADIUS_PX, match_markers  # noqa: E402
@@ -103,7 +102,7 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--checkpoints", nargs=3, type=Path, required=True, metavar=("LOC", "REC", "XP"))
+    add_networks(parser, "(required) ")
     parser.add_argument("--rendered", type=Path, required=True, help="a factory dataset folder")
     parser.add_argument("--split", default="test", help="its split (default test)")
     parser.add_argument("--presence-threshold", type=float, default=DetectorConfig.presence_threshold)
@@ -112,8 +111,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
                         help="a number, or 'auto' (chosen per image, the default)")
     parser.add_argument("--radius", type=float, default=MATCH_RADIUS_PX, help="match radius px")
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    add_device(parser)
     args = parser.parse_args(argv)
+    checkpoints = networks_of(args)
+    if not checkpoints:
+        parser.error("give the three networks: --localizer, --recognizer and --crosspoints")
     if not 0 < args.low_threshold < args.presence_threshold:
         parser.error(f"--low-threshold must lie in (0, --presence-threshold {args.presence_threshold}), "
                      f"got {args.low_threshold}")
@@ -124,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     pairs = rendered_pairs(args.rendered, (args.split,))
     if not pairs:
         parser.error(f"{args.rendered}: no images in split {args.split!r}")
-    detector = load_detector(*args.checkpoints, args.rendered, args.device,
+    detector = load_detector(*checkpoints, args.rendered, args.device,
                              DetectorConfig(localizer_scale=args.localizer_scale,
                                             presence_threshold=args.presence_threshold))
     if detector.layout is None:

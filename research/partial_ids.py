@@ -7,8 +7,8 @@ crosspoints, `completed_points`), on a rendered dataset's held-out images and/or
 The localizer and the votes take no part: this isolates the recognizer, whose training crops are whole
 markers only unless it was trained with `TrainConfig.recognizer_partial`.
 
-    python research/partial_ids.py --checkpoints loc.pt recognizer_jitter.pt xp.pt --rendered .bench/rendered2 \
-        [--capture .bench/cap8/capture --frames f000120]
+    python research/partial_ids.py --localizer loc.pt --recognizer recognizer_jitter.pt --crosspoints xp.pt \
+        --rendered .bench/rendered2 [--capture .bench/cap8/capture --frames f000120]
 
 Prints a table and a `RESULT {json}` line.  CPU or GPU.
 """
@@ -25,9 +25,8 @@ sys.path.insert(0, str(ROOT))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 
-from assets.cli import localizer_scale_arg  # noqa: E402
+from assets.cli import add_device, add_networks, localizer_scale_arg, networks_of  # noqa: E402
 from assets.pattern.observation import ImageGroundTruth  # noqa: E402
 from networks.detector import Detector, DetectorConfig  # noqa: E402
 from networks.recognizer_top1 import (GROUPS, by_residual, by_visible, groups, recognized,  # noqa: E402
@@ -70,8 +69,7 @@ def chain(detector: Detector, pairs: list[tuple[Path, Path]], radius: float) -> 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--checkpoints", nargs=3, type=Path, required=True, metavar=("LOC", "REC", "XP"),
-                        help="the Detector's three checkpoints (only the recognizer runs)")
+    add_networks(parser, "(required; only the recognizer runs) ")
     parser.add_argument("--rendered", type=Path, help="a factory dataset folder (its validation and test images)")
     parser.add_argument("--capture", type=Path, help="a capture folder")
     parser.add_argument("--frames", default="", help="only these capture frames (comma-separated stems, e.g. f000120)")
@@ -84,8 +82,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every-image", action="store_true", help="--rendered: every image of the folder (a "
                         "held-out set such as the networks benchmark's --extra-heldout), not only its val and test")
     parser.add_argument("--by-motion", action="store_true", help="--rendered: the top-1 per motion too")
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    add_device(parser)
     args = parser.parse_args(argv)
+    checkpoints = networks_of(args)
+    if not checkpoints:
+        parser.error("give the three networks: --localizer, --recognizer and --crosspoints")
     from assets.garments import load_template  # needs triangle: imported here only
 
     sys.path.insert(0, str(ROOT / "research"))
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         if capture is not None and args.frames:
             wanted = set(args.frames.split(","))
             pairs = [p for p in pairs if p[0].stem in wanted]
-        detector = Detector.from_checkpoints(*args.checkpoints, device=args.device,
+        detector = Detector.from_checkpoints(*checkpoints, device=args.device,
                                              tables=load_template(template).layout.tables(),
                                              config=DetectorConfig(localizer_scale=args.localizer_scale))
         source = f"{label} ({len(pairs)} images)"
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             motion_of = {rendered / e["image"]: e["motion"] for e in read_manifest(rendered)}
             for motion in sorted({motion_of[image] for image, _ in pairs}):
                 motions[motion] = tally([r for r in records if motion_of[r[0]] == motion])[0]
-    print(f"# recognizer top-1 given the true points, {args.checkpoints[1].name}")
+    print(f"# recognizer top-1 given the true points, {Path(checkpoints[1]).name}")
     print("| images | markers | count | top-1 |\n|---|---|---|---|")
     for source, rows in sources.items():
         for name, r in rows.items():
@@ -141,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         for label, r in rows.items():
             print(f"| {source} | {label} | {r['markers']} | {r['top1']:.3f} |")
     if chains:
-        print(f"\n# the chain: {', '.join(p.name for p in args.checkpoints)}")
+        print(f"\n# the chain: {', '.join(Path(p).name for p in checkpoints)}")
         print("| images | markers | count | found | identified, recognizer alone | identified after the votes "
               "|\n|---|---|---|---|---|---|")
         for source, rows in chains.items():

@@ -94,7 +94,7 @@ def test_torchrun_two_processes_match_one(tmp_path):
                "--rdzv-backend", "c10d", "--rdzv-endpoint", f"127.0.0.1:{_free_port()}",
                "-m", "networks.train", "recognizer", "--data", str(data), "--out", str(tmp_path / "two"),
                "--config", str(tmp_path / "config.json"), "--pattern", str(tmp_path / "pattern.json"),
-               "--device", "cpu", "--quiet"]
+               "--device", "cpu", "--no-progress"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(PROJECT)}
     done = subprocess.run(command, cwd=PROJECT, env=env, capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stderr[-3000:]

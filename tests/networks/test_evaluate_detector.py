@@ -236,7 +236,7 @@ def test_evaluate_detector_counts_add_up(dataset, checkpoints):
 def test_cli(dataset, checkpoints, tmp_path, capsys):
     paths = [str(p) for p in checkpoints]
     args = ["--localizer", paths[0], "--recognizer", paths[1], "--crosspoints", paths[2], "--device", "cpu",
-            "--nms-radius", "40", "--max-layout-residual", "2.5"]
+            "--nms-radius", "40", "--max-layout-residual", "2.5", "--no-progress"]
     out = tmp_path / "detector.json"
     assert main(args + ["--data", str(dataset), "--limit", "1", "--json", str(out)]) == 0
     written = json.loads(out.read_text())
@@ -245,6 +245,10 @@ def test_cli(dataset, checkpoints, tmp_path, capsys):
     assert "markers.all.recall" in capsys.readouterr().out
     assert main(args + ["--data", str(tmp_path / "none")]) == 2
     assert "no such dataset folder" in capsys.readouterr().err
+    assert main(args[2:] + ["--data", str(dataset)]) == 2
+    assert "the Detector needs all three networks: --localizer missing" in capsys.readouterr().err
+    assert main(args[6:] + ["--data", str(dataset)]) == 2
+    assert "give the three networks: --localizer, --recognizer and --crosspoints" in capsys.readouterr().err
     swapped = ["--localizer", paths[1], "--recognizer", paths[1], "--crosspoints", paths[2]]
     assert main(swapped + ["--data", str(dataset), "--device", "cpu"]) == 2
     assert "expected a localizer checkpoint" in capsys.readouterr().err

@@ -82,7 +82,7 @@ def test_a_tiny_recipe_trains_on_the_cpu_and_records_itself(tmp_path, capsys):
     SPEC.save(pattern)
     recipe = _recipe(tmp_path, TINY)
     out = tmp_path / "run"
-    common = ["--recipe", str(recipe), "--out", str(out), "--pattern", str(pattern), "--device", "cpu", "--quiet"]
+    common = ["--recipe", str(recipe), "--out", str(out), "--pattern", str(pattern), "--device", "cpu", "--no-progress"]
     assert main(common + ["--until-step", "2"]) == 0
     assert "localizer: stopped (continue with --resume) at step 2 of 3" in capsys.readouterr().out
     record = load_json(out / "recipe.json")
@@ -96,7 +96,7 @@ def test_a_tiny_recipe_trains_on_the_cpu_and_records_itself(tmp_path, capsys):
     # a run folder of another recipe file is refused; so is data for a synthesizer recipe
     _recipe(tmp_path, TINY.replace("steps = 3", "steps = 4"), "tiny")
     assert main(common + ["--resume"]) == 2
-    assert "a run of recipe 'tiny'" in capsys.readouterr().err
+    assert "recipe.json: " in (err := capsys.readouterr().err) and "file_sha256: " in err
     assert main(common[:2] + ["--out", str(tmp_path / "x"), "--data", str(tmp_path)] + common[4:]) == 2
     assert "trains on the synthesizer alone; leave out --data" in capsys.readouterr().err
     assert main(common[:2] + ["recognizer", "--out", str(tmp_path / "y")] + common[4:]) == 2
@@ -132,7 +132,7 @@ def test_a_rendered_recipe_trains_on_its_build_s_parts_joined(tmp_path, capsys):
     assert check_data_folder(recipe, built) == [built / "train/a-default", built / "train/b-default"]
     out = tmp_path / "run"
     assert main(["--recipe", str(recipe.path), "--data", str(built), "--out", str(out), "--pattern", str(pattern),
-                 "--device", "cpu", "--quiet"]) == 0
+                 "--device", "cpu", "--no-progress"]) == 0
     assert "recognizer: finished at step 2 of 2" in capsys.readouterr().out
     assert read_checkpoint(out / "last.pt")["data"] == f"{built / 'train/a-default'}, {built / 'train/b-default'}"
     # another [data] table, an unfinished part, no build at all: refused before training

@@ -70,12 +70,13 @@ def test_cli_writes_a_shard_folder(tmp_path, capsys):
     SPEC.save(pattern)
     out = tmp_path / "shards"
     assert main(["write", "--out", str(out), "--task", "localizer", "--count", "2", "--pattern", str(pattern),
-                 "--image-size", "64", "--images-per-part", "2", "--quiet"]) == 0
+                 "--image-size", "64", "--images-per-part", "2", "--no-progress"]) == 0
     assert "1 parts, 2 localizer items (complete)" in capsys.readouterr().out
     assert ShardDataset(out, "localizer")[1]["image"].shape == (3, 64, 64)
     assert main(["write", "--out", str(out), "--task", "localizer", "--count", "2", "--pattern", str(pattern),
-                 "--image-size", "32", "--images-per-part", "2", "--quiet"]) == 2
-    assert "other settings" in capsys.readouterr().err
+                 "--image-size", "32", "--images-per-part", "2", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "shards.json: " in err and "other settings" in err and "synth: " in err
 
 
 def test_cli_writes_jittered_crops(tmp_path, capsys):
@@ -84,7 +85,7 @@ def test_cli_writes_jittered_crops(tmp_path, capsys):
     SPEC.save(pattern)
     out = tmp_path / "jittered"
     assert main(["write", "--out", str(out), "--task", "recognizer", "--count", "2", "--pattern", str(pattern),
-                 "--image-size", "128", "--images-per-part", "2", "--crop-jitter", "1.5", "--quiet"]) == 0
+                 "--image-size", "128", "--images-per-part", "2", "--crop-jitter", "1.5", "--no-progress"]) == 0
     meta = read_shard_meta(out)
     assert meta["synth"]["crop_jitter_px"] == 1.5
     assert CropGeometry.from_dict(meta["crop_geometry"]) == CropGeometry(jitter_px=1.5)

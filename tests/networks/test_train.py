@@ -1,6 +1,7 @@
 """Training: a few real optimizer steps on a tiny dataset folder lower each network's loss; a resumed
 run continues exactly as the uninterrupted one; the CLI, Ctrl-C and bad input."""
 
+import dataclasses
 import json
 import logging
 import os
@@ -21,7 +22,8 @@ from networks.config import REMOVED_FIELDS, TrainConfig
 from networks.models import normalize
 from networks.shards import write_shards
 from networks.synth import SynthConfig
-from networks.train import FIT_SKIP_STEPS, MASKED_LOGIT, StepOrder, lr_factor, main, train
+from networks.train import (FIT_SKIP_STEPS, MASKED_LOGIT, TRAIN_CONFIG_ONLY, TRAIN_FLAGS, StepOrder, lr_factor, main,
+                            train)
 from tests.networks.test_evaluate import write_factory_dataset
 
 SPEC = PatternSpec(rows=2, cols=2, num_ids=64)
@@ -101,10 +103,13 @@ def test_resume_continues_exactly(dataset, tmp_path):
         assert read_checkpoint(tmp_path / "parts" / "last.pt")["step"] == 2
         with pytest.raises(ValueError, match="already holds a training run"):
             train(config, dataset, tmp_path / "parts", device="cpu", spec=SPEC, progress=False)
-        with pytest.raises(ValueError, match="cannot resume with another config.*lr"):
+        with pytest.raises(ValueError, match=r"config.json: .*\(lr: 0.0003 -> 0.001\).*may change only steps"):
             train(config.replace(lr=1e-3), dataset, tmp_path / "parts", device="cpu", resume=True, progress=False)
-        second = train(config, dataset, tmp_path / "parts", device="cpu", resume=True, progress=False)
+        # a resumable change (not what the network learns from) is taken, and the record follows it
+        second = train(config.replace(checkpoint_every=50), dataset, tmp_path / "parts", device="cpu", resume=True,
+                       progress=False)
         assert second["step"] == 4 and second["finished"]
+        assert json.loads((tmp_path / "parts" / "config.json").read_text())["checkpoint_every"] == 50
     finally:
         torch.use_deterministic_algorithms(False)
     whole, parts = _losses(tmp_path / "whole"), _losses(tmp_path / "parts")
@@ -132,19 +137,38 @@ def test_bad_input(dataset, tmp_path):
         train(config, only_train, tmp_path / "run", device="cpu", spec=SPEC, progress=False)
 
 
+def test_a_folder_recording_another_run_is_refused_before_any_work(dataset, tmp_path):
+    """A run that stopped before its first checkpoint leaves its record: a new call with other settings
+    would mix two runs' logs in the folder."""
+    config = _config("localizer", batch_size=1)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.json").write_text(json.dumps(config.replace(seed=5).to_dict()))
+    with pytest.raises(ValueError, match=r"run/config.json: .*\(seed: 5 -> 0\)"):
+        train(config, dataset, tmp_path / "run", device="cpu", spec=SPEC, progress=False)
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["config.json"]
+
+
+def test_the_cli_flags_are_the_config_fields():
+    """Every TrainConfig field but the task (the positional argument) is set by a flag made from it, or
+    named as one that only --config sets."""
+    flagged = [flag.field for flag in TRAIN_FLAGS]
+    assert len(set(flagged)) == len(flagged) and not set(flagged) & set(TRAIN_CONFIG_ONLY)
+    assert {"task", *flagged, *TRAIN_CONFIG_ONLY} == {f.name for f in dataclasses.fields(TrainConfig)}
+
+
 def test_cli_runs_synth_and_resumes(tmp_path, capsys):
     pattern = tmp_path / "pattern.json"
     SPEC.save(pattern)
     out = tmp_path / "run"
     common = ["localizer", "--data", "synth", "--out", str(out), "--pattern", str(pattern), "--device", "cpu",
-              "--quiet"]
+              "--no-progress"]
     config = _config("localizer", image_size=64, batch_size=1, steps=4)
     config.save(tmp_path / "config.json")
     assert main(common + ["--config", str(tmp_path / "config.json"), "--until-step", "2"]) == 0
     assert "stopped (continue with --resume) at step 2 of 4" in capsys.readouterr().out
     environment = dict(os.environ)
     # one spawned data-loading worker; a time limit of 0 s stops after one step
-    assert main(common + ["--resume", "--time-limit", "0", "--num-workers", "1"]) == 0
+    assert main(common + ["--resume", "--time-limit", "0", "--workers", "1"]) == 0
     assert "stopped (continue with --resume) at step 3 of 4" in capsys.readouterr().out
     assert dict(os.environ) == environment
     assert main(common + ["--resume"]) == 0
@@ -152,7 +176,7 @@ def test_cli_runs_synth_and_resumes(tmp_path, capsys):
     saved = read_checkpoint(out / "last.pt")
     assert saved["config"]["image_size"] == 64 and saved["config"]["num_workers"] == 1 and saved["step"] == 4
     assert main(common + ["--resume", "--lr", "0.5"]) == 2
-    assert "cannot resume with another config" in capsys.readouterr().err
+    assert "(lr: 0.001 -> 0.5)" in capsys.readouterr().err
     assert main(["recognizer", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "r")]) == 2
 
 
@@ -163,7 +187,7 @@ def test_ctrl_c_writes_last_checkpoint(dataset, tmp_path):
     SPEC.save(pattern)
     out = tmp_path / "run"
     command = [sys.executable, "-m", "networks.train", "localizer", "--data", str(dataset), "--out", str(out),
-               "--config", str(tmp_path / "config.json"), "--pattern", str(pattern), "--device", "cpu", "--quiet"]
+               "--config", str(tmp_path / "config.json"), "--pattern", str(pattern), "--device", "cpu", "--no-progress"]
     # PYTHONFAULTHANDLER: a trainer that does not stop is sent SIGABRT and prints every thread's stack
     process = subprocess.Popen(command, cwd=PROJECT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                env={**os.environ, "OMP_NUM_THREADS": "1", "PYTHONFAULTHANDLER": "1"})
@@ -355,7 +379,7 @@ def test_the_crosspoint_loss_weighs_visibility_as_the_reference_in_training_and_
     the MSE."""
     out = tmp_path / "run"
     assert main(["crosspoints", "--data", str(dataset), "--out", str(out), "--steps", "2", "--batch-size", "2",
-                 "--num-workers", "0", "--device", "cpu"]) == 0
+                 "--workers", "0", "--device", "cpu"]) == 0
     rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
     trained = [r for r in rows if "loss" in r]
     val = [r["val"]["loss"] for r in rows if "val" in r]
