@@ -233,7 +233,8 @@ def render(config: CloseUp, out: Path, progress: bool = True) -> tuple[Path, lis
     if not pending:
         return folder, planned
     from assets.garments.markers import MarkerSurface
-    from factory.dataset import RenderSettings, corner_uv, read_depth, render_job_spec, write_scene
+    from factory.plan import RenderSettings
+    from factory.scenes import corner_uv, read_depth, render_job_spec, write_scene
     from factory.groundtruth import image_ground_truth
 
     template = prepare(config, out, progress)

@@ -18,8 +18,9 @@ Why not `factory.dataset build --recipe NAME` itself: it builds the recipe's par
 other, each part's motions one after the other, and renders with every core in one process while the
 ground truth (about as long as a render on 16 cores) runs on one; and N processes of
 ``--shard i/N`` would each simulate every motion.  Here the tasks are the build's own
-(`factory.build`): per part, `prepare` and the first motion's simulation (which dresses the garment
-the part's motions share), then its other motions, then `plan_shards` and one `make_shard` per frame;
+(`factory.build.prepare`, `factory.shards`): per part, `prepare` and the first motion's simulation
+(which dresses the garment the part's motions share), then its other motions, then `plan_shards` and
+one `make_shard` per frame;
 simulations go first, renders fill the free workers.  Each worker renders with cores // workers
 Cycles threads (1 on 16 workers), on the CPU: the GPU is hidden from the workers, since Cycles
 compiles its kernels for the H200 for over 5 minutes in every process.  When every task is done,
@@ -63,7 +64,8 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 # ---- the tasks (in the workers) -----------------------------------------------------------------
 def _simulate(config, folder: str, motion: str, first: bool) -> tuple[str, float]:
     """The simulation of `motion` in part `folder` (the first one prepares the folder and dresses)."""
-    from factory.build import prepare, simulate_motion
+    from factory.build import prepare
+    from factory.shards import simulate_motion
 
     started = time.perf_counter()
     if first:
@@ -72,7 +74,7 @@ def _simulate(config, folder: str, motion: str, first: bool) -> tuple[str, float
 
 
 def _render(config, folder: str, shard, threads: int) -> dict:
-    from factory.build import make_shard
+    from factory.shards import make_shard
 
     return make_shard(config, folder, shard, threads=threads)
 
@@ -101,7 +103,7 @@ class RecipeRun:
     """The schedule and its record: tasks waiting (simulations first), running, and what is done."""
 
     def __init__(self, name: str, out: Path, workers: int, train_only: bool):
-        from factory.build import dataset_frames
+        from factory.shards import dataset_frames
         from factory.recipe import HOLDOUT, load_data_recipe
 
         self.name, self.out, self.workers, self.train_only = name, Path(out), workers, train_only
@@ -149,7 +151,7 @@ class RecipeRun:
                 log.info("part %s done", self._label(part))
 
     def _plan(self, part: _Part) -> None:
-        from factory.build import plan_shards
+        from factory.shards import plan_shards
 
         shards = plan_shards(part.config, Path(part.folder), part.sequences, (0, 1), 1)
         part.renders_left = len(shards)

@@ -2,7 +2,7 @@
 
 1. Capture: the default shirt walking, `--frames` consecutive simulation frames (120 = one second at
    120 Hz, after the dressing transition) from the default ring of `--cameras` cameras at
-   `--resolution`, through `factory.dataset.capture`.  The ground-truth mode reads only each image's
+   `--resolution`, through `factory.capture.capture`.  The ground-truth mode reads only each image's
    ground truth (projected crosspoints, visibility from the render's depth), so the images are rendered
    with Workbench (`--engine`): the depth, hence the ground truth, is the same geometry as Cycles'.
 2. Per template level L of `--levels` (12, 4, 2 mm), its own reconstruction folder: detections from the
@@ -41,7 +41,8 @@ import numpy as np  # noqa: E402
 
 from assets.fileio import load_json, save_json  # noqa: E402
 from assets.garments import load_template  # noqa: E402
-from factory.dataset import RenderSettings, capture  # noqa: E402
+from factory.capture import capture  # noqa: E402
+from factory.plan import RenderSettings  # noqa: E402
 from reconstruction import pipeline  # noqa: E402
 from reconstruction.groundtruth import GroundTruthCapture  # noqa: E402
 from reconstruction.refine import RefineConfig, RefinedSequence  # noqa: E402

@@ -25,7 +25,7 @@ ENGINE = """
     import json, time
     from pathlib import Path
     from factory.build import build
-    from factory.dataset import DatasetConfig, RenderSettings
+    from factory.plan import DatasetConfig, RenderSettings
     config = DatasetConfig(garment="shirt", motions=("walk",), frames={frames}, variations={variations},
                            render=RenderSettings(engine="{engine}", samples={samples}))
     out = Path("{out}") / "{engine}"

@@ -39,8 +39,8 @@ sys.path.insert(0, str(ROOT))
 
 #: (name, extra CLI arguments) of each build, the local backend first as the baseline
 BUILDS = (("local backend (one process)", ["--backend", "local"]),
-          ("Ray, 1 worker", ["--backend", "ray", "--num-cpus", "1"]),
-          ("Ray, 2 workers", ["--backend", "ray", "--num-cpus", "2"]))
+          ("Ray, 1 worker", ["--backend", "ray", "--workers", "1"]),
+          ("Ray, 2 workers", ["--backend", "ray", "--workers", "2"]))
 
 
 def build(folder: Path, simulation: Path, args: argparse.Namespace, extra: list[str]) -> dict:

@@ -1,6 +1,6 @@
 """The add-on's settings, stored on the scene: ``scene.clothcapture.<panel>.<setting>``.
 
-Defaults are the library's (`assets.pattern.PatternSpec`, `factory.dataset.RenderSettings`, the
+Defaults are the library's (`assets.pattern.PatternSpec`, `factory.plan.RenderSettings`, the
 simulator's 120 Hz and 12 mm training level, the README's demo settings for a reconstruction).
 
 Each group's properties are given as a ``__annotations__`` dict, which is what Blender reads from

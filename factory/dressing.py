@@ -469,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     from assets.body import load_body
-    from assets.cli import run_cli
+    from assets.cli import add_out, add_progress, progress, run_cli
 
     parser = argparse.ArgumentParser(prog="python -m factory.dressing", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -478,8 +478,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--betas", help="body shape, comma-separated")
     parser.add_argument("--level", type=int, default=TRAINING_LEVEL_MM)
     parser.add_argument("--pose", choices=("A", "T"), default="A")
-    parser.add_argument("--out", type=Path, required=True)
+    add_out(parser, "folder for <garment>_dressed.npz and its preview PNG")
+    add_progress(parser)
     args = parser.parse_args(argv)
+    args.out = Path(args.out)
 
     def action() -> None:
         from assets.garments.loading import load_template
@@ -491,7 +493,8 @@ def main(argv: list[str] | None = None) -> int:
         for spec in args.garments:
             template = load_template(spec)
             try:
-                garment = dress(template, body, betas, DressingParams(level_mm=args.level, pose=args.pose))
+                garment = dress(template, body, betas, DressingParams(level_mm=args.level, pose=args.pose),
+                                progress=progress(args))
             except DressingError as exc:
                 saved = save_stuck(exc, body, args.out)
                 raise DressingError(f"{exc}" + (f"; where it stopped: {', '.join(map(str, saved))}" if saved

@@ -1,4 +1,4 @@
-"""Merge factory datasets into one folder: `python -m factory.dataset merge OUT SRC [SRC ...]`.
+"""Merge factory datasets into one folder: `python -m factory.dataset merge SRC [SRC ...] --out OUT`.
 
 Datasets built apart (other frames, motions, seeds, machines) become one set the networks read as
 one: `networks.train --data OUT`, `benchmarks/networks.py --rendered OUT`.  Each image keeps its
@@ -35,9 +35,9 @@ from pathlib import Path, PurePosixPath
 
 from tqdm import tqdm
 
-from assets.fileio import atomic_path, load_json, save_json
-from factory.build import write_manifest
-from factory.dataset import SPLITS
+from assets.fileio import atomic_path, load_json, record_stage, save_json
+from factory.plan import SPLITS
+from factory.shards import write_manifest
 
 #: an image record's fields that name its files
 FILE_FIELDS = ("image", "depth", "camera", "gt", "samples")
@@ -47,13 +47,16 @@ SHARED_FILES = ("template.npz", "texture.png")
 
 @dataclass(frozen=True)
 class Source:
-    """One dataset folder to merge; train: all its images go to the train split."""
+    """One dataset folder to merge (a path); train: all its images go to the train split."""
     folder: Path
     train: bool = False
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "folder", Path(self.folder))
+
 
 def _records(folder: Path) -> list[dict]:
-    """The finished images' records (`meta/<name>.json`, as `factory.build.write_manifest` lists them)."""
+    """The finished images' records (`meta/<name>.json`, as `factory.shards.write_manifest` lists them)."""
     if not (folder / "template.npz").is_file() or not (folder / "meta").is_dir():
         raise ValueError(f"{folder}: not a factory dataset folder (no template.npz or meta/)")
     records = [load_json(p) for p in sorted((folder / "meta").glob("*.json"))]
@@ -135,10 +138,7 @@ def merge(out: str | Path, sources: list[Source], progress: bool = True) -> Path
     config = {"merged": [{"folder": str(s.folder.resolve()), "train": s.train, "images": count,
                           "config": load_json(s.folder / "config.json") if (s.folder / "config.json").is_file() else None}
                          for s, count in zip(sources, counts)]}
-    if (out / "config.json").is_file() and load_json(out / "config.json") != config:
-        raise ValueError(f"{out / 'config.json'}: {out} holds another dataset or merge; merge into a new folder")
-    out.mkdir(parents=True, exist_ok=True)
-    save_json(out / "config.json", config)
+    record_stage(out / "config.json", config)  # a folder of another dataset or merge is refused
     for name in SHARED_FILES:
         if (sources[0].folder / name).is_file():
             _place(sources[0].folder / name, out / name)

@@ -4,7 +4,7 @@ The same tasks as the local backend (`factory.build`): one simulation per motion
 (garment, body), then one render + ground-truth task per `Shard`, each declaring what it needs (a
 CPU; a GPU for Cycles when the cluster has one).  Ray retries a task whose worker dies or which
 raises (`max_retries`); a shard commits its images' records only when all of its files are written
-(`factory.build.make_shard`), so a retried or repeated task adds no duplicate and no partial
+(`factory.shards.make_shard`), so a retried or repeated task adds no duplicate and no partial
 record, and a restarted build plans only the unfinished images.  Every node reads and writes the
 dataset folder, so on a cluster it must be shared storage at the same path on every node.
 """
@@ -17,8 +17,8 @@ import shutil
 import uuid
 from pathlib import Path
 
-from factory.build import BuildProgress, Shard, make_shard, simulate_motion
-from factory.dataset import DatasetConfig
+from factory.plan import DatasetConfig
+from factory.shards import BuildProgress, Shard, make_shard, simulate_motion
 
 #: attempts of a task after the first (a killed worker, an exception)
 MAX_RETRIES = 3
@@ -46,12 +46,13 @@ def _shard_attempt(config: DatasetConfig, out: str, shard: Shard, threads: int =
 
 
 class RayBackend:
-    """Tasks on the Ray cluster at `address` (joined), or on a local Ray instance of `num_cpus` CPUs
-    (started here and stopped at the end).  `task_cpus`: CPUs each task declares."""
+    """Tasks on the Ray cluster at `address` (joined), or on a local Ray instance (started here and
+    stopped at the end) of `workers` CPUs, default one per core: as many tasks at once, each declaring
+    `task_cpus` CPUs."""
 
-    def __init__(self, address: str | None = None, num_cpus: int | None = None, task_cpus: float = 1.0,
+    def __init__(self, address: str | None = None, workers: int | None = None, task_cpus: float = 1.0,
                  max_retries: int = MAX_RETRIES):
-        self.address, self.num_cpus, self.task_cpus, self.max_retries = address, num_cpus, task_cpus, max_retries
+        self.address, self.workers, self.task_cpus, self.max_retries = address, workers, task_cpus, max_retries
         self.ray = None
         self.started = False
 
@@ -61,7 +62,7 @@ class RayBackend:
             if self.address:
                 ray.init(address=self.address, log_to_driver=False)
             else:
-                ray.init(num_cpus=self.num_cpus or os.cpu_count(), include_dashboard=False, log_to_driver=False)
+                ray.init(num_cpus=self.workers or os.cpu_count(), include_dashboard=False, log_to_driver=False)
             self.started = True
         return self
 

@@ -42,9 +42,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from assets.fileio import check_json_object, check_settings, safe_name, save_json
+from assets.fileio import check_json_object, record_stage, safe_name
 from assets.recipes import BUILD_RECORD, ROOT, read_recipe, table_digest
-from factory.dataset import DatasetConfig, RenderSettings
+from factory.build import build
+from factory.plan import DatasetConfig, RenderSettings
 
 #: part folders of the training and of the evaluation data
 TRAIN, HOLDOUT = "train", "holdout"
@@ -210,21 +211,17 @@ def build_recipe(name: str | Path, out: str | Path, shard: tuple[int, int] = (0,
                  **build_options: object) -> list[Path]:
     """Build every part of recipe `name` under `out` (`factory.build.build` per part, with
     `build_options`); `holdout` False builds the training parts only.  Returns the part folders."""
-    import factory.build
-
     path, table, recipe = load_data_recipe(name)
     out = Path(out)
     parts = recipe.parts()
     record = {"recipe": path.stem, "data": table, "data_digest": table_digest(table),
               "parts": {kind: [p.folder for p in parts if p.folder.startswith(kind + "/")] for kind in (TRAIN, HOLDOUT)}}
-    check_settings(out / BUILD_RECORD, record)  # another recipe's folder is refused before anything is built
-    out.mkdir(parents=True, exist_ok=True)
-    save_json(out / BUILD_RECORD, record)
+    record_stage(out / BUILD_RECORD, record)  # another recipe's folder is refused before anything is built
     folders = []
     for part in parts:
         if not holdout and part.folder.startswith(HOLDOUT):
             continue
-        factory.build.build(part.config, out / part.folder, shard, **build_options)
+        build(part.config, out / part.folder, shard, **build_options)
         folders.append(out / part.folder)
     return folders
 

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from assets.cli import run_cli
+from assets.cli import add_out, add_progress, progress, run_cli
 from assets.fileio import atomic_path, save_json
 from factory.renderjob import ENGINES, ImageSpec, RenderJob, RenderJobError, load_job
 
@@ -435,16 +435,19 @@ def build_parser() -> argparse.ArgumentParser:
         prog="blender -b -P factory/render.py --  |  python factory/render.py",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--job", required=True, help="render job JSON (format above)")
-    parser.add_argument("--out", required=True, help="output folder (created)")
+    add_out(parser, "output folder (created)")
     parser.add_argument("--force", action="store_true", help="render again images whose outputs exist")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--threads", type=int, default=0, help="render threads (default 0: every core)")
+    add_progress(parser)
+    parser.add_argument("--threads", type=int, default=0, metavar="N",
+                        help="render threads inside this one Blender process (Cycles' threads; default 0: every "
+                        "core); not worker processes: a share of a machine, as a Ray task of the dataset build "
+                        "renders with its CPUs")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_cli(lambda: render_job(args.job, args.out, progress=not args.no_progress, force=args.force,
+    return run_cli(lambda: render_job(args.job, args.out, progress=progress(args), force=args.force,
                                       threads=args.threads),
                    failures=(RuntimeError,))
 

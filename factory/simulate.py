@@ -46,7 +46,7 @@ from tqdm import tqdm
 
 from assets.body import load_body
 from assets.body.model import BodyModel
-from assets.cli import run_cli
+from assets.cli import add_out, add_progress, progress, run_cli
 from assets.fileio import file_digest, load_npz, save_npz
 from assets.garments import Template
 from assets.garments.loading import load_template
@@ -405,7 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--body", default="default", help="'default' or an SMPL-family model file")
     parser.add_argument("--betas", help="body shape, comma-separated (default: the body's default)")
     parser.add_argument("--frames", type=int, default=240, help="frames at 120 Hz, the transition included")
-    parser.add_argument("--out", required=True, type=Path, help="output folder (resumes what is there)")
+    add_out(parser, "output folder (resumes what is there when it is this simulation's; starts over otherwise)")
     parser.add_argument("--level", type=int, default=DressingParams.level_mm, help="template level (mm)")
     parser.add_argument("--pose", choices=("A", "T"), default=DressingParams.pose, help="dressing pose")
     parser.add_argument("--transition-seconds", type=float, default=1.0)
@@ -419,6 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-penetration-mm", type=float, default=HealthLimits.max_penetration * 1e3)
     parser.add_argument("--max-strain", type=float, default=HealthLimits.max_strain)
     parser.add_argument("--no-preview", action="store_true")
+    add_progress(parser)
     add_limit_options(parser, ("frames",))
     return parser
 
@@ -447,9 +448,10 @@ def main(argv: list[str] | None = None) -> int:
 
     def action() -> None:
         limits_from_args(args).check("frames", args.frames, "the number of frames", "--frames")
-        sequence = simulate(config_from_args(args), args.out)
+        out = Path(args.out)
+        sequence = simulate(config_from_args(args), out, progress=progress(args))
         if not args.no_preview:
-            write_preview(sequence, args.out / "preview.png")
+            write_preview(sequence, out / "preview.png")
         print(sequence)
 
     return run_cli(action, failures=(SimulationError,))

@@ -63,7 +63,8 @@ def shirt_run(tmp_path_factory):
 def capture_folder(shirt_run, tmp_path_factory):
     """Frames 3 and 4 of the shirt walk from three cameras at 96 x 64 (Workbench): cameras.json,
     images, depth and ground truth per camera, garment.npz, template.npz."""
-    from factory.dataset import RenderSettings, capture
+    from factory.capture import capture
+    from factory.plan import RenderSettings
 
     _, sim, _ = shirt_run
     tiny = RenderSettings(resolution=(96, 64), engine="WORKBENCH", samples=1, denoise=False)

@@ -15,8 +15,8 @@ import pytest
 
 from assets.cameras import Camera
 from factory.build import build
-from factory.dataset import (DatasetConfig, RenderSettings, corner_uv, render_job_spec, simulation_config,
-                             split_of_frames, write_scene)
+from factory.plan import DatasetConfig, RenderSettings, simulation_config, split_of_frames
+from factory.scenes import corner_uv, render_job_spec, write_scene
 from assets.garments.markers import MarkerSurface
 from factory.groundtruth import image_ground_truth
 
@@ -35,6 +35,14 @@ def _seeded(out: Path, shirt_run) -> Path:
 def _config(**overrides) -> DatasetConfig:
     return DatasetConfig(garment="shirt", motions=("walk",), frame_list=(2, 4, 5), variations=2, render=TINY,
                          **overrides)
+
+
+def _record(out: Path, config: DatasetConfig) -> None:
+    """`factory.build.prepare`'s settings check and record alone (no template written)."""
+    from assets.fileio import record_stage
+    from factory.build import config_record
+
+    record_stage(out / "config.json", config_record(config))
 
 
 def test_splits_keep_the_reference_ratio_and_never_share_a_frame():
@@ -102,14 +110,14 @@ def test_a_killed_build_resumes_to_byte_identical_output(tmp_path, shirt_run, bu
 def test_a_build_with_other_settings_is_refused(tmp_path, built):
     out = tmp_path / "ds"
     shutil.copytree(built, out)
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match=r"config.json: .*other settings or inputs \(seed: 0 -> 1\)"):
         build(_config(seed=1), out, progress=False)
 
 
 def test_projected_crosspoints_agree_with_blenders_position_pass(tmp_path, shirt_run):
     """Ground truth against the renderer: where Cycles' position pass says each visible crosspoint
     is seen, within 0.1 px on average of where the ground truth projects it."""
-    from factory.dataset import read_depth, read_exr, render_template
+    from factory.scenes import read_depth, read_exr, render_template
     from factory.render import render_job
 
     _, sim, sequence_path = shirt_run
@@ -159,7 +167,8 @@ def test_a_capture_frames_the_garment_in_every_camera_and_its_files_agree(captur
     from assets.cameras import load_cameras
     from assets.garments import Template
     from assets.pattern.observation import ImageGroundTruth
-    from factory.dataset import capture, read_depth
+    from factory.capture import capture
+    from factory.scenes import read_depth
 
     _, sim, _ = shirt_run
     out = capture_folder
@@ -200,7 +209,8 @@ def _finished_simulation(folder: Path, config) -> Path:
 
 
 def test_reusing_a_simulation_made_with_other_options_is_refused_naming_them(tmp_path, capsys):
-    from factory.dataset import main, reuse_simulation, simulation_config
+    from factory.dataset import main
+    from factory.plan import reuse_simulation, simulation_config
 
     made = _finished_simulation(tmp_path, simulation_config("skirt", "walk", frames=3))
     reuse_simulation(made, tmp_path / "same" / "sim", simulation_config("skirt", "walk", frames=200))
@@ -219,18 +229,18 @@ def test_reusing_a_simulation_made_with_other_options_is_refused_naming_them(tmp
     assert not (tmp_path / "ds" / "sim").exists()
 
 
-def test_a_dataset_folder_made_before_the_simulation_options_is_still_taken_up(tmp_path):
-    from factory.build import _check_config
-
-    config = _config()
-    _check_config(tmp_path, config)
+def test_a_dataset_folder_missing_a_setting_is_refused_naming_it(tmp_path):
+    """One record (`assets.fileio.record_stage`), no defaults filled in: a folder whose config.json lacks
+    a setting (made before the setting existed) is refused, naming the setting with its new value."""
+    _record(tmp_path, _config())
+    _record(tmp_path, _config())  # the same settings: taken up
     saved = json.loads((tmp_path / "config.json").read_text())
     assert (saved["level_mm"], saved["motion_speed"]) == (12, 1.0)
     del saved["level_mm"], saved["motion_speed"]
     (tmp_path / "config.json").write_text(json.dumps(saved))
-    _check_config(tmp_path, config)  # their defaults
-    with pytest.raises(ValueError, match="level_mm"):
-        _check_config(tmp_path, _config(level_mm=4))
+    with pytest.raises(ValueError, match=r"config.json: .*level_mm: \(none\) -> 12; motion_speed: \(none\) -> 1.0\)"):
+        _record(tmp_path, _config())
+    assert "level_mm" not in json.loads((tmp_path / "config.json").read_text())  # the record is kept
 
 
 def test_a_smaller_fill_shows_smaller_markers_and_a_bad_one_is_refused(tmp_path, shirt_run, built, capsys):
@@ -255,24 +265,17 @@ def test_a_smaller_fill_shows_smaller_markers_and_a_bad_one_is_refused(tmp_path,
 
 
 def test_a_dataset_records_its_betas_and_refuses_a_rerun_with_others(tmp_path):
-    from factory.build import _check_config
-
     plain, shaped = tmp_path / "plain", tmp_path / "shaped"
-    plain.mkdir(), shaped.mkdir()
-    _check_config(plain, _config())
-    _check_config(shaped, _config(betas=(0.2, 0.4, 0.9)))
+    _record(plain, _config())
+    _record(shaped, _config(betas=(0.2, 0.4, 0.9)))
     assert json.loads((plain / "config.json").read_text())["betas"] is None
     assert json.loads((shaped / "config.json").read_text())["betas"] == [0.2, 0.4, 0.9]
-    _check_config(shaped, _config(betas=(0.2, 0.4, 0.9)))  # the same settings: taken up
-    for folder, other in ((plain, (0.2, 0.4, 0.9)), (shaped, None), (shaped, (0.2, 0.4, 1.0))):
-        with pytest.raises(ValueError, match=r"other settings.*'betas'"):
-            _check_config(folder, _config(betas=other))
-    saved = json.loads((plain / "config.json").read_text())
-    del saved["betas"]  # a folder made before the option
-    (plain / "config.json").write_text(json.dumps(saved))
-    _check_config(plain, _config())
-    with pytest.raises(ValueError, match="'betas'"):
-        _check_config(plain, _config(betas=(0.2, 0.4, 0.9)))
+    _record(shaped, _config(betas=(0.2, 0.4, 0.9)))  # the same settings: taken up
+    for folder, other, change in ((plain, (0.2, 0.4, 0.9), r"\(none\) -> \[0.2, 0.4, 0.9\]"),
+                                  (shaped, None, r"\[0.2, 0.4, 0.9\] -> \(none\)"),
+                                  (shaped, (0.2, 0.4, 1.0), r"\[0.2, 0.4, 0.9\] -> \[0.2, 0.4, 1.0\]")):
+        with pytest.raises(ValueError, match=rf"other settings or inputs \(betas: {change}\)"):
+            _record(folder, _config(betas=other))
     with pytest.raises(ValueError, match=r"betas: expected 3 comma-separated numbers"):
         build(_config(betas=(0.5, 0.5)), tmp_path / "short", progress=False)
     assert not (tmp_path / "short").exists()
@@ -281,13 +284,13 @@ def test_a_dataset_records_its_betas_and_refuses_a_rerun_with_others(tmp_path):
 def test_every_simulation_of_a_dataset_and_a_capture_is_made_on_its_betas(tmp_path, capsys):
     from dataclasses import replace
 
-    from factory.build import _simulation_of
+    from factory.shards import simulation_of
     from factory.dataset import main
 
     config = replace(_config(betas=(0.2, 0.4, 0.9)), motions=("walk", "run"))
-    assert {_simulation_of(config, motion).betas for motion in config.motions} == {(0.2, 0.4, 0.9)}
-    assert _simulation_of(config, "walk").key() != _simulation_of(_config(), "walk").key()
-    assert _simulation_of(_config(), "walk").betas is None  # the motion's own shape, else the body's default
+    assert {simulation_of(config, motion).betas for motion in config.motions} == {(0.2, 0.4, 0.9)}
+    assert simulation_of(config, "walk").key() != simulation_of(_config(), "walk").key()
+    assert simulation_of(_config(), "walk").betas is None  # the motion's own shape, else the body's default
 
     made = _finished_simulation(tmp_path, simulation_config("skirt", "walk", frames=3))
     for argv in (["capture", "--motion", "walk", "--reuse-simulation", str(made)],
@@ -311,4 +314,25 @@ def test_betas_that_do_not_fit_the_body_are_refused_before_anything_is_written(t
     assert main(command + ["--garment", "shirt", "--betas", betas, "--out", str(out)]) == 1
     error = capsys.readouterr().err
     assert error.startswith("error: --betas: ") and problem in error, error
+    assert not out.exists()
+
+
+def test_the_cli_speaks_the_shared_vocabulary(tmp_path, capsys):
+    """--device in the project's words (cpu, cuda) for Cycles, --workers only where it means something
+    (Ray tasks at once), --out and --no-progress as every CLI has them; refusals before anything is made."""
+    import argparse
+
+    from factory.dataset import _render_settings, main
+
+    def device(text):
+        return _render_settings(argparse.Namespace(resolution=(64, 64), engine="CYCLES", samples=1, no_denoise=True,
+                                                   device=text, texture_dpi=10.0)).device
+
+    assert [device(d) for d in (None, "cpu", "CPU", "cuda", "gpu")] == ["auto", "CPU", "CPU", "GPU", "GPU"]
+    out = tmp_path / "out"
+    assert main(["capture", "--garment", "shirt", "--motion", "walk", "--device", "cuda:1", "--out", str(out)]) == 1
+    assert "--device: expected one of cpu, cuda, gpu, auto for Cycles, got 'cuda:1'" in capsys.readouterr().err
+    assert main(["build", "--garment", "shirt", "--motions", "walk", "--workers", "4", "--no-progress",
+                 "--out", str(out)]) == 1
+    assert "--workers sets the Ray tasks at once: give --backend ray" in capsys.readouterr().err
     assert not out.exists()

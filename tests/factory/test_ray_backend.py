@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from factory.build import CRASH_ONCE_ENV, build
-from factory.dataset import DatasetConfig, RenderSettings
+from factory.build import build
+from factory.plan import DatasetConfig, RenderSettings
+from factory.shards import CRASH_ONCE_ENV
 from tests.factory.test_dataset import _seeded
 
 pytest.importorskip("ray")
@@ -39,12 +40,12 @@ def local_build(tmp_path_factory, shirt_run):
 
 def test_a_ray_build_makes_the_local_backends_dataset(tmp_path, local_build, shirt_run):
     out = _seeded(tmp_path / "ds", shirt_run)
-    manifest = build(CONFIG, out, progress=False, backend="ray", num_cpus=2)
+    manifest = build(CONFIG, out, progress=False, backend="ray", workers=2)
     assert len(manifest.read_text().splitlines()) == 2
     _assert_same_dataset(local_build, out)
     timing = json.loads((out / "timing.json").read_text())
     assert (timing["images"], timing["retried"]) == (2, 0)
-    build(CONFIG, out, progress=False, backend="ray", num_cpus=2)  # restarted: nothing left to make
+    build(CONFIG, out, progress=False, backend="ray", workers=2)  # restarted: nothing left to make
     assert json.loads((out / "timing.json").read_text())["images"] == 0
     _assert_same_dataset(local_build, out)
 
@@ -54,7 +55,7 @@ def test_a_worker_killed_in_mid_shard_is_retried_and_leaves_no_partial_record(tm
     crashed = tmp_path / "crashed"
     monkeypatch.setenv(CRASH_ONCE_ENV, str(crashed))  # the local Ray instance's workers inherit it
     out = _seeded(tmp_path / "ds", shirt_run)
-    manifest = build(CONFIG, out, progress=False, backend="ray", num_cpus=2)
+    manifest = build(CONFIG, out, progress=False, backend="ray", workers=2)
     assert crashed.exists()  # a worker did exit in mid-shard, after writing an image's ground truth
     names = [json.loads(line)["name"] for line in manifest.read_text().splitlines()]
     assert sorted(names) == sorted(set(names)) and len(names) == 2

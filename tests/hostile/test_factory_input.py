@@ -18,7 +18,7 @@ from assets.body import load_body
 from assets.fileio import file_digest, load_npz, save_npz
 from assets.motion.sources import load_motion
 from factory import simulate as simulate_module
-from factory.dataset import reuse_simulation
+from factory.plan import reuse_simulation
 from factory.dressing import DressingParams
 from factory.simulate import SimulationConfig, simulate
 from tests.hostile.conftest import assert_refused, files_under, run_cli
@@ -121,7 +121,7 @@ def test_a_killed_run_whose_motion_file_changed_does_not_continue_the_old_frames
 @pytest.mark.hostile("stale")
 def test_a_dataset_whose_motion_file_changed_is_refused_naming_it(tmp_path):
     from factory.build import prepare
-    from factory.dataset import DatasetConfig, RenderSettings
+    from factory.plan import DatasetConfig, RenderSettings
 
     motion = _motion_file(tmp_path / "motion.npz", "walk")
     config = DatasetConfig(garment="pants", motions=(str(motion),), level_mm=LEVEL_MM,
@@ -263,7 +263,8 @@ def test_a_reused_simulation_with_a_broken_meta_is_named(pants_run, tmp_path):
 @pytest.mark.hostile("stale")
 def test_a_capture_rerun_after_its_motion_file_changed_is_refused(tmp_path):
     """Its images would be of the old motion beside ground truth of the new one."""
-    from factory.dataset import RenderSettings, capture
+    from factory.capture import capture
+    from factory.plan import RenderSettings
 
     motion = _motion_file(tmp_path / "motion.npz", "walk")
     options = dict(frames=1, first_frame=1, cameras=1, resolution=(48, 32), level_mm=LEVEL_MM, progress=False,

@@ -198,7 +198,7 @@ def test_a_motion_goes_by_a_label_that_is_one_path_component(spec, label):
 
 @pytest.mark.hostile("outside")
 def test_two_motion_files_of_one_name_cannot_share_a_dataset_folder():
-    from factory.build import motion_labels
+    from factory.shards import motion_labels
 
     assert motion_labels(("walk", "/data/dance.npz")) == {"walk": "walk", "/data/dance.npz": "dance"}
     with pytest.raises(ValueError, match="share the name 'dance'"):
