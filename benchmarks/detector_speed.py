@@ -33,7 +33,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project's packages
 
-from networks.detector import Detector, DetectorConfig, pad_images, resize_for_localizer  # noqa: E402
+from networks.detector import Detector, DetectorConfig, DetectorResult, pad_images, resize_for_localizer  # noqa: E402
 from networks.evaluate import resolve_device  # noqa: E402
 from networks.evaluate_detector import garment_tables  # noqa: E402
 
@@ -62,27 +62,26 @@ def synchronize(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def time_detector(detector: Detector, images: list[np.ndarray], repeats: int) -> tuple[float, dict, int]:
-    """(median seconds per call over `images`, median seconds per stage, markers found)."""
-    found = detector.detect(images)[0]  # warm-up
+def time_detector(detector: Detector, images: list[np.ndarray], repeats: int) -> tuple[float, dict, DetectorResult]:
+    """(median seconds per call over `images`, median seconds per stage, the last call's result)."""
+    found = detector.detect(images)  # warm-up
     seconds, stages = [], []
     for _ in range(repeats):
-        detector.stage_seconds = dict.fromkeys(detector.stage_seconds, 0.0)
         synchronize(detector.device)
         start = time.perf_counter()
-        found = detector.detect(images)[0]
+        found = detector.detect(images)
         synchronize(detector.device)
         seconds.append(time.perf_counter() - start)
-        stages.append(dict(detector.stage_seconds))
+        stages.append(found.stage_seconds)
     median_stages = {k: statistics.median(s[k] for s in stages) for k in stages[0]}
-    return statistics.median(seconds), median_stages, sum(len(d.marker_id) for d in found)
+    return statistics.median(seconds), median_stages, found
 
 
-def time_networks(detector: Detector, images: list[np.ndarray], markers: int, repeats: int,
+def time_networks(detector: Detector, images: list[np.ndarray], scales: list[float], markers: int, repeats: int,
                   bf16: bool) -> float:
-    """Median seconds of the three networks alone on device tensors of the Detector's sizes."""
+    """Median seconds of the three networks alone on device tensors of the Detector's sizes (the images at
+    the localizer `scales` the Detector chose)."""
     device = detector.device
-    scales = detector.localizer_scales or [1.0] * len(images)
     batches = []
     for start in range(0, len(images), detector.config.image_batch_size):
         chunk = [resize_for_localizer(image, scale)[0]
@@ -144,14 +143,15 @@ def main() -> None:
                         codebook=detector.codebook)
     images = frame_images(args.data, args.images, args.upscale)
 
-    seconds, stages, markers = time_detector(detector, images, args.repeats)
+    seconds, stages, found = time_detector(detector, images, args.repeats)
+    markers, scales = sum(len(d) for d in found.detections), found.localizer_scales
     rows = [("Detector (float32)", seconds)]
-    rows.append(("networks alone, float32", time_networks(detector, images, markers, args.repeats, bf16=False)))
+    rows.append(("networks alone, float32", time_networks(detector, images, scales, markers, args.repeats, bf16=False)))
     if detector.device.type == "cuda":
-        rows.append(("networks alone, bf16", time_networks(detector, images, markers, args.repeats, bf16=True)))
+        rows.append(("networks alone, bf16", time_networks(detector, images, scales, markers, args.repeats, bf16=True)))
     name = torch.cuda.get_device_name(detector.device) if detector.device.type == "cuda" else "CPU"
     print(f"\n{args.images} images of {CANVAS[0]} x {CANVAS[1]}, {markers / args.images:.0f} markers an image, "
-          f"localizer scales {sorted(set(round(s, 3) for s in detector.localizer_scales))}, {name}")
+          f"localizer scales {sorted(set(round(s, 3) for s in scales))}, {name}")
     print("| what | s a frame | images/s |\n|---|---|---|")
     for what, s in rows:
         print(f"| {what} | {s:.3f} | {args.images / s:.1f} |")
@@ -161,7 +161,7 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps({"device": name, "images": args.images, "markers": markers,
                                          "rows": dict(rows), "stages": stages,
-                                         "localizer_scales": detector.localizer_scales}, indent=2) + "\n")
+                                         "localizer_scales": scales}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -739,7 +739,7 @@ def throughput(out: Path, device: str, sizes: tuple[int, ...], repeats: int, smo
     """Detector images per second on `repeats` synthesized images of each size, framed as the renders
     (marker size grows with the image side; the localizer sees the image at 512 / side, the scale it
     was trained on), after a warm-up call on the first and with every ID's reference texture rendered;
-    with the stage times (`Detector.stage_seconds`) and the markers found on the
+    with the stage times (`networks.detector.DetectorResult.stage_seconds`) and the markers found on the
     first image (the same on every device) and the markers the images show (smoke runs:
     `SMOKE_DETECTOR`).  Each size is timed with the Detector's defaults and with each of
     `THROUGHPUT_VARIANTS`, on the same images: the baseline a slower default shows against."""
@@ -770,17 +770,17 @@ def _time_detector(detector, images: list[np.ndarray], device: str) -> dict:
     algorithm choice: the first image on a GPU, a corner on a CPU)."""
     detector.references(np.arange(len(detector.codebook)))
     detector([images[0] if device.startswith("cuda") else np.ascontiguousarray(images[0][:256, :256])])
-    stages_before = dict(detector.stage_seconds)
     if device.startswith("cuda"):
         torch.cuda.synchronize()
     start = time.perf_counter()
-    found = [len(d) for d in detector(images)]
+    result = detector.detect(images)
+    found = [len(d) for d in result.detections]
     if device.startswith("cuda"):
         torch.cuda.synchronize()
     seconds = time.perf_counter() - start
     return {"device": device, "precision": "float32", "images": len(images), "seconds": seconds,
             "images_per_s": len(images) / seconds, "markers_per_image": float(np.mean(found)),
-            "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()},
+            "stage_seconds": result.stage_seconds,
             "found_first_image": found[0]}
 
 

@@ -4,8 +4,8 @@ The three networks are chained through the pattern's one crop mapping (`assets.p
 / `unwarp`, the same that made their training crops)::
 
     1. Marker Localizer on the whole image (resized by `localizer_scale`, or by a scale chosen per
-       image from a first pass's marker sizes, padded to a multiple of 8) -> `decode_localizer` ->
-       five points and a presence probability per marker.
+       image from the markers that coarse passes find, padded to a multiple of 8) -> `decode_localizer`
+       -> five points and a presence probability per marker.
     2. Each marker's recognizer crop (96 x 96, `RECOGNIZER_CROP`) -> Marker Recognizer -> softmax; the ID is the
        argmax (over the garment's IDs when `tables` are given) and
        ``confidence = presence probability x softmax probability of that ID``.  A module reader
@@ -33,12 +33,16 @@ under `torch.inference_mode()`, on `device`: on the CPU OpenCV cuts them (`unwar
 training crops); on a GPU each image is moved there once, the crops are cut there and the
 crosspoints smoothed and mapped there (`networks.device_geometry`: the same homographies and fits).
 Pixels are continuous image coordinates (x right, y down, pixel centres at integer + 0.5).
+
+A `Detector` keeps nothing of a call: `Detector.detect` returns the detections with the localizer
+scale of each image and the seconds of each stage (`DetectorResult`), so one Detector serves several
+threads or calls at once (the cache of reference textures only grows, one texture per ID).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -67,6 +71,7 @@ from networks.detections import Detections
 from networks.device_geometry import (crop_to_image_on_device, images_on_device, smooth_crosspoints_on_device,
                                       unwarp_markers_on_device)
 from networks.homography import (
+    AUTO_MIN_MARKERS,
     auto_localizer_scale,
     crop_to_image,
     inside_image,
@@ -112,10 +117,11 @@ class DetectorConfig:
       by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
       to full-resolution pixels; the recognizer and crosspoint crops are always cut from the full
       image, so only the localizer's input shrinks (and its cost, by the factor squared).  None (the
-      default): chosen per image (`auto_localizer_scale`): a first pass at `AUTO_FIRST_SIDE_PX` / the
-      image's longest side (at most 1) measures the median side of the markers it finds, and the
-      image is localized again at the scale that makes it `localizer_marker_px`; the chosen scales
-      of the last call are in `Detector.localizer_scales`.
+      default): chosen per image (`Detector.localize`): the localizer looks at the image at the
+      scales `AUTO_LEVELS` from the coarsest (cheap) to 1 until one finds markers with confidence
+      (`sees_markers`); the median side of those markers gives the scale that makes it
+      `localizer_marker_px` (`auto_localizer_scale`), where the image is localized again.  A
+      `DetectorResult` gives the scale of each image.
     localizer_marker_px: the marker side (pixels, the square root of its area) that the automatic
       scale aims at: the best fixed scales measured were 0.4 on the 8-camera capture's 55 px markers
       (22 px), 0.75 on 1024 px renders' 32 px markers (24 px) and 1 on 512 px renders' 19.6 px ones.
@@ -209,12 +215,35 @@ def pad_images(images: Sequence[np.ndarray], cell: int = CELL) -> np.ndarray:
     return batch
 
 
-#: the automatic localizer scale's first pass shows the localizer images of this longest side (the
-#: training renders' framing, in which markers are about 20 px), at most at full size, and measures
-#: the markers' size when it finds at least `networks.homography.AUTO_MIN_MARKERS`
-AUTO_FIRST_SIDE_PX = 512
-#: a chosen scale this close to the first pass's (relative) keeps the first pass's markers
+#: the scales at which the automatic localizer scale looks for markers, coarsest first: a factor of 2
+#: apart, so that a marker of 16 to 400 px is 8 to 25 px at one of them (the localizer trained on 16-32
+#: px finds most markers from about 12 px), and each costs a quarter of the next
+AUTO_LEVELS = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0)
+#: the coarsest level an image is looked at shows it at least this many pixels along its longest side
+#: (a marker spans at most half of the image)
+AUTO_COARSEST_SIDE_PX = 64
+#: a pass sees the markers when it finds at least `networks.homography.AUTO_MIN_MARKERS` whose median
+#: presence probability is at least this.  Markers from 0.45 to 1.1 times the localizer's training
+#: sizes give medians of 0.87-1.0; markers a third of them or twice them give 0.62-0.78, with many
+#: detections (several per marker when they are too large) at sizes the localizer knows, so the
+#: number of detections and their sizes cannot tell a wrong scale, their confidence can
+#: (docs/journal/2026-11-29-auto-localizer-scale.md)
+AUTO_MIN_PRESENCE = 0.85
+#: a chosen scale this close to that of the pass that measured it (relative) keeps that pass's markers
 AUTO_KEEP_RELATIVE = 0.1
+
+
+def sees_markers(presence: np.ndarray) -> bool:
+    """Whether a localizer pass that found markers of these presence probabilities (N,) saw the
+    image's markers at a size it knows (`AUTO_MIN_PRESENCE`)."""
+    return len(presence) >= AUTO_MIN_MARKERS and float(np.median(presence)) >= AUTO_MIN_PRESENCE
+
+
+def auto_levels(image_size: tuple[int, int]) -> list[float]:
+    """The `AUTO_LEVELS` at which an image of (H, W) is looked at: those showing its longest side at
+    `AUTO_COARSEST_SIDE_PX` or more, and 1 always."""
+    side = max(image_size)
+    return [level for level in AUTO_LEVELS if level == 1.0 or side * level >= AUTO_COARSEST_SIDE_PX]
 
 
 def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -288,6 +317,30 @@ def _batches(count: int, size: int) -> Iterator[slice]:
         yield slice(start, min(start + size, count))
 
 
+#: the Detector's stages, in order (`DetectorResult.stage_seconds`)
+STAGES = ("localize", "recognize", "vote", "complete", "crosspoints")
+
+
+@dataclass(frozen=True)
+class DetectorResult:
+    """What one `Detector.detect` call found, per image of the call, and what it took.
+
+    detections: one `Detections` per image.
+    located: per image, the localizer's own output (`Detector.localize`): points_px (N, 5, 2)
+      float32 and presence probability (N,) float32, before the partial markers' completion (what
+      evaluation measures the cut test on).
+    localizer_scales: per image, the scale the localizer saw it at (`DetectorConfig.localizer_scale`,
+      or the one chosen for the image).
+    stage_seconds: seconds spent in each of `STAGES` by the call, each stage ending with its results
+      on the host.
+    """
+
+    detections: list[Detections]
+    located: list[tuple[np.ndarray, np.ndarray]]
+    localizer_scales: list[float]
+    stage_seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+
+
 # ---- the Detector -------------------------------------------------------------------------------
 
 class Detector:
@@ -349,11 +402,6 @@ class Detector:
         self._references: dict[int, np.ndarray] = {}
         if self.layout is not None:  # the garment's IDs are all the crosspoint network will be shown
             self.references(np.flatnonzero(self.layout.table_of_id >= 0))
-        #: seconds spent in each stage by the calls so far (localize, recognize, vote, complete,
-        #: crosspoints), each stage ending with its results on the host
-        self.stage_seconds = dict.fromkeys(("localize", "recognize", "vote", "complete", "crosspoints"), 0.0)
-        #: the localizer scale of each image of the last call (`DetectorConfig.localizer_scale`)
-        self.localizer_scales: list[float] = []
 
     @classmethod
     def from_checkpoints(cls, localizer_path: str | Path, recognizer_path: str | Path, crosspoints_path: str | Path,
@@ -389,23 +437,59 @@ class Detector:
             return normalize(unwarp_markers_on_device(on_device, image_index, points_px, self.spec, crop))
         return self._to_device(unwarp_markers(images, image_index, points_px, self.spec, crop))
 
-    def localize(self, images: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Stage 1: per image, (points_px (N, 5, 2) float32, presence probability (N,) float32) of the
-        markers whose centre lies in the image, found at `config.localizer_scale` or, where that is
-        None, at a scale chosen per image (`auto_localizer_scale`; the scales in
-        `self.localizer_scales`)."""
-        if self.config.localizer_scale is not None:
-            self.localizer_scales = [self.config.localizer_scale] * len(images)
-            return self._localize(images, self.localizer_scales)
-        first = [min(1.0, AUTO_FIRST_SIDE_PX / max(image.shape[:2])) for image in images]
-        out = self._localize(images, first)
-        chosen = [auto_localizer_scale(points, scale, self.config.localizer_marker_px)
-                  for (points, _), scale in zip(out, first)]
-        self.localizer_scales = [c if abs(c / f - 1) > AUTO_KEEP_RELATIVE else f for c, f in zip(chosen, first)]
-        again = [i for i, (c, f) in enumerate(zip(self.localizer_scales, first)) if c != f]
-        for i, found in zip(again, self._localize([images[i] for i in again], [chosen[i] for i in again])):
-            out[i] = found
-        return out
+    def localize(self, images: Sequence[np.ndarray], scales: Sequence[float] | None = None
+                 ) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[float]]:
+        """Stage 1: (per image, (points_px (N, 5, 2) float32, presence probability (N,) float32) of the
+        markers whose centre lies in the image; per image, the localizer scale it was seen at): at
+        `scales` (one per image) when given, else at `config.localizer_scale`, else at a scale chosen
+        per image (`DetectorConfig.localizer_scale`, `localize_auto`)."""
+        if scales is None and self.config.localizer_scale is None:
+            return self.localize_auto(images)
+        if scales is None:
+            scales = [self.config.localizer_scale] * len(images)
+        if len(scales) != len(images):
+            raise ValueError(f"localize: {len(scales)} scales for {len(images)} images")
+        return self._localize(images, scales), [float(scale) for scale in scales]
+
+    def localize_auto(self, images: Sequence[np.ndarray]) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[float]]:
+        """`localize` at a scale chosen per image: each image is looked at at its `auto_levels`, coarsest
+        first; at the first pass that `sees_markers`, their median side gives the scale that makes it
+        `config.localizer_marker_px` (`auto_localizer_scale`), and the image is localized there (that
+        pass's markers kept when the scale is within `AUTO_KEEP_RELATIVE` of its).  A scale whose
+        pass does not see the markers (a measure thrown by a few large markers) lets the search go on
+        at the next level.  An image no pass convinces keeps the pass of the most confident markers
+        (the highest median presence; the finest level when none found any)."""
+        images = list(images)
+        located: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(images)
+        scales: list[float | None] = [None] * len(images)
+        levels = [auto_levels(image.shape[:2]) for image in images]
+        best: list[tuple[float, float, tuple[np.ndarray, np.ndarray]] | None] = [None] * len(images)
+
+        def consider(i: int, scale: float, found: tuple[np.ndarray, np.ndarray]) -> None:
+            presence = float(np.median(found[1])) if len(found[1]) else -1.0
+            if best[i] is None or presence > best[i][0] or (presence == best[i][0] == -1.0):
+                best[i] = (presence, scale, found)
+
+        for level in AUTO_LEVELS:
+            todo = [i for i in range(len(images)) if scales[i] is None and level in levels[i]]
+            again = []
+            for i, found in zip(todo, self._localize([images[i] for i in todo], [level] * len(todo))):
+                consider(i, level, found)
+                if not sees_markers(found[1]):
+                    continue
+                chosen = auto_localizer_scale(found[0], level, self.config.localizer_marker_px)
+                if abs(chosen / level - 1) <= AUTO_KEEP_RELATIVE:
+                    located[i], scales[i] = found, level
+                else:
+                    again.append((i, chosen))
+            for (i, chosen), found in zip(again, self._localize([images[i] for i, _ in again], [c for _, c in again])):
+                consider(i, chosen, found)
+                if sees_markers(found[1]):
+                    located[i], scales[i] = found, chosen
+        for i in range(len(images)):
+            if scales[i] is None:
+                _, scales[i], located[i] = best[i]
+        return located, scales
 
     def _localize(self, images: Sequence[np.ndarray], scales: Sequence[float]) -> list[tuple[np.ndarray, np.ndarray]]:
         """`localize` with the localizer scale of each image given."""
@@ -565,23 +649,24 @@ class Detector:
 
     def __call__(self, images: Sequence[np.ndarray]) -> list[Detections]:
         """Detect the markers of every image: images uint8 (H, W, 3) -> one `Detections` per image."""
-        return self.detect(images)[0]
+        return self.detect(images).detections
 
-    def detect(self, images: Sequence[np.ndarray]) -> tuple[list[Detections], list[tuple[np.ndarray, np.ndarray]]]:
-        """(`Detections` per image, as `__call__`; the localizer's own output per image, as `localize`:
-        the points before the partial markers' completion, which evaluation measures the cut test on)."""
+    def detect(self, images: Sequence[np.ndarray]) -> DetectorResult:
+        """The `Detections` of every image, as `__call__`, with the localizer's own output and scale per
+        image and the seconds of each stage (`DetectorResult`)."""
         images = check_images(images)
         if not images:
-            return [], []
+            return DetectorResult([], [], [])
+        seconds = dict.fromkeys(STAGES, 0.0)
         clock = time.perf_counter()
 
         def lap(stage: str) -> None:
             nonlocal clock
             now = time.perf_counter()
-            self.stage_seconds[stage] += now - clock
+            seconds[stage] += now - clock
             clock = now
 
-        located = self.localize(images)
+        located, scales = self.localize(images)
         # on a GPU the crops are cut there, from images moved once, and the crosspoints' smoothing and
         # mapping run there (`networks.device_geometry`); on the CPU OpenCV cuts the crops, 5-7x faster
         # than grid_sample there
@@ -624,4 +709,4 @@ class Detector:
                 marker_id=marker_id[pick], confidence=confidence[pick], points_px=points[pick].astype(np.float32),
                 crosspoints_px=crosspoints_px[pick], crosspoint_visible=visible[pick], partial=partial[pick],
                 id_support=support[pick]))
-        return result, located
+        return DetectorResult(result, located, scales, seconds)

@@ -91,23 +91,24 @@ def evaluate_images(detector: Detector, pairs: Iterable[tuple[np.ndarray, ImageG
     Returns the dict of `networks.metrics.detector_metrics` with "radius_px", "tables" (whether the
     Detector knows the garment), "presence_threshold" (the localizer's), "seconds" (in the Detector),
     "seconds_per_image", "localizer_scale" (the configured one and the median, min and max chosen, with
-    "per_image" the scale of each image) and "stage_seconds" (per stage of the Detector,
-    `Detector.stage_seconds`) added."""
-    records, seconds, scales = [], 0.0, []
-    stages_before = dict(detector.stage_seconds)
+    "per_image" the scale of each image) and "stage_seconds" (per stage of the Detector, summed over the
+    images, `networks.detector.DetectorResult.stage_seconds`) added."""
+    records, seconds, scales, stages = [], 0.0, [], {}
     for image, gt in pairs:
         start = time.perf_counter()
-        (detections,), ((localized, _),) = detector.detect([image])  # localized: the points the cut test saw
+        found = detector.detect([image])
         seconds += time.perf_counter() - start
-        scales += detector.localizer_scales
-        records.append(match_detections(detections, gt, detector.spec, radius_px, localized))
+        scales += found.localizer_scales
+        stages = {stage: stages.get(stage, 0.0) + s for stage, s in found.stage_seconds.items()}
+        # the localizer's own points: those the cut test saw
+        records.append(match_detections(found.detections[0], gt, detector.spec, radius_px, found.located[0][0]))
     metrics = detector_metrics(records, detector.config.max_layout_residual_cells)
     return {"radius_px": float(radius_px), "tables": detector.layout is not None,
             "presence_threshold": detector.config.presence_threshold, **metrics, "seconds": seconds,
             "seconds_per_image": seconds / len(records),
             "localizer_scale": {"config": detector.config.localizer_scale, "median": float(np.median(scales)),
                                 "min": min(scales), "max": max(scales), "per_image": scales},
-            "stage_seconds": {k: v - stages_before[k] for k, v in detector.stage_seconds.items()}}
+            "stage_seconds": stages}
 
 
 def evaluate_detector(detector: Detector, data: str | Path, split: str = "test", progress: bool = True,

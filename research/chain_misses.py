@@ -73,8 +73,8 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
     "id_claimed_elsewhere"; the image's fully visible markers).  `detector` knows the garment (tables)."""
     from networks.recognizer_top1 import marker_shape
 
-    (detections,), ((located, _),) = detector.detect([image])
-    scales = list(detector.localizer_scales)
+    found = detector.detect([image])
+    (detections,), ((located, _),), scales = found.detections, found.located, found.localizer_scales
     truth = gt.select((gt.status > 0) & gt.point_visible[:, 0])
     full = np.flatnonzero(truth.status == 2)
     d, g = match_markers(detections.points_px[:, 0], truth.points_px[:, 0], radius)
@@ -83,7 +83,7 @@ def image_misses(detector: Detector, image: np.ndarray, gt: ImageGroundTruth, ra
         return [], len(full)
     low = copy.copy(detector)  # the same networks, the localizer decoded at the lower threshold and same scale
     low.config = dataclasses.replace(detector.config, presence_threshold=low_threshold)
-    (low_points, low_scores), = low._localize([image], scales)
+    (low_points, low_scores), = low.localize([image], scales)[0]
     usable = usable_points(detector.spec, located.astype(np.float64)) if len(located) else np.zeros(0, bool)
     right = d[detections.marker_id[d] == truth.marker_id[g]]
     right_ids = set(detections.marker_id[right].tolist())

@@ -50,7 +50,7 @@ def chain(detector: Detector, pairs: list[tuple[Path, Path]], radius: float) -> 
     for image_path, gt_path in pairs:
         image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)[:, :, ::-1].copy()
         gt = ImageGroundTruth.load(gt_path)
-        (points, _), = detector.localize([image])
+        (points, _), = detector.localize([image])[0]
         points = points.astype(np.float64)
         points = points[usable_points(detector.spec, points)]
         index = np.zeros(len(points), np.int64)

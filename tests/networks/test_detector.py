@@ -25,8 +25,8 @@ from assets.pattern import (
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.detections import Detections
-from networks.detector import (AUTO_FIRST_SIDE_PX, Detector, DetectorConfig, fully_observed, pad_images, unwarp_markers,
-                               usable_points)
+from networks.detector import (AUTO_LEVELS, STAGES, Detector, DetectorConfig, DetectorResult, auto_levels,
+                               fully_observed, pad_images, sees_markers, unwarp_markers, usable_points)
 from networks.device_geometry import (crop_to_image_on_device, images_on_device, smooth_crosspoints_on_device,
                                       unwarp_markers_on_device)
 from networks.homography import (
@@ -435,17 +435,25 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
         kernels = [p for p in network.parameters() if p.dim() == 4 and p.shape[-1] > 1]
         assert kernels and all(p.is_contiguous(memory_format=torch.channels_last) for p in kernels)
     assert set(detector._references) == set(table.marker_ids.tolist())  # the garment's, rendered at construction
-    assert all(seconds > 0 for seconds in detector.stage_seconds.values()), detector.stage_seconds
     alone = detector([wide])[0]  # batching does not change the answer
     assert np.array_equal(alone.marker_id, result[1].marker_id)
     assert np.allclose(alone.crosspoints_px, result[1].crosspoints_px, atol=1e-3)
     assert detector([]) == []
-    # detect: the same detections, and the localizer's own points per image (before completion)
-    detected, located = detector.detect([small, wide])
-    for (points, presence), own in zip(located, detector.localize([small, wide])):
-        assert np.array_equal(points, own[0]) and np.array_equal(presence, own[1])
-    for a, b in zip(detected, result):
+    # detect: the same detections, the localizer's own points (before completion) and scale per image,
+    # and the seconds of this call's stages, in its result: the Detector keeps nothing of the call
+    state = dict(vars(detector))
+    run = detector.detect([small, wide])
+    assert isinstance(run, DetectorResult) and run.localizer_scales == [1.0, 1.0]
+    assert tuple(run.stage_seconds) == STAGES and all(seconds > 0 for seconds in run.stage_seconds.values())
+    own, scales = detector.localize([small, wide])
+    assert scales == [1.0, 1.0]
+    for (points, presence), (own_points, own_presence) in zip(run.located, own):
+        assert np.array_equal(points, own_points) and np.array_equal(presence, own_presence)
+    for a, b in zip(run.detections, result):
         assert np.array_equal(a.marker_id, b.marker_id) and np.array_equal(a.points_px, b.points_px)
+    assert vars(detector).keys() == state.keys() and all(vars(detector)[k] is v for k, v in state.items())
+    empty = detector.detect([])
+    assert empty.detections == empty.located == empty.localizer_scales == []
     with pytest.raises(ValueError, match=r"images\[1\]: expected uint8"):
         detector([small, small.astype(np.float32)])
 
@@ -606,9 +614,13 @@ def test_localizer_scale_maps_points_back_to_full_resolution(detector, scene):
     image = np.ascontiguousarray(scene[0][150:347, 180:441])  # 261 x 197: the halves round, per axis
     scaled = Detector(detector.localizer, detector.recognizer, detector.crosspoints, SPEC, codebook=detector.codebook,
                       config=dataclasses.replace(detector.config, localizer_scale=0.5))
-    points, score = scaled.localize([image])[0]
+    (points, score), = scaled.localize([image])[0]
     small = cv2.resize(image, (130, 98), interpolation=cv2.INTER_AREA)
-    expected, expected_score = detector.localize([small])[0]
+    (expected, expected_score), = detector.localize([small])[0]
+    assert scaled.localize([image])[1] == [0.5] and detector.localize([image], scales=[0.5])[1] == [0.5]
+    assert all(np.array_equal(a, b) for a, b in zip(detector.localize([image], scales=[0.5])[0][0], (points, score)))
+    with pytest.raises(ValueError, match="2 scales for 1 images"):
+        detector.localize([image], scales=[0.5, 1.0])
     assert len(points) >= 1 and len(points) == len(expected)
     assert np.allclose(score, expected_score)
     assert np.allclose(points, expected * np.array([261 / 130, 197 / 98], np.float32), atol=1e-3)
@@ -643,28 +655,33 @@ def test_auto_localizer_scale_aims_at_the_marker_size():
         DetectorConfig(localizer_scale=None, localizer_marker_px=2.0)
 
 
-def test_auto_localizer_scale_localizes_again_at_the_chosen_scale(detector, scene):
-    """localizer_scale None: a first pass at 512 / the longest side measures the markers (the
-    untrained localizer's are 40 px in its input) and the image is localized again at the scale that
-    makes them 22 px, exactly as at that fixed scale; an image too small for 8 markers keeps its
-    first pass."""
+def test_auto_levels_start_at_a_64_px_image_and_a_pass_sees_markers_when_they_are_confident():
+    assert auto_levels((1080, 1920)) == list(AUTO_LEVELS)  # 1/16 shows 120 px
+    assert auto_levels((470, 560)) == [1 / 8, 1 / 4, 1 / 2, 1.0]  # 1/16 would show 35 px
+    assert auto_levels((64, 96)) == [1.0]
+    assert auto_levels((20, 30)) == [1.0]  # 1 always
+    assert sees_markers(np.full(8, 0.9, np.float32)) and not sees_markers(np.full(7, 0.99, np.float32))
+    assert not sees_markers(np.array([0.99] * 4 + [0.6] * 5, np.float32))  # median 0.6
+    assert not sees_markers(np.zeros(0, np.float32))
+
+
+def test_auto_localizer_scale_is_a_pass_at_the_scale_it_reports(detector, scene):
+    """localizer_scale None: whatever the search chose for each image (here with untrained networks),
+    the markers are those of a pass at the reported scale, in a batch of images of different sizes as
+    alone; an image too small for a coarser level is seen at 1."""
     def at(scale):
         return Detector(detector.localizer, detector.recognizer, detector.crosspoints, SPEC, codebook=detector.codebook,
                         config=dataclasses.replace(detector.config, localizer_scale=scale))
 
     image, small = scene[0], np.ascontiguousarray(scene[0][200:264, 250:346])
     auto = at(None)
-    found = auto.localize([image, small])
-    first = AUTO_FIRST_SIDE_PX / IMAGE_SIZE[0]
-    chosen = auto_localizer_scale(at(first).localize([image])[0][0], first, 22.0)
-    assert chosen == pytest.approx(22.0 / (40.0 / first), rel=0.05)
-    assert auto.localizer_scales == [chosen, 1.0]
-    (points, score), (expected, expected_score) = found[0], at(chosen).localize([image])[0]
-    assert len(points) >= 8 and len(points) == len(expected)
-    assert np.allclose(points, expected) and np.allclose(score, expected_score)
-    alone = auto.localize([small])[0]  # alone: in a batch the small image is padded to the large one's size
-    assert len(alone[0]) < 8 and auto.localizer_scales == [1.0]
-    assert all(np.array_equal(a, b) for a, b in zip(alone, at(1.0).localize([small])[0]))
+    found, scales = auto.localize([image, small])
+    assert scales[1] == 1.0 and 1 / 16 <= scales[0] <= 1.0
+    for one, (points, score), scale in zip((image, small), found, scales):
+        (expected, expected_score), = at(scale).localize([one])[0]
+        assert len(points) == len(expected)
+        assert np.allclose(points, expected, atol=1e-3) and np.allclose(score, expected_score, atol=1e-5)
+    assert auto.detect([image, small]).localizer_scales == scales
 
 
 def test_the_detector_cuts_the_recognizers_crops_as_its_network_carries_them(codebook, table, scene):
