@@ -10,6 +10,7 @@ which renders a network was trained on, so that anyone can make them again::
     motions = ["walk", "arm_swing", "assets/data/motions/cmu_93_03_charleston.bvh"]
     frames = 8            # per motion, frame_step simulation frames apart (DatasetConfig)
     variations = 5        # the reference's: 5 images per frame, 10 environments, split 22:2:1
+    motions_per_part = 2  # optional: each training part takes 2 of the motions, in turn (default: all)
     [[data.bodies]]
     name = "default"      # a label: the part folders' names
     body = "default"      # "default" or a body file
@@ -27,7 +28,10 @@ by `assets.motion.sources.motion_label` (a file's stem).  Relative garment, body
 relative to the repository's root (the folder holding `networks/recipes`).  A dataset folder is not a
 garment-mixing store (ground truth refers to one template), so a recipe builds one dataset folder per
 part (`parts`):
-- `train/<garment>-<body>`: each training garment on each training body over the training motions;
+- `train/<garment>-<body>`: each training garment on each training body over the training motions, or,
+  with `motions_per_part` k, over k of them in turn: part (garment g, body b) takes the k motions
+  starting at (g + b) * k (cyclically), so every garment and every body still meets every motion when
+  there are enough parts, at a fraction of the simulations and renders;
 - `holdout/<garment>-<body>`: each held-out garment on the first training body, and the first training
   garment on each held-out body, both over the first training motion and the held-out motions; and
   the first training garment and body over the held-out motions alone (`holdout-motions`); each
@@ -110,11 +114,13 @@ class DataRecipe:
     holdout_motions: tuple[str, ...] = ()
     holdout_bodies: tuple[str, ...] = ()
     holdout_frames: int | None = None
+    motions_per_part: int | None = None
 
     @classmethod
     def from_table(cls, table: object, source: str) -> "DataRecipe":
         """Read a `[data]` table; unknown keys and bad values are refused naming `source` and the key."""
-        keys = ("garments", "motions", "bodies", "frames", "frame_step", "variations", "seed", "render", "holdout")
+        keys = ("garments", "motions", "bodies", "frames", "frame_step", "variations", "seed", "render", "holdout",
+                "motions_per_part")
         table = check_json_object(table, keys, f"{source} [data]")
         where = f"{source} [data]"
         numbers = {}
@@ -123,6 +129,9 @@ class DataRecipe:
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"{where}: {key} must be an integer >= {low}, got {value!r}")
             numbers[key] = value
+        per_part = table.get("motions_per_part")
+        if per_part is not None and (not isinstance(per_part, int) or isinstance(per_part, bool) or per_part < 1):
+            raise ValueError(f"{where}: motions_per_part must be an integer >= 1, got {per_part!r}")
         bodies = []
         for k, entry in enumerate(table.get("bodies", [{"name": "default"}])):
             at = f"{where} bodies[{k}]"
@@ -155,7 +164,7 @@ class DataRecipe:
                      holdout_garments=_strings(holdout, "garments", f"{where} holdout", False),
                      holdout_motions=_strings(holdout, "motions", f"{where} holdout", False),
                      holdout_bodies=_strings(holdout, "bodies", f"{where} holdout", False),
-                     holdout_frames=held_frames)
+                     holdout_frames=held_frames, motions_per_part=per_part)
         recipe.check(where)
         return recipe
 
@@ -168,6 +177,9 @@ class DataRecipe:
                 raise ValueError(f"{where}: holdout {kind} {overlap} are also trained on")
         if unknown := sorted(set(self.holdout_bodies) - set(names)):
             raise ValueError(f"{where}: holdout bodies {unknown} are not among the bodies ({', '.join(names)})")
+        if self.motions_per_part is not None and self.motions_per_part > len(self.motions):
+            raise ValueError(f"{where}: motions_per_part {self.motions_per_part} is more than the "
+                             f"{len(self.motions)} training motions")
         if set(names) <= set(self.holdout_bodies):
             raise ValueError(f"{where}: every body is held out; nothing is left to train on")
         labels = [garment_label(g) for g in self.garments + self.holdout_garments]
@@ -181,13 +193,21 @@ class DataRecipe:
                              betas=body.betas, frames=frames, frame_step=self.frame_step,
                              variations=self.variations, seed=self.seed, render=self.render)
 
+    def part_motions(self, garment: int, body: int) -> tuple[str, ...]:
+        """The training motions of training part (garment index, training body index)."""
+        k = self.motions_per_part
+        if k is None or k >= len(self.motions):
+            return self.motions
+        start = (garment + body) * k
+        return tuple(self.motions[(start + n) % len(self.motions)] for n in range(k))
+
     def parts(self) -> list[Part]:
         """The dataset folders of this recipe, training parts first (see the module docstring)."""
         training = [b for b in self.bodies if b.name not in self.holdout_bodies]
         held = [b for b in self.bodies if b.name in self.holdout_bodies]
         shown = self.motions[:1] + self.holdout_motions
-        parts = [Part(f"{TRAIN}/{garment_label(g)}-{b.name}", self._config(g, b, self.motions))
-                 for g in self.garments for b in training]
+        parts = [Part(f"{TRAIN}/{garment_label(g)}-{b.name}", self._config(g, b, self.part_motions(i, j)))
+                 for i, g in enumerate(self.garments) for j, b in enumerate(training)]
         first_garment, first_body = self.garments[0], training[0]
         parts += [Part(f"{HOLDOUT}/{garment_label(g)}-{first_body.name}", self._config(g, first_body, shown, True))
                   for g in self.holdout_garments]

@@ -64,6 +64,21 @@ def test_parts_hold_out_a_garment_a_body_and_a_motion(tmp_path):
     assert all(c.betas is None for f, c in parts.items() if f != "holdout/shirt-tall")
 
 
+def test_motions_per_part_turn_so_every_garment_and_body_meets_every_motion(tmp_path):
+    four = BASE.replace('motions = ["walk", "run"]', 'motions = ["walk", "run", "bend", "arm_swing"]\nmotions_per_part = 2')
+    four = four.replace('bodies = ["tall"]', 'bodies = []')  # both bodies train
+    _, _, recipe = load_data_recipe(_write(tmp_path, four))
+    train = {p.folder: p.config.motions for p in recipe.parts() if p.folder.startswith("train/")}
+    assert train == {"train/shirt-default": ("walk", "run"), "train/shirt-tall": ("bend", "arm_swing"),
+                     "train/skirt-default": ("bend", "arm_swing"), "train/skirt-tall": ("walk", "run")}
+    held = {p.folder: p.config.motions for p in recipe.parts() if p.folder.startswith("holdout/")}
+    assert held["holdout/pants-default"] == ("walk", "squat")  # hold-out parts are not thinned
+    with pytest.raises(ValueError, match="motions_per_part 5 is more than the 4 training motions"):
+        load_data_recipe(_write(tmp_path, four.replace("motions_per_part = 2", "motions_per_part = 5")))
+    with pytest.raises(ValueError, match="motions_per_part must be an integer >= 1"):
+        load_data_recipe(_write(tmp_path, four.replace("motions_per_part = 2", "motions_per_part = 0")))
+
+
 CHARLESTON = "assets/data/motions/cmu_93_03_charleston.bvh"  # shipped mocap: 353 frames at 120 Hz
 
 
