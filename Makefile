@@ -20,8 +20,9 @@ demo: $(STAMP)
 # the shipped networks, written from the repository's history (kept when their SHA-256 matches)
 	$(BIN)/python -m networks.weights fetch --out $(DEMO_OUT)/weights
 	$(BIN)/python -m reconstruction run --views $(DEMO_OUT)/capture --template $(DEMO_OUT)/capture/template.npz \
-		--out $(DEMO_OUT)/reconstruction --checkpoints $(DEMO_OUT)/weights/localizer.pt \
-		$(DEMO_OUT)/weights/recognizer.pt $(DEMO_OUT)/weights/crosspoints.pt --levels 12 --evaluate
+		--out $(DEMO_OUT)/reconstruction --localizer $(DEMO_OUT)/weights/localizer.pt \
+		--recognizer $(DEMO_OUT)/weights/recognizer.pt --crosspoints $(DEMO_OUT)/weights/crosspoints.pt \
+		--levels 12 --evaluate
 	$(MAKE) addon
 
 # The Blender add-on as one zip (extension and legacy add-on): out/addon/clothcapture-<version>.zip.

@@ -39,13 +39,14 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+from assets import cli  # noqa: E402
 from assets.fileio import load_json, save_json  # noqa: E402
 from assets.garments import load_template  # noqa: E402
 from factory.capture import capture  # noqa: E402
 from factory.plan import RenderSettings  # noqa: E402
 from reconstruction import pipeline  # noqa: E402
 from reconstruction.groundtruth import GroundTruthCapture  # noqa: E402
-from reconstruction.refine import RefineConfig, RefinedSequence  # noqa: E402
+from reconstruction.refinement import RefineConfig, RefinedSequence  # noqa: E402
 
 HIERARCHY = (12, 4, 2)  # the reference's levels coarser than full resolution, mm
 TARGETS = {"error_mm_median": 1.0, "filled_error_mm_median": 5.0, "intersections_after_max": 0}
@@ -127,14 +128,14 @@ def main() -> None:
     parser.add_argument("--levels", default="12,4,2", help="template levels (mm) to reconstruct at")
     parser.add_argument("--refine-frames", default="", help="frames refined per level, e.g. 12:120,4:6,2:3 "
                         "(default: every frame at every level)")
-    parser.add_argument("--quiet", action="store_true")
+    cli.add_progress(parser)
     args = parser.parse_args()
     levels = tuple(int(v) for v in args.levels.split(","))
     if any(mm not in HIERARCHY for mm in levels):
         raise SystemExit(f"--levels: expected levels of {HIERARCHY}, got {levels}")
     width, height = (int(v) for v in args.resolution.lower().split("x"))
     refine_frames = _refine_frames(args.refine_frames, levels, args.frames)
-    progress = not args.quiet
+    progress = cli.progress(args)
     args.out.mkdir(parents=True, exist_ok=True)
 
     started = time.perf_counter()

@@ -239,8 +239,8 @@ def reconstruction_command(settings) -> tuple[list[str], Path]:
     if review.detections == "groundtruth":
         argv += ["--noise", _number(review.noise_px), "--dropout", _number(review.dropout), "--evaluate"]
     else:
-        argv += ["--cameras", str(capture / "cameras.json"), "--checkpoints",
-                 *(str(_existing_file(getattr(review, name), f"{name} checkpoint"))
-                   for name in ("localizer", "recognizer", "crosspoints"))]
+        argv += ["--cameras", str(capture / "cameras.json")]
+        argv += [arg for name in ("localizer", "recognizer", "crosspoints")
+                 for arg in (f"--{name}", str(_existing_file(getattr(review, name), f"{name} checkpoint")))]
     argv += [] if review.neighbour_check else ["--no-neighbour-check"]
     return argv + (["--levels", review.levels.replace(" ", "")] if review.levels.strip() else []), out

@@ -147,15 +147,15 @@ def import_render(scene, folder: Path, rig: str) -> str:
 # ---- review ----------------------------------------------------------------------------------------
 def import_reconstruction(scene, folder: Path, capture: Path | None, groundtruth_offset: float | None = None,
                           heatmap_max_mm: float | None = None, cameras: bool = True) -> str:
-    """A reconstruction folder's sequence (`reconstruction.review.reconstruction_sequence`: the export
+    """A reconstruction folder's sequence (`reconstruction.pipeline.sequence_of`: the export
     stage's, or the refined one when it was not exported) as "reconstruction"
     (`reconstruction.review.build_review_scene`: the capture's texture, "captured" colours, animated,
     the detect stage's cameras in "reconstruction cameras"); with the capture folder, its ground truth
     as "ground truth" moved `groundtruth_offset` m along X and the per-vertex error (attributes
     "error_mm" mean and "error_mm_max" over frames, colour "error" red at `heatmap_max_mm`)."""
-    from reconstruction.pipeline import stage_cameras
+    from reconstruction.pipeline import sequence_of, stage_cameras
 
-    sequence = review.reconstruction_sequence(folder)
+    sequence = sequence_of(folder)
     texture = capture / "texture.png" if capture is not None and (capture / "texture.png").is_file() else None
     found = stage_cameras(folder) if cameras else None
     build.remove_object(RECONSTRUCTION)

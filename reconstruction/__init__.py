@@ -1,19 +1,53 @@
 """Calibrated multi-view images to complete, intersection-free 4D garment sequences.
 
-    from reconstruction import CrosspointMap, GroundTruthCapture, GroundTruthConfig, triangulate_frame
-    capture = GroundTruthCapture("out/capture")                  # a factory capture folder
-    crosspoints = CrosspointMap.build(capture.template, 12)      # template level, mm
-    config = GroundTruthConfig(noise_px=0.3)
-    points = triangulate_frame(crosspoints, capture.cameras, capture.detections(frame, config),
-                               frame=frame, source=config.source)   # -> CapturedPoints
+    import reconstruction
+    settings = reconstruction.RunSettings(template="out/capture/template.npz", detections="groundtruth",
+                                          noise_px=0.3, initial_shape="out/capture/sim/dressed.npz")
+    evaluation = reconstruction.run("out/rec", "out/capture", settings, evaluate_against="out/capture")
 
-The names below are imported on first use, so importing the package costs nothing (no OpenCV, no
-warp, no torch).
+The stages over one output folder (`reconstruction.pipeline`; ``python -m reconstruction`` is their CLI),
+each resumable, each recording its settings there and refusing a rerun with others:
+- `run`: every stage below in order; `start`: create or reopen a folder with its `RunSettings`
+  (``run.json``), which `settings_of` reads back;
+- `detect`: views (through the networks, or a factory capture's ground truth) -> detections;
+- `triangulate`: detections -> captured points per frame (`TriangulationConfig`);
+- `refine`: captured points -> the complete, intersection-free sequence (`RefineConfig`);
+- `export`: the sequence as npz, OBJ, PLY and PC2, and the review .blend (`write_review`: Blender in a
+  process of its own; `sequence_of` reads a folder's sequence back for review);
+- `evaluate`: accuracy against a factory capture's ground truth (`DEFINITIONS` of its fractions).
+
+The parts they are made of, for use on plain data:
+- cameras: `read_cameras` (cameras.json or OpenCV YAML), `validate_cameras`, `undistort_pixels`;
+  `Views`: the frames of each camera (image folders or videos);
+- correspondence: `CrosspointMap` (template crosspoints <-> marker IDs and grid cells);
+- triangulation: `triangulate_points`, `triangulate_frame`, `triangulate_sequence` -> `CapturedPoints`
+  (`save_sequence`, `load_sequence`); `NeighbourConfig` and `consistent_points`, the pattern-neighbour
+  check of a frame's points;
+- ground truth: `GroundTruthCapture` (a factory capture's exact observations, `GroundTruthConfig` for
+  noise and dropout), `vertex_errors`;
+- refinement: `refine_sequence` -> `RefinedSequence`; `load_initial_shape`;
+- exports: `GarmentSequence` (from a `RefinedSequence` by `from_refined`), `export_sequence`.
+
+The review in Blender (`reconstruction.review`) imports bpy and is not re-exported here: the Blender
+add-on and the export stage's own process import it.  The names above are imported on first use, so
+importing the package costs nothing (no OpenCV, warp, torch or bpy).
 """
 
 from importlib import import_module
 
 _EXPORTS = {
+    "RunSettings": "reconstruction.pipeline",
+    "run": "reconstruction.pipeline",
+    "start": "reconstruction.pipeline",
+    "settings_of": "reconstruction.pipeline",
+    "detect": "reconstruction.pipeline",
+    "triangulate": "reconstruction.pipeline",
+    "refine": "reconstruction.pipeline",
+    "export": "reconstruction.pipeline",
+    "write_review": "reconstruction.pipeline",
+    "sequence_of": "reconstruction.pipeline",
+    "evaluate": "reconstruction.evaluation",
+    "DEFINITIONS": "reconstruction.evaluation",
     "read_cameras": "reconstruction.cameras",
     "undistort_pixels": "reconstruction.cameras",
     "validate_cameras": "reconstruction.cameras",
@@ -22,30 +56,32 @@ _EXPORTS = {
     "CapturedPoints": "reconstruction.points",
     "load_sequence": "reconstruction.points",
     "save_sequence": "reconstruction.points",
-    "TriangulationConfig": "reconstruction.triangulate",
-    "triangulate_frame": "reconstruction.triangulate",
-    "triangulate_points": "reconstruction.triangulate",
-    "triangulate_sequence": "reconstruction.triangulate",
+    "TriangulationConfig": "reconstruction.triangulation",
+    "triangulate_frame": "reconstruction.triangulation",
+    "triangulate_points": "reconstruction.triangulation",
+    "triangulate_sequence": "reconstruction.triangulation",
     "NeighbourConfig": "reconstruction.consistency",
     "consistent_points": "reconstruction.consistency",
     "GroundTruthCapture": "reconstruction.groundtruth",
     "GroundTruthConfig": "reconstruction.groundtruth",
     "vertex_errors": "reconstruction.groundtruth",
-    "RefineConfig": "reconstruction.refine",
-    "RefinedSequence": "reconstruction.refine",
-    "refine_sequence": "reconstruction.refine",
-    "GarmentSequence": "reconstruction.export",
-    "export_sequence": "reconstruction.export",
-    "write_review_blend": "reconstruction.review",
-    "build_review_scene": "reconstruction.review",
-    "reconstruction_sequence": "reconstruction.review",
-    "RunSettings": "reconstruction.pipeline",
+    "RefineConfig": "reconstruction.refinement",
+    "RefinedSequence": "reconstruction.refinement",
+    "refine_sequence": "reconstruction.refinement",
+    "load_initial_shape": "reconstruction.refinement",
+    "GarmentSequence": "reconstruction.exports",
+    "from_refined": "reconstruction.exports",
+    "export_sequence": "reconstruction.exports",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = list(_EXPORTS)
 
 
 def __getattr__(name: str):
     if name in _EXPORTS:
         return getattr(import_module(_EXPORTS[name]), name)
     raise AttributeError(f"module 'reconstruction' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -1,17 +1,18 @@
 """python -m reconstruction: calibrated multi-view images -> a complete, intersection-free garment sequence.
 
     python -m reconstruction run --cameras cameras.json --views DIR --template shirt --out DIR \\
-        --checkpoints localizer.pt recognizer.pt crosspoints.pt
+        --localizer localizer.pt --recognizer recognizer.pt --crosspoints crosspoints.pt
     python -m reconstruction run --views out/capture --template shirt --out out/rec \\
         --detections groundtruth --noise 0.3 --evaluate          # a factory capture, no networks
-    python -m reconstruction run --views out/capture --template shirt --out out/rec \\
-        --checkpoints localizer.pt recognizer.pt crosspoints.pt --evaluate   # networks, evaluated
+    python -m reconstruction run --views out/capture --template shirt --out out/rec --evaluate \\
+        --localizer localizer.pt --recognizer recognizer.pt --crosspoints crosspoints.pt  # networks, evaluated
     python -m reconstruction detect | triangulate | refine | export | evaluate --out DIR ...
 
 Each stage writes into --out and skips what is already there, so an interrupted run resumes and a
-later stage reruns alone (the folder layout is in `reconstruction.pipeline`).  `--detections
-groundtruth` takes the 2D observations from a factory capture's ground truth (`--views` is the capture
-folder) with `--noise` pixels and `--dropout`; every output names its source.
+later stage reruns alone (the folder layout is in `reconstruction.pipeline`).  Each records the
+settings it was run with there, and a rerun with other settings is refused, naming them: use another
+--out.  `--detections groundtruth` takes the 2D observations from a factory capture's ground truth
+(`--views` is the capture folder) with `--noise` pixels and `--dropout`; every output names its source.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from assets.cli import (add_completion_options, add_crosspoint_options, completion_options, crosspoint_options,
-                        localizer_scale_arg, run_cli)
+from assets.cli import (add_completion_options, add_crosspoint_options, add_device, add_networks, add_out,
+                        add_progress, completion_options, crosspoint_options, localizer_scale_arg, networks_of,
+                        progress, run_cli)
 from reconstruction import cameras_cli
 
 
@@ -37,18 +39,6 @@ def _frames(text: str | None) -> list[int] | None:
 
 def _levels(text: str | None) -> tuple[int, ...] | None:
     return tuple(int(v) for v in text.split(",")) if text else None
-
-
-def _check_factory_capture(views: str) -> None:
-    """Refuse `views` unless it is a factory capture (cameras, ground truth per camera, garment.npz)."""
-    from reconstruction.groundtruth import GroundTruthCapture
-
-    try:
-        GroundTruthCapture(views)
-    except ValueError as exc:
-        raise ValueError(f"--evaluate needs a factory capture as --views: {exc}") from exc
-    if not (Path(views) / "garment.npz").is_file():
-        raise ValueError(f"--evaluate needs a factory capture as --views: {views} has no garment.npz")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,14 +58,13 @@ def build_parser() -> argparse.ArgumentParser:
                        help="refuse cameras whose images are larger than N pixels (width x height; default %(default)s)")
         p.add_argument("--level", type=int, default=12, help="template level (mm) the crosspoints are located on")
         p.add_argument("--detections", choices=("networks", "groundtruth"), default="networks")
-        p.add_argument("--checkpoints", nargs=3, metavar=("LOCALIZER", "RECOGNIZER", "CROSSPOINTS"), default=(),
-                       help="the three networks' checkpoints (networks mode)")
+        add_networks(p, help_prefix="networks mode: ")
         p.add_argument("--noise", type=float, default=0.0, help="ground-truth mode: pixel noise sigma")
         p.add_argument("--dropout", type=float, default=0.0, help="ground-truth mode: fraction of crosspoints dropped")
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--frames", help="frames to use, e.g. 120-131 or 120,125 (default: all)")
-        p.add_argument("--device", help="networks mode: cuda or cpu (default: a GPU when there is one); several, "
-                       "comma-separated (cuda:0,cuda:1), shard the frames over them, one process each")
+        add_device(p, help="networks mode: cpu, cuda or cuda:N (default: a GPU when there is one); several, "
+                   "comma-separated (cuda:0,cuda:1), shard the frames over them, one process each")
         p.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
                        help="networks mode: the marker localizer sees the views resized by this factor, so that "
                        "markers are 16 to 32 px across there (0.5 for 32 to 64 px markers), or 'auto' (the "
@@ -90,8 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "--views is one, else the template's placement pose)")
 
     def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--out", type=Path, required=True, help="the reconstruction folder")
-        p.add_argument("--quiet", action="store_true", help="no progress bars")
+        add_out(p, help="the reconstruction folder")
+        add_progress(p)
 
     def refine_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--levels", help="refine levels, coarse to fine, mm (default: the reference's hierarchy)")
@@ -128,60 +117,78 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "cameras":  # calibration files and rig calibration: reconstruction/cameras_cli.py
         return cameras_cli.main(args)
+    out, bars = Path(args.out), progress(args)
 
     def action() -> None:
         from reconstruction import pipeline
 
-        progress = not args.quiet
-        if args.command == "run" and args.evaluate:
-            _check_factory_capture(args.views)  # refused before any stage runs
         if args.command in ("run", "detect"):
-            cameras = None
-            if args.cameras:
-                from reconstruction.cameras import read_cameras
-
-                cameras = read_cameras(args.cameras, max_image_pixels=args.max_image_pixels)
-            initial = args.initial_shape
-            if initial is None and (Path(args.views) / "sim" / "dressed.npz").is_file():
-                initial = Path(args.views) / "sim" / "dressed.npz"  # a factory capture's dressed garment
-            settings = pipeline.RunSettings(template=args.template, level_mm=args.level, detections=args.detections,
-                                            noise_px=args.noise, dropout=args.dropout, seed=args.seed,
-                                            checkpoints=tuple(str(Path(c).resolve()) for c in args.checkpoints),
-                                            initial_shape=str(Path(initial).resolve()) if initial else "",
-                                            localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
-                                            **crosspoint_options(args),
-                                            **completion_options(args))
-            pipeline.start(args.out, settings)
-            frames = pipeline.detect(args.out, args.views, cameras, _frames(args.frames), args.device, progress,
+            settings, cameras = _run_settings(args)
+            if args.command == "run":
+                evaluation = pipeline.run(out, args.views, settings, cameras, _frames(args.frames), args.device,
+                                          _triangulation(args), _refinement(args), args.start_frame, fps=args.fps,
+                                          evaluate_against=args.views if args.evaluate else None, progress=bars,
+                                          max_image_pixels=args.max_image_pixels)
+                print(f"reconstruction in {out} ({settings.source}): exports in {out / 'export'}")
+                _print_evaluation(evaluation)
+                return
+            pipeline.start(out, settings)
+            frames = pipeline.detect(out, args.views, cameras, _frames(args.frames), args.device, bars,
                                      max_image_pixels=args.max_image_pixels)
-            print(f"detections of {len(frames)} frames in {args.out / 'detections'} ({settings.source})")
-        if args.command in ("run", "triangulate"):
-            from reconstruction.triangulate import TriangulationConfig
-
-            config = TriangulationConfig(neighbours=None) if args.no_neighbour_check else TriangulationConfig()
-            paths = pipeline.triangulate(args.out, config=config, progress=progress)
-            print(f"captured points of {len(paths)} frames in {args.out / 'points'}")
-        if args.command in ("run", "refine"):
-            from reconstruction.refine import RefineConfig
-
-            levels = _levels(args.levels)
-            config = RefineConfig(levels_mm=levels) if levels else RefineConfig()
-            window = _frames(args.frames) if args.command == "refine" else None
-            path = pipeline.refine(args.out, config=config, start_frame=args.start_frame, progress=progress,
-                                   frames=window)
+            print(f"detections of {len(frames)} frames in {out / 'detections'} ({settings.source})")
+        elif args.command == "triangulate":
+            paths = pipeline.triangulate(out, config=_triangulation(args), progress=bars)
+            print(f"captured points of {len(paths)} frames in {out / 'points'}")
+        elif args.command == "refine":
+            path = pipeline.refine(out, config=_refinement(args), start_frame=args.start_frame, progress=bars,
+                                   frames=_frames(args.frames))
             print(f"refined sequence {path}")
-        if args.command in ("run", "export"):
-            texture = getattr(args, "texture", None)
-            if texture is None and args.command == "run" and (Path(args.views) / "texture.png").is_file():
-                texture = Path(args.views) / "texture.png"  # a factory capture's pattern texture
-            print(f"exports in {pipeline.export(args.out, texture=texture, fps=args.fps, progress=progress)}")
-        if args.command == "evaluate" or args.command == "run" and args.evaluate:
-            summary = pipeline.evaluate(args.out, args.groundtruth if args.command == "evaluate" else args.views)
-            for key, value in summary["summary"].items():
-                meaning = summary["definitions"].get(key)
-                print(f"{key}: {value}" + (f"  ({meaning})" if meaning else ""))
+        elif args.command == "export":
+            print(f"exports in {pipeline.export(out, texture=args.texture, fps=args.fps, progress=bars)}")
+        else:
+            _print_evaluation(pipeline.evaluate(out, args.groundtruth))
 
     return run_cli(action, failures=(ValueError, RuntimeError))
+
+
+def _run_settings(args: argparse.Namespace):
+    """The `pipeline.RunSettings` and the cameras (or None: the views folder's) of `run`/`detect`."""
+    from reconstruction import pipeline
+
+    cameras = None
+    if args.cameras:
+        from reconstruction.cameras import read_cameras
+
+        cameras = read_cameras(args.cameras, max_image_pixels=args.max_image_pixels)
+    initial = args.initial_shape
+    if initial is None and (Path(args.views) / "sim" / "dressed.npz").is_file():
+        initial = Path(args.views) / "sim" / "dressed.npz"  # a factory capture's dressed garment
+    settings = pipeline.RunSettings(template=args.template, level_mm=args.level, detections=args.detections,
+                                    noise_px=args.noise, dropout=args.dropout, seed=args.seed,
+                                    checkpoints=tuple(str(Path(c).resolve()) for c in networks_of(args)),
+                                    initial_shape=str(Path(initial).resolve()) if initial else "",
+                                    localizer_scale=args.localizer_scale, grow_missing=not args.no_grow,
+                                    **crosspoint_options(args), **completion_options(args))
+    return settings, cameras
+
+
+def _triangulation(args: argparse.Namespace):
+    from reconstruction.triangulation import TriangulationConfig
+
+    return TriangulationConfig(neighbours=None) if args.no_neighbour_check else TriangulationConfig()
+
+
+def _refinement(args: argparse.Namespace):
+    from reconstruction.refinement import RefineConfig
+
+    levels = _levels(args.levels)
+    return RefineConfig(levels_mm=levels) if levels else RefineConfig()
+
+
+def _print_evaluation(evaluation: dict | None) -> None:
+    for key, value in (evaluation or {"summary": {}})["summary"].items():
+        meaning = evaluation["definitions"].get(key)
+        print(f"{key}: {value}" + (f"  ({meaning})" if meaning else ""))
 
 
 if __name__ == "__main__":

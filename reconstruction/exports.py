@@ -34,7 +34,9 @@ Files (every writer is atomic, `assets.fileio`):
   between samples), int32 samples; then float32 x, y, z per point per sample, little-endian.  Blender
   ignores start frame and sample rate in its default 'FRAME' time mode: its modifier's own
   ``frame_start`` and ``frame_scale`` place the samples (`reconstruction.review` sets them).
-- `export_sequence`: any of these (and the review .blend) into one folder, for the CLI.
+- `export_sequence`: any of these into one folder, for the CLI, with the review .blend that a caller
+  writes (`reconstruction.pipeline.write_review`: bpy, in a process of its own; this module never
+  imports bpy or `reconstruction.review`).
 - `from_refined`: the post-processing's `RefinedSequence` with its template's UVs, ready for these.
 """
 
@@ -43,7 +45,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -53,7 +55,7 @@ from assets.fileio import atomic_path, load_npz, save_npz, staged_outputs
 CAPTURED_RGB = (40, 160, 60)
 FILLED_RGB = (220, 100, 30)
 MESH_FORMATS = ("obj", "ply")
-EXPORT_FORMATS = ("npz", "obj", "ply", "pc2", "blend")
+EXPORT_FORMATS = ("npz", "obj", "ply", "pc2")
 
 _PC2_MAGIC = b"POINTCACHE2\0"
 _PC2_HEADER = np.dtype([("magic", "S12"), ("version", "<i4"), ("points", "<i4"), ("start", "<f4"),
@@ -151,7 +153,7 @@ def frame_step(frames: np.ndarray, where: str = "frames") -> int:
 
 
 def from_refined(refined, template, fps: float) -> GarmentSequence:
-    """A refined sequence (`reconstruction.refine.RefinedSequence`) on its level of `template`
+    """A refined sequence (`reconstruction.refinement.RefinedSequence`) on its level of `template`
     (`assets.garments.Template`) as a `GarmentSequence` with the level's corner UVs, at `fps` Hz."""
     level = template.level(refined.level_mm)
     if len(refined.faces) != len(level.faces):
@@ -338,17 +340,20 @@ def read_pc2(path: str | os.PathLike) -> PointCache:
 
 # ---- everything at once --------------------------------------------------------------------------
 def export_sequence(folder: str | os.PathLike, sequence: GarmentSequence, formats: Sequence[str] = EXPORT_FORMATS,
-                    texture: str | os.PathLike | None = None, cameras: Sequence | None = None,
-                    progress: bool = True) -> dict[str, list[Path]]:
+                    texture: str | os.PathLike | None = None, progress: bool = True,
+                    review: Callable[[Path], list[Path]] | None = None) -> dict[str, list[Path]]:
     """Write `sequence` into `folder` in each of `formats` (`EXPORT_FORMATS`):
 
     npz -> ``sequence.npz``; obj -> ``obj/f<frame>.obj`` (+ ``obj/garment.mtl`` with a texture);
-    ply -> ``ply/f<frame>.ply``; pc2 -> ``garment.pc2`` (evenly spaced frames only);
-    blend -> ``review.blend`` (`reconstruction.review.write_review_blend`, needs bpy; with
-    `cameras`, a list of `assets.cameras.Camera`).  Returns {format: written paths}.
+    ply -> ``ply/f<frame>.ply``; pc2 -> ``garment.pc2`` (evenly spaced frames only).
+    review: writes the review .blend at the path it is given, ``<folder>/review.blend``, and returns the
+    paths it wrote (`reconstruction.pipeline.write_review`).  Returns {format: written paths}, the
+    review's as "blend".
 
     The files are replaced together or not at all (`assets.fileio.staged_outputs`): a failure part way
-    leaves the previous export as it was, never new meshes beside an old point cache."""
+    leaves the previous export as it was, never new meshes beside an old point cache.  The review
+    writes last, in place, before the staged files replace the old ones: Blender makes the texture's
+    path relative to where the file is saved, and its failure still discards the staged files."""
     unknown = sorted(set(formats) - set(EXPORT_FORMATS))
     if unknown:
         raise ValueError(f"export_sequence: unknown format(s) {', '.join(unknown)} (use {', '.join(EXPORT_FORMATS)})")
@@ -367,10 +372,6 @@ def export_sequence(folder: str | os.PathLike, sequence: GarmentSequence, format
                       float(sequence.frame_step))
             staged["pc2"] = [stage / "garment.pc2"]
         written = {fmt: [folder / p.relative_to(stage) for p in paths] for fmt, paths in staged.items()}
-        if "blend" in formats:
-            from reconstruction.review import write_review_blend
-
-            # saved in place, last: Blender makes the texture's path relative to where the file is
-            # saved, and only an error here (which discards the staged files) can still stop the export
-            written["blend"] = write_review_blend(folder / "review.blend", sequence, cameras=cameras, texture=texture)
+        if review is not None:
+            written["blend"] = review(folder / "review.blend")
     return written

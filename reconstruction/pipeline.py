@@ -5,16 +5,25 @@
     refine       points -> refine/ (per-frame work, resumed) -> sequence.npz (`RefinedSequence`)
     export       sequence -> export/: npz, OBJ and PLY per frame, PC2, a review .blend
     evaluate     sequence + points against a factory capture's ground truth -> evaluation.json
+                 (`reconstruction.evaluation`)
 
 Layout of an output folder:
   run.json                      the settings every stage reads (template, level, where detections come
-                                from); a later stage or a rerun with other settings is refused
+                                from); a rerun with other settings is refused, naming them
   detections/<camera>/f*.npz    `networks.Detections` per camera and frame (the cache: a rerun skips them)
   points/f*.npz                 `reconstruction.points.CapturedPoints` per frame
-  refine/                       the post-processing's finished frames (`reconstruction.refine`)
+  points/triangulation.json     the `TriangulationConfig` they were made with (other settings: refused)
+  refine/                       the post-processing's finished frames and its refine_run.json
+                                (`reconstruction.refinement`)
   sequence.npz                  the complete, refined sequence
-  export/                       `reconstruction.export.export_sequence`'s files
+  export/                       `reconstruction.exports.export_sequence`'s files and the review .blend
+                                (`write_review`: bpy, in a process of its own)
   evaluation.json               `evaluate`'s numbers
+
+Every record of settings is `assets.fileio.record_stage`'s: a rerun with the same settings reuses what
+is there, one with others is refused naming each differing setting (``name: old -> new``), so a
+folder never mixes outputs made two ways.  A folder written by a version whose settings differ is
+refused the same way: start a new one.
 
 Detections come from the networks (`checkpoints`: localizer, recognizer, crosspoints) run on the views,
 or, with ``detections="groundtruth"``, from a factory capture folder's ground truth with optional
@@ -24,30 +33,27 @@ file and in the sequence.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
-from dataclasses import MISSING, asdict, dataclass, fields
+import os
+import subprocess
+import sys
+import tempfile
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
-
 from assets.cameras import MAX_IMAGE_PIXELS, Camera
-from assets.fileio import load_json, safe_name, save_json
+from assets.fileio import check_json_object, load_json, record_stage, safe_name, save_json
 from assets.garments import Template, load_template
 from networks.config import (KEEP_OWN_CELLS, NEIGHBOUR_DEGREE, NEIGHBOUR_SIGMA_SIDES, SMOOTH_CROSSPOINTS_PX,
-                             crop_px_problem, keep_own_problem, neighbour_fit_problem, without_removed)
+                             crop_px_problem, keep_own_problem, neighbour_fit_problem)
+from reconstruction.evaluation import evaluate
 
 log = logging.getLogger(__name__)
 
 STAGES = ("detect", "triangulate", "refine", "export", "evaluate")
-#: what `evaluate`'s fractions measure, written beside them in evaluation.json
-DEFINITIONS = {
-    "garment_coverage": "triangulated crosspoints / all crosspoints on the garment's fabric (the rest is "
-                        "filled by the physics pass)",
-    "captured_fraction": "triangulated crosspoints / crosspoints visible in at least two cameras' ground "
-                         "truth (a detection measure, not coverage)",
-}
 #: frames per second of a sequence whose capture does not say (the motion-capture rate of the reference)
 DEFAULT_FPS = 120.0
 
@@ -60,7 +66,7 @@ class RunSettings:
     the crosspoints are located on (triangulation); detections: "networks" or "groundtruth";
     noise_px, dropout, seed: the ground-truth mode's perturbation; checkpoints: the three networks'
     files (networks mode); initial_shape: a penetration-free garment shape npz the post-processing
-    starts from (`reconstruction.refine.load_initial_shape`; a factory capture's ``sim/dressed.npz``),
+    starts from (`reconstruction.refinement.load_initial_shape`; a factory capture's ``sim/dressed.npz``),
     or "" for the template's placement pose (a poor start: see `refine_sequence`); localizer_scale:
     networks mode, `networks.DetectorConfig.localizer_scale` (0.5 when the views' markers are 32 to
     64 px across; None, the default: chosen per view); grow_missing: networks mode,
@@ -91,7 +97,8 @@ class RunSettings:
         if self.detections not in ("networks", "groundtruth"):
             raise ValueError(f"detections must be 'networks' or 'groundtruth', got {self.detections!r}")
         if self.detections == "networks" and len(self.checkpoints) != 3:
-            raise ValueError("the networks mode needs three checkpoints: localizer, recognizer, crosspoints")
+            raise ValueError("the networks mode needs the three networks' checkpoints: localizer, recognizer, "
+                             "crosspoints")
         if self.level_mm <= 0:
             raise ValueError(f"level_mm must be > 0, got {self.level_mm}")
         if self.localizer_scale is not None and not 0 < self.localizer_scale <= 4:
@@ -118,52 +125,28 @@ class RunSettings:
         return GroundTruthConfig(noise_px=self.noise_px, dropout=self.dropout, seed=self.seed)
 
 
-#: what a folder written before a setting existed was made with, where that is not the setting's
-#: default (otherwise the default): detections before the Detector grew missed markers had none, and
-#: before it smoothed crosspoints they were the network's raw outputs, before cut markers kept
-#: their own points all five came from the neighbours' estimate, and before the neighbour placement
-#: bent with the cloth it was one homography over the neighbourhood
-BEFORE = {"grow_missing": False, "smooth_crosspoints_px": None, "keep_own_cells": None,
-          "neighbour_sigma_sides": None, "neighbour_degree": 0}
-#: settings that measurements removed, with the only value a run.json may still name (what the
-#: product now does): one round of growth, one crosspoint pass (docs/journal/2026-11-28-crop-options-removed.md)
-RUN_REMOVED_FIELDS: dict[str, object] = {"grow_rounds": 1, "crosspoint_shift_px": None}
-
-
-def _recorded(path: Path) -> dict:
-    """run.json at `path` without the removed settings; one naming another value is refused by name."""
-    return without_removed(load_json(path), RUN_REMOVED_FIELDS, str(path))
-
-
 def start(out: str | Path, settings: RunSettings) -> Path:
-    """Create (or reopen) the output folder with `settings`; a folder made with other settings is refused
-    (its outputs would mix)."""
+    """Create (or reopen) the output folder with `settings` recorded in ``run.json``; a folder made
+    with other settings is refused, naming them (its outputs would mix)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    record = {**asdict(settings), "checkpoints": list(settings.checkpoints)}
-    path = out / "run.json"
-    if path.exists():
-        # a folder written before a setting existed holds that setting's default
-        recorded = _recorded(path)
-        saved = {**{f.name: f.default for f in fields(RunSettings) if f.default is not MISSING}, **BEFORE,
-                 **recorded, "checkpoints": list(recorded.get("checkpoints", ()))}
-        if saved != record:
-            differ = sorted(k for k in set(saved) | set(record) if saved.get(k) != record.get(k))
-            raise ValueError(f"{path}: this folder was made with other settings ({', '.join(differ)}); "
-                             "use another --out")
-    else:
-        save_json(path, record)
+    record_stage(out / "run.json", asdict(settings))
     return out
 
 
 def settings_of(out: str | Path) -> RunSettings:
+    """The `RunSettings` recorded in `out`'s ``run.json``; a record that does not name exactly this
+    version's settings is refused, naming the unknown and missing ones."""
     path = Path(out) / "run.json"
     if not path.is_file():
         raise ValueError(f"{out}: not a reconstruction folder (no run.json); run `detect` or `run` first")
-    data = {**BEFORE, **_recorded(path)}
-    data["checkpoints"] = tuple(data.get("checkpoints", ()))
+    names = [f.name for f in fields(RunSettings)]
+    data = check_json_object(load_json(path), names, str(path))
+    if missing := [name for name in names if name not in data]:
+        raise ValueError(f"{path}: missing setting(s) {', '.join(missing)}: a folder made by another version; "
+                         "start a new one")
     try:
-        return RunSettings(**data)
+        return RunSettings(**{**data, "checkpoints": tuple(data["checkpoints"])})
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: {exc}") from exc
 
@@ -173,6 +156,42 @@ def _detection_path(out: Path, camera: Camera, frame: int) -> Path:
 
 
 # ---- stages ------------------------------------------------------------------------------------
+
+def run(out: str | Path, views: str | Path, settings: RunSettings, cameras: Sequence[Camera] | None = None,
+        frames: Sequence[int] | None = None, device: str | None = None, triangulation=None, refinement=None,
+        start_frame: int | None = None, texture: str | Path | None = None, fps: float = DEFAULT_FPS,
+        evaluate_against: str | Path | None = None, progress: bool = True,
+        max_image_pixels: int = MAX_IMAGE_PIXELS) -> dict | None:
+    """Every stage into `out` (`start`, `detect`, `triangulate`, `refine`, `export`, and with
+    `evaluate_against`, a factory capture folder, `evaluate`); returns the evaluation, or None.
+
+    Each stage's arguments are its function's: triangulation is `triangulate`'s config (a
+    `TriangulationConfig`), refinement `refine`'s (a `RefineConfig`); texture: default the views
+    folder's ``texture.png`` when there is one (a factory capture's).  `evaluate_against` is checked
+    before any stage runs."""
+    if evaluate_against is not None:
+        _check_factory_capture(evaluate_against)
+    start(out, settings)
+    detect(out, views, cameras, frames, device, progress, max_image_pixels=max_image_pixels)
+    triangulate(out, config=triangulation, progress=progress)
+    refine(out, config=refinement, start_frame=start_frame, progress=progress)
+    if texture is None and (Path(views) / "texture.png").is_file():
+        texture = Path(views) / "texture.png"
+    export(out, texture=texture, fps=fps, progress=progress)
+    return evaluate(out, evaluate_against) if evaluate_against is not None else None
+
+
+def _check_factory_capture(folder: str | Path) -> None:
+    """Refuse `folder` unless it is a factory capture (cameras, ground truth per camera, garment.npz)."""
+    from reconstruction.groundtruth import GroundTruthCapture
+
+    try:
+        GroundTruthCapture(folder)
+    except ValueError as exc:
+        raise ValueError(f"evaluating needs a factory capture: {exc}") from exc
+    if not (Path(folder) / "garment.npz").is_file():
+        raise ValueError(f"evaluating needs a factory capture: {folder} has no garment.npz")
+
 
 def detect(out: str | Path, views: str | Path, cameras: Sequence[Camera] | None = None,
            frames: Sequence[int] | None = None, device: str | None = None, progress: bool = True,
@@ -297,26 +316,33 @@ def stage_cameras(out: Path) -> list[Camera]:
 
 
 def triangulate(out: str | Path, template: Template | None = None, config=None, progress: bool = True) -> list[Path]:
-    """Captured points per detected frame into ``points/`` (frames already there are skipped)."""
+    """Captured points per detected frame into ``points/`` with `config` (a `TriangulationConfig`,
+    default the default one) recorded in ``points/triangulation.json``; the frames already there are
+    skipped.  A rerun with another config is refused, naming the differing settings (the points there
+    are another run's, and the refine stage's record holds them): use another output folder with the
+    same ``detections/`` and ``run.json``, or delete ``points/`` and what follows.  Points without a
+    record (a folder of an older version) are all made again."""
     from networks.detections import Detections
     from reconstruction.correspondence import CrosspointMap
     from reconstruction.points import sequence_path
-    from reconstruction.triangulate import TriangulationConfig, triangulate_frame
+    from reconstruction.triangulation import TriangulationConfig, triangulate_frame
 
     out = Path(out)
     settings = settings_of(out)
+    config = config or TriangulationConfig()
     cameras = stage_cameras(out)
     frames = detected_frames(out, cameras)
     if not frames:
         raise ValueError(f"{out / 'detections'}: no frame has detections from every camera")
-    pending = [f for f in frames if not sequence_path(out / "points", f).exists()]
+    (out / "points").mkdir(exist_ok=True)
+    reuse = record_stage(out / "points" / "triangulation.json", asdict(config))
+    pending = [f for f in frames if not (reuse and sequence_path(out / "points", f).exists())]
     if pending:
         crosspoints = CrosspointMap.build(template or load_template(settings.template), settings.level_mm)
         from tqdm import tqdm
         for frame in tqdm(pending, desc="triangulate", unit="frame", disable=not progress):
             detections = [Detections.load(_detection_path(out, c, frame)) for c in cameras]
-            points = triangulate_frame(crosspoints, cameras, detections, config or TriangulationConfig(), frame,
-                                       settings.source)
+            points = triangulate_frame(crosspoints, cameras, detections, config, frame, settings.source)
             points.save(sequence_path(out / "points", frame))
     return [sequence_path(out / "points", f) for f in frames]
 
@@ -326,7 +352,7 @@ def refine(out: str | Path, template: Template | None = None, config=None, start
     """The complete, intersection-free sequence from the captured points: ``sequence.npz`` (of every
     triangulated frame, or of `frames` only: a window of the sequence)."""
     from reconstruction.points import load_sequence
-    from reconstruction.refine import RefineConfig, load_initial_shape, refine_sequence
+    from reconstruction.refinement import RefineConfig, load_initial_shape, refine_sequence
 
     out = Path(out)
     settings = settings_of(out)
@@ -349,111 +375,62 @@ def refine(out: str | Path, template: Template | None = None, config=None, start
 def export(out: str | Path, template: Template | None = None, texture: str | Path | None = None,
            fps: float = DEFAULT_FPS, progress: bool = True) -> Path:
     """``export/`` from ``sequence.npz``: the sequence npz, OBJ (with the template's UVs and `texture`)
-    and PLY per frame, a PC2 point cache and the review .blend with the cameras."""
-    from reconstruction.export import export_sequence, from_refined
-    from reconstruction.refine import RefinedSequence
+    and PLY per frame, a PC2 point cache and the review .blend with the cameras (`write_review`)."""
+    from reconstruction.exports import export_sequence, from_refined
+    from reconstruction.refinement import RefinedSequence
 
     out = Path(out)
     if not (out / "sequence.npz").is_file():
         raise ValueError(f"{out}: no sequence.npz (run the refine stage first)")
+    stage_cameras(out)  # the detect stage's cameras are there and readable
     refined = RefinedSequence.load(out / "sequence.npz")
     sequence = from_refined(refined, template or load_template(settings_of(out).template), fps)
-    export_sequence(out / "export", sequence, texture=texture, cameras=stage_cameras(out), progress=progress)
+    cameras = out / "detections" / "cameras.json"
+    export_sequence(out / "export", sequence, texture=texture, progress=progress,
+                    review=lambda path: write_review(path, sequence, cameras, texture))
     return out / "export"
 
 
-def evaluate(out: str | Path, groundtruth: str | Path) -> dict:
-    """Accuracy of the folder's points and sequence against a factory capture's ground truth, whichever
-    mode made the detections (networks or ground truth).
+def write_review(path: str | Path, sequence, cameras: str | Path | None = None,
+                 texture: str | Path | None = None) -> list[Path]:
+    """The review .blend of `sequence` (a `reconstruction.exports.GarmentSequence`) at `path`, written by
+    `reconstruction.review` in a process of its own (this interpreter, ``-m reconstruction.review``):
+    bpy is loaded there, never here, and resets nothing a caller holds.  cameras: a cameras.json of
+    the cameras to add; texture: the pattern PNG.  Returns the written paths (the .blend, and its
+    ``.pc2`` mesh cache for a long sequence); RuntimeError with the review's own error when it fails
+    (no bpy in this Python, for one)."""
+    from reconstruction.exports import save_sequence_npz
 
-    Per frame: the garment coverage (the crosspoints on the garment's fabric that were triangulated,
-    over all of them: the share the cameras and the detections captured; physics filled the rest);
-    the captured fraction (of the crosspoints seen by at least two cameras in the ground truth, the
-    share that were triangulated: a detection measure, not coverage); the median and 95th-percentile
-    3D error of the triangulated points (mm); the error of filled regions (the refined surface at the
-    crosspoints that were not triangulated, mm); intersecting triangle pairs before and after
-    post-processing (refine's diagnostics); and the temporal jitter (mean magnitude of the second
-    difference over frames of the refined surface at every crosspoint, mm per frame^2) beside the
-    ground truth's own.  Writes ``evaluation.json``: the
-    summary (medians over frames), the `DEFINITIONS` of its fractions and the rows per frame."""
-    from reconstruction.correspondence import CrosspointMap
-    from reconstruction.groundtruth import GroundTruthCapture
-    from reconstruction.points import load_sequence
-    from reconstruction.refine import RefinedSequence
+    path = Path(path).resolve()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".review.", dir=path.parent) as folder:
+        save_sequence_npz(Path(folder) / "sequence.npz", sequence)
+        command = [sys.executable, "-m", "reconstruction.review", str(Path(folder) / "sequence.npz"), str(path)]
+        command += ["--cameras", str(Path(cameras).resolve())] if cameras is not None else []
+        command += ["--texture", str(Path(texture).resolve())] if texture is not None else []
+        root = str(Path(__file__).resolve().parents[1])  # the project, importable whatever the caller's folder
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (root, os.environ.get("PYTHONPATH"))))}
+        done = subprocess.run(command, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL)
+    lines = done.stdout.strip().splitlines()
+    if done.returncode or not lines:
+        said = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        raise RuntimeError(f"{path}: the review .blend was not written: {said}")
+    return [Path(p) for p in json.loads(lines[-1])]
+
+
+def sequence_of(out: str | Path, fps: float | None = None):
+    """The `reconstruction.exports.GarmentSequence` of reconstruction folder `out`, to review: the export
+    stage's ``export/sequence.npz`` when it is not older than the refined ``sequence.npz``, else the
+    refined sequence with the UVs of the template named in ``run.json`` (`exports.from_refined`; a
+    folder refined but not exported, or refined again since), at `fps` Hz (default `DEFAULT_FPS`).
+    ValueError when the folder holds neither."""
+    from reconstruction.exports import from_refined, load_sequence_npz
+    from reconstruction.refinement import RefinedSequence
 
     out = Path(out)
-    capture = GroundTruthCapture(groundtruth)
-    captures = {p.frame: p for p in load_sequence(out / "points")}
-    refined = RefinedSequence.load(out / "sequence.npz") if (out / "sequence.npz").exists() else None
-    truth_map = capture.crosspoint_map
-    every_key = truth_map.unflat(np.arange(truth_map.num_crosspoints))
-    refined_map = CrosspointMap.build(capture.template, refined.level_mm) if refined is not None else None
-    on_fabric = truth_map.face >= 0
-    rows, surfaces, truths = [], [], []
-    for frame in sorted(captures):
-        points = captures[frame]
-        seen = _seen_twice(capture, frame, truth_map)
-        truth = capture.crosspoints(frame, points.key)
-        error_mm = 1e3 * np.linalg.norm(points.xyz - truth, axis=1)
-        flat = truth_map.flat(points.key)
-        triangulated = np.isin(flat, seen)
-        covered = np.zeros(truth_map.num_crosspoints, dtype=bool)
-        covered[flat] = True
-        row = {"frame": int(frame),
-               "garment_coverage": float((covered & on_fabric).sum() / max(1, on_fabric.sum())),
-               "captured_fraction": float(triangulated.sum() / max(1, len(seen))),
-               "points": len(points), "error_mm_median": _q(error_mm, 50), "error_mm_p95": _q(error_mm, 95)}
-        if refined is not None and frame in refined.frames.tolist():
-            t = refined.frames.tolist().index(frame)
-            surface = refined_map.points(refined.positions[t].astype(np.float64), every_key)
-            exact = capture.crosspoints(frame, every_key)
-            filled = ~np.isin(np.arange(truth_map.num_crosspoints), truth_map.flat(points.key))
-            filled_mm = 1e3 * np.linalg.norm(surface - exact, axis=1)[filled]
-            diagnostics = refined.diagnostics[t]
-            row.update({"filled_error_mm_median": _q(filled_mm, 50), "filled_error_mm_p95": _q(filled_mm, 95),
-                        "intersections_before": diagnostics.get("intersections_before"),
-                        "intersections_after": diagnostics.get("intersections_after")})
-            surfaces.append(surface)
-            truths.append(exact)
-        rows.append(row)
-    summary = {"frames": len(rows), "source": next(iter(captures.values())).source if captures else None}
-    for key in ("garment_coverage", "captured_fraction", "error_mm_median", "error_mm_p95", "filled_error_mm_median",
-                "filled_error_mm_p95"):
-        values = [r[key] for r in rows if r.get(key) is not None]
-        summary[key] = float(np.median(values)) if values else None
-    after = [r["intersections_after"] for r in rows if r.get("intersections_after") is not None]
-    summary["intersections_after_max"] = max(after) if after else None
-    if len(surfaces) >= 3:
-        summary["jitter_mm"] = _jitter(np.stack(surfaces))
-        summary["jitter_mm_groundtruth"] = _jitter(np.stack(truths))
-    result = {"summary": summary, "definitions": DEFINITIONS, "frames": rows}
-    save_json(out / "evaluation.json", result)
-    return result
-
-
-def _seen_twice(capture, frame: int, crosspoints) -> np.ndarray:
-    """Flat indices of the crosspoints visible in at least two cameras' ground truth at `frame`."""
-    counts = np.zeros(crosspoints.num_crosspoints, dtype=np.int64)
-    k = None
-    for c in range(len(capture.cameras)):
-        gt = capture.ground_truth(frame, c)
-        k = gt.crosspoints_px.shape[1]
-        rows, cols = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-        marker = np.repeat(gt.marker_id, k * k)
-        key, known = crosspoints.lookup(marker, np.tile(rows.ravel(), len(gt.marker_id)),
-                                        np.tile(cols.ravel(), len(gt.marker_id)))
-        visible = gt.crosspoint_visible.reshape(-1) & known
-        flat = np.unique(crosspoints.flat(key[visible]))
-        counts[flat] += 1
-    return np.flatnonzero(counts >= 2)
-
-
-def _q(values: np.ndarray, q: float) -> float | None:
-    values = values[np.isfinite(values)]
-    return float(np.percentile(values, q)) if len(values) else None
-
-
-def _jitter(surfaces: np.ndarray) -> float:
-    """Mean |x[t+1] - 2 x[t] + x[t-1]| over frames and points, mm."""
-    second = surfaces[2:] - 2 * surfaces[1:-1] + surfaces[:-2]
-    return float(1e3 * np.nanmean(np.linalg.norm(second, axis=-1)))
+    exported, refined = out / "export" / "sequence.npz", out / "sequence.npz"
+    if exported.is_file() and (not refined.is_file() or exported.stat().st_mtime_ns >= refined.stat().st_mtime_ns):
+        return load_sequence_npz(exported)
+    if not refined.is_file():
+        raise ValueError(f"{out}: no sequence.npz: run the reconstruction (its refine stage) first")
+    return from_refined(RefinedSequence.load(refined), load_template(settings_of(out).template), fps or DEFAULT_FPS)

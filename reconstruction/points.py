@@ -1,7 +1,7 @@
 """`CapturedPoints`: one frame's triangulated crosspoints on one template level.
 
-The plain-data contract between triangulation (`reconstruction.triangulate`) and the physics pass
-(`reconstruction.refine`).  P points, C cameras (in the order of the capture's cameras):
+The plain-data contract between triangulation (`reconstruction.triangulation`) and the physics pass
+(`reconstruction.refinement`).  P points, C cameras (in the order of the capture's cameras):
 
   level_mm        int               template level whose sewn mesh `face` / `bary` refer to
   key (P, 2) int64                  (panel index, global crosspoint index in that panel's
@@ -12,7 +12,7 @@ The plain-data contract between triangulation (`reconstruction.triangulate`) and
   bary (P, 3) float64               barycentric weights in that face
   views (P, C) bool                 cameras that contributed (RANSAC inliers)
   reprojection_px (P,) float64      RMS reprojection error over the inlier views, pixels
-  confidence (P,) float64           in [0, 1] (`reconstruction.triangulate` says how it is made)
+  confidence (P,) float64           in [0, 1] (`reconstruction.triangulation` says how it is made)
   frame           int               frame number of the capture (-1 when unknown)
   source          str               where the 2D observations came from: "detector" or
                                     "groundtruth(noise=..px, dropout=..)" (`reconstruction.groundtruth`)

@@ -24,7 +24,10 @@ solves the finest level of every frame again from its pass-1 solution with the b
 smoothed rest shape (stencils not captured take the mean of the previous and next frames' shapes).
 
 With `out`, every finished frame of each pass is written there (``pass1/f<frame>.npz`` with every
-level's shape, ``final/f<frame>.npz``) and a rerun with the same captures and config skips it.
+level's shape, ``final/f<frame>.npz``) and a rerun with the same captures and config skips it: what the
+run is made of (the config, frames, start frame, template, digests of the captures and the initial
+shape) is recorded in ``refine_run.json`` (`assets.fileio.record_stage`; the config's fields by their
+names), and a rerun with any of it changed is refused, naming what differs.
 
 Diagnostics per frame (finest level, lengths in mm): captured_vertices (surrounded by captured points,
 `reconstruction.anchors`), anchored_vertices (those less the vertices of faces where the capture
@@ -48,7 +51,7 @@ from typing import Sequence
 
 import numpy as np
 
-from assets.fileio import load_json, load_npz, save_json, save_npz
+from assets.fileio import load_json, load_npz, record_stage, save_json, save_npz
 from assets.garments.template import Template
 from reconstruction.anchors import Anchors, LevelAnchoring, rigid_fit
 from reconstruction.hierarchy import Hierarchy
@@ -228,6 +231,7 @@ class _Refiner:
             raise ValueError(f"captures: frame numbers must be distinct, got {self.frames.tolist()}")
         self.source = sources[0]
         self.out = None if out is None else Path(out)
+        self.reuse = False  # whether the frames in `out` are this run's (`_record`)
         self.progress = progress
         self._anchoring: dict[int, LevelAnchoring] = {}
         self._solvers: dict[int, object] = {}
@@ -286,7 +290,7 @@ class _Refiner:
         if not 0 <= int(start_frame) < count:
             raise ValueError(f"start_frame: expected an index in [0, {count}), got {start_frame}")
         start_frame = int(start_frame)
-        self._check_out(start_frame, initial_shape, initial_level_mm)
+        self._record(start_frame, initial_shape, initial_level_mm)
         level = self.hierarchy.level(finest)
         positions = np.zeros((count, level.num_sewn_vertices, 3), np.float32)
         captured = np.zeros((count, level.num_sewn_vertices), bool)
@@ -298,7 +302,7 @@ class _Refiner:
         from tqdm import tqdm  # here, not at import: Blender's own Python may lack it
         for t, neighbour in tqdm(order, desc="refine pass 1", unit="frame", disable=not self.progress):
             path = self._path("pass1", t)
-            if path is not None and path.exists():
+            if self.reuse and path.exists():
                 shapes, captured[t], diagnostics[t] = self._read(path)
             else:
                 if neighbour is None:
@@ -318,7 +322,7 @@ class _Refiner:
             from tqdm import tqdm
             for t in tqdm(range(count), desc="refine pass 2", unit="frame", disable=not self.progress):
                 path = self._path("final", t)
-                if path is not None and path.exists():
+                if self.reuse and path.exists():
                     shapes, captured[t], diagnostics[t] = self._read(path)
                 else:
                     shapes, captured[t], diagnostics[t] = self._smooth_frame(t, first, diagnostics[t])
@@ -440,8 +444,10 @@ class _Refiner:
     def _path(self, stage: str, t: int) -> Path | None:
         return None if self.out is None else self.out / stage / f"f{int(self.frames[t]):06d}.npz"
 
-    def _check_out(self, start_frame: int, initial_shape: np.ndarray | None, initial_level_mm: int | None) -> None:
-        """Record what this run is in `out`; refuse an out folder a different run made."""
+    def _record(self, start_frame: int, initial_shape: np.ndarray | None, initial_level_mm: int | None) -> None:
+        """Record what this run is in ``out/refine_run.json``; a folder another run made is refused,
+        naming what differs.  Frames in a folder without the record (an older version's) are solved
+        again."""
         if self.out is None:
             return
         captures = hashlib.sha1()
@@ -450,18 +456,11 @@ class _Refiner:
                 captures.update(np.ascontiguousarray(array).tobytes())
         initial = "placement hints" if initial_shape is None else hashlib.sha1(
             np.ascontiguousarray(initial_shape, dtype=np.float64).tobytes()).hexdigest()
-        run = {"config": self.config.to_dict(), "frames": self.frames.tolist(), "start_frame": start_frame,
+        run = {**self.config.to_dict(), "frames": self.frames.tolist(), "start_frame": start_frame,
                "captures": captures.hexdigest(), "source": self.source, "template": self.template.name,
                "initial_shape": initial, "initial_level_mm": initial_level_mm}
-        path = self.out / "refine_run.json"
-        if path.exists():
-            previous = load_json(path)
-            if previous != run:
-                changed = sorted(k for k in run if not isinstance(previous, dict) or previous.get(k) != run[k])
-                raise ValueError(f"{path}: {self.out} holds a refine run with different {', '.join(changed)}; "
-                                 "use another out folder or delete it")
-        else:
-            save_json(path, run)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.reuse = record_stage(self.out / "refine_run.json", run)
 
     def _write(self, path: Path, shapes: dict[int, np.ndarray], captured: np.ndarray, diagnostics: dict) -> None:
         save_npz(path, {**{f"L{mm}": shape for mm, shape in shapes.items()}, "captured": captured,

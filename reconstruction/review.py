@@ -1,12 +1,19 @@
 """Review of a reconstructed garment sequence in Blender (4.2+, 5.0): the review `.blend`, and the
 scene building blocks it is made of, which the Blender add-on applies to the user's own scene.
 
-    from reconstruction.review import write_review_blend
-    write_review_blend("out/review.blend", sequence, cameras=cameras, texture="out/texture.png")
+This is reconstruction's one bpy module, a leaf: it imports bpy when imported, and no module of the
+package imports it.  The pipeline's export stage runs it in a process of its own
+(`reconstruction.pipeline.write_review`, ``python -m reconstruction.review``), so that a
+reconstruction never loads bpy and a caller inside Blender keeps its open file (`write_review_blend`
+resets bpy to factory settings first, discarding whatever the process had loaded in bpy).
+
+    python -m reconstruction.review out/rec/export/sequence.npz out/review.blend \\
+        --cameras out/rec/detections/cameras.json --texture out/texture.png
 
     # inside Blender: the review of a reconstruction folder in the current scene
-    from reconstruction.review import build_review_scene, reconstruction_sequence
-    build_review_scene(bpy.context.scene, reconstruction_sequence("out/rec"), cache=Path("out/rec/garment.pc2"))
+    from reconstruction.pipeline import sequence_of
+    from reconstruction.review import build_review_scene
+    build_review_scene(bpy.context.scene, sequence_of("out/rec"), cache=Path("out/rec/garment.pc2"))
 
 The review (`build_review_scene`; `write_review_blend` saves it as the one scene of a file):
 - object "garment" (``name``): the sewn mesh at the first frame, smooth shaded, UV map "UVMap" (the
@@ -18,7 +25,7 @@ The review (`build_review_scene`; `write_review_blend` saves it as the one scene
     the .blend is self-contained and plays exactly the sequence's positions at its frames;
   * "mesh_cache": a Mesh Cache modifier reading a PC2 file (``cache``; `write_review_blend`:
     ``<path stem>.pc2`` beside the .blend, referred to relatively, so keep the two files together;
-    `reconstruction.export.write_pc2`), for long or dense sequences, where shape keys would bloat the
+    `reconstruction.exports.write_pc2`), for long or dense sequences, where shape keys would bloat the
     file and slow Blender down;
   * "auto" (default): shape keys when T x V <= `SHAPE_KEY_MAX_VERTEX_FRAMES` (2e6: 6e6 floats, about
     24 MB in the file), else the mesh cache.  Measured with bpy 5.0 on the shirt (4 mm level, 58885
@@ -39,26 +46,32 @@ The review (`build_review_scene`; `write_review_blend` saves it as the one scene
 - the scene's frame range (first to last capture frame number), current frame (the first) and frame
   rate (``render.fps / render.fps_base`` = the sequence's fps).
 
-Building blocks (each imports bpy itself and works on the scene or object it is given):
-`new_mesh` (a triangle mesh from arrays), `garment_object`, `garment_material`, `animate` (positions
-(T, V, 3) at frame numbers (T,)), `add_cameras`, `set_frame_range`, `show_captured_colours`.
-`reconstruction_sequence` reads the sequence of a reconstruction folder (no bpy).
-
-bpy is imported on first use only; `write_review_blend` resets bpy to factory settings first, so it
-discards whatever the process had loaded in bpy.
+Building blocks (each works on the scene or object it is given): `new_mesh` (a triangle mesh from
+arrays), `garment_object`, `garment_material`, `animate` (positions (T, V, 3) at frame numbers (T,)),
+`add_cameras`, `set_frame_range`, `show_captured_colours`.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
+import sys
 from pathlib import Path
 from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from assets.cameras import Camera
+try:
+    import bpy
+    from mathutils import Matrix
+except ImportError as exc:
+    raise ImportError("reconstruction.review builds the review in Blender: it needs the bpy module "
+                      "(pip install '.[factory]') or Blender's own Python") from exc
+
+from assets.cameras import Camera, load_cameras
 from assets.fileio import atomic_path
-from reconstruction.export import GarmentSequence, frame_step, write_pc2
+from reconstruction.exports import GarmentSequence, frame_step, load_sequence_npz, write_pc2
 
 #: Shape keys store T x V x 3 floats in the .blend; above T x V of this, "auto" takes the mesh cache.
 SHAPE_KEY_MAX_VERTEX_FRAMES = 2_000_000
@@ -67,14 +80,6 @@ ANIMATIONS = ("auto", "shape_keys", "mesh_cache")
 CAPTURED_RGBA = (0.05, 0.5, 0.1, 1.0)
 FILLED_RGBA = (0.8, 0.2, 0.03, 1.0)
 CLIP_START_M, CLIP_END_M = 0.01, 100.0
-
-
-def _import_bpy():
-    try:
-        import bpy
-    except ImportError as exc:
-        raise RuntimeError("a review in Blender needs the bpy module (pip install '.[factory]')") from exc
-    return bpy
 
 
 def choose_animation(positions: np.ndarray, animation: str = "auto") -> str:
@@ -104,7 +109,6 @@ def write_review_blend(path: str | os.PathLike, sequence: GarmentSequence, camer
     mesh cache).  cameras: `assets.cameras.Camera` list (undistorted, square pixels); texture: the
     pattern PNG, referred to relatively (not packed).  Returns the written paths."""
     path = Path(path)
-    bpy = _import_bpy()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     cache = path.with_suffix(".pc2")
     review = build_review_scene(bpy.context.scene, sequence, cameras, texture, animation, cache,
@@ -146,31 +150,10 @@ def build_review_scene(scene, sequence: GarmentSequence, cameras: Sequence[Camer
     return ReviewScene(garment, mode, made)
 
 
-def reconstruction_sequence(folder: str | os.PathLike, fps: float | None = None) -> GarmentSequence:
-    """The sequence of a reconstruction folder (`reconstruction.pipeline`'s layout) to review: the export
-    stage's ``export/sequence.npz`` when it is not older than the refined ``sequence.npz``, else the
-    refined sequence with the UVs of the template named in ``run.json`` (`export.from_refined`; a folder
-    refined but not exported, or refined again since), at `fps` Hz (default: the export stage's
-    default).  ValueError when the folder holds neither."""
-    from assets.garments import load_template
-    from reconstruction.export import from_refined, load_sequence_npz
-    from reconstruction.pipeline import DEFAULT_FPS, settings_of
-    from reconstruction.refine import RefinedSequence
-
-    folder = Path(folder)
-    exported, refined = folder / "export" / "sequence.npz", folder / "sequence.npz"
-    if exported.is_file() and (not refined.is_file() or exported.stat().st_mtime_ns >= refined.stat().st_mtime_ns):
-        return load_sequence_npz(exported)
-    if not refined.is_file():
-        raise ValueError(f"{folder}: no sequence.npz: run the reconstruction (its refine stage) first")
-    return from_refined(RefinedSequence.load(refined), load_template(settings_of(folder).template), fps or DEFAULT_FPS)
-
-
 # ---- building blocks -------------------------------------------------------------------------------
 def new_mesh(name: str, vertices: np.ndarray, faces: np.ndarray, corner_uv: np.ndarray | None = None):
     """A smooth-shaded triangle mesh (bpy.types.Mesh) `name`: vertices (V, 3) metres, faces (F, 3) (loops
     are the faces' corners in order), corner_uv (F, 3, 2) as UV map "UVMap" (origin bottom-left)."""
-    bpy = _import_bpy()
     faces = np.asarray(faces, dtype=np.int32)
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(len(vertices))
@@ -191,7 +174,6 @@ def garment_object(scene, sequence: GarmentSequence, texture: str | os.PathLike 
     """The garment object `name` (mesh and material of that name too) at the sequence's first frame, with
     UVs, the "captured" and "captured_fraction" attributes, its material and custom properties; linked
     into `collection` (default: `scene`'s own)."""
-    bpy = _import_bpy()
     mesh = new_mesh(name, sequence.positions[0], sequence.faces, sequence.corner_uv)
     colour = mesh.color_attributes.new(name="captured", type="FLOAT_COLOR", domain="POINT")
     rgba = np.where(sequence.captured[0][:, None], CAPTURED_RGBA, FILLED_RGBA).astype(np.float32)
@@ -212,7 +194,6 @@ def garment_object(scene, sequence: GarmentSequence, texture: str | os.PathLike 
 def garment_material(texture: str | os.PathLike | None = None, name: str = "garment"):
     """A new material `name`: the texture through UV map "UVMap" when given (read again from disk when
     Blender holds it already: a regenerated texture), else the "captured" colours."""
-    bpy = _import_bpy()
     material = bpy.data.materials.new(name)
     if material.node_tree is None:  # Blender < 5.0 (5.0 gives every material nodes; use_nodes is deprecated)
         material.use_nodes = True
@@ -304,9 +285,6 @@ def _camera_params(cameras: Sequence[Camera], sensor_width_mm: float) -> list[di
 def add_cameras(scene, cameras: Sequence[Camera], name: str = "cameras", sensor_width_mm: float = 36.0):
     """`assets.cameras.Camera`s (undistorted, square pixels) as Blender cameras in a new collection
     `name` of `scene` (returned); the scene's camera and render resolution become the first's."""
-    from mathutils import Matrix
-
-    bpy = _import_bpy()
     params = _camera_params(cameras, sensor_width_mm)
     collection = bpy.data.collections.new(name)
     scene.collection.children.link(collection)
@@ -341,9 +319,40 @@ def set_frame_range(scene, first: int, last: int, fps: float) -> None:
 def show_captured_colours(scene) -> None:
     """Solid shading in Attribute colour mode (the "captured" colours) in `scene`'s Workbench renders
     and in every 3D view."""
-    bpy = _import_bpy()
     shadings = [scene.display.shading]
     shadings += [space.shading for screen in bpy.data.screens for area in screen.areas
                  for space in area.spaces if space.type == "VIEW_3D"]
     for shading in shadings:
         shading.type, shading.color_type = "SOLID", "VERTEX"
+
+
+# ---- the export stage's process ----------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    """``python -m reconstruction.review SEQUENCE BLEND [--cameras JSON] [--texture PNG]``: the review
+    .blend of a sequence npz (`reconstruction.exports.save_sequence_npz`); the written paths go to
+    stdout as one JSON line, last."""
+    import math
+
+    from assets.cli import run_cli
+
+    parser = argparse.ArgumentParser(prog="python -m reconstruction.review", description=main.__doc__)
+    parser.add_argument("sequence", help="the sequence npz (an export folder's sequence.npz)")
+    parser.add_argument("blend", help="the .blend to write (a mesh cache goes beside it, <name>.pc2)")
+    parser.add_argument("--cameras", help="cameras.json of the cameras to add (a reconstruction's "
+                        "detections/cameras.json)")
+    parser.add_argument("--texture", help="the garment's pattern texture PNG")
+    parser.add_argument("--animation", choices=ANIMATIONS, default="auto", help="shape keys or a mesh cache")
+    args = parser.parse_args(argv)
+
+    def action() -> None:
+        # the detect stage bounded the cameras' image sizes when it wrote them
+        cameras = load_cameras(args.cameras, max_image_pixels=math.inf) if args.cameras else None
+        written = write_review_blend(args.blend, load_sequence_npz(args.sequence), cameras, args.texture,
+                                     args.animation)
+        print(json.dumps([str(p) for p in written]))
+
+    return run_cli(action, failures=(RuntimeError,))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,7 +1,7 @@
 """One template level as a Newton VBD cloth for the post-processing: anchors, membrane, bending and
 barrier self-contact, solved quasi-statically.
 
-Energies (weights from `reconstruction.refine.RefineConfig`, the reference's numbers):
+Energies (weights from `reconstruction.refinement.RefineConfig`, the reference's numbers):
 - anchors: a zero-rest-length spring of stiffness `anchor_weight` (N/m) from every captured vertex to a
   kinematic anchor particle (mass 0) at its target; targets are written into `state.particle_q`, and
   an uncaptured vertex's spring has stiffness 0.  The anchor particles live in a Newton world of their

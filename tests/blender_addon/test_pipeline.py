@@ -293,7 +293,7 @@ def test_a_reconstruction_is_imported_beside_its_ground_truth_with_an_error_heat
                                                                                    reconstruction):
     folder = addon.commands.reconstruction_dir(settings)
     assert (folder / "export" / "sequence.npz").is_file() and (folder / "evaluation.json").is_file()
-    from reconstruction.refine import RefinedSequence
+    from reconstruction.refinement import RefinedSequence
 
     refined = RefinedSequence.load(folder / "sequence.npz")
     obj, truth = bpy.data.objects["reconstruction"], bpy.data.objects["ground truth"]
@@ -344,7 +344,7 @@ def test_importing_again_replaces_the_review_without_the_ground_truth(addon, set
 
 
 def test_a_reconstruction_refined_but_not_exported_is_imported_from_its_sequence(addon, settings, reconstruction):
-    from reconstruction.refine import RefinedSequence
+    from reconstruction.refinement import RefinedSequence
 
     folder = addon.commands.reconstruction_dir(settings)
     review = settings.review
@@ -377,6 +377,29 @@ def test_the_neighbour_check_is_turned_off_from_the_review_panel(addon, settings
     finally:
         review.neighbour_check = True
     assert build_parser().parse_args(argv[2:]).no_neighbour_check  # the CLI hands it to triangulation
+
+
+def test_the_networks_mode_hands_each_checkpoint_to_its_flag(addon, settings, tmp_path):
+    """The Review panel's three checkpoints reach `python -m reconstruction run` as --localizer PT
+    --recognizer PT --crosspoints PT (the project's one CLI vocabulary), in the Detector's order."""
+    from assets.cli import networks_of
+    from reconstruction.__main__ import build_parser
+
+    (tmp_path / "cameras.json").write_text(json.dumps({"cameras": []}))
+    review = settings.review
+    checkpoints = {name: tmp_path / f"{name}.pt" for name in ("crosspoints", "localizer", "recognizer")}
+    for name, path in checkpoints.items():
+        path.write_bytes(b"")
+        setattr(review, name, str(path))
+    review.capture_dir, review.detections = str(tmp_path), "networks"
+    try:
+        argv, _ = addon.commands.reconstruction_command(settings)
+    finally:
+        review.capture_dir, review.detections = "", "groundtruth"
+        for name in checkpoints:
+            setattr(review, name, "")
+    args = build_parser().parse_args(argv[2:])
+    assert networks_of(args) == tuple(str(checkpoints[n]) for n in ("localizer", "recognizer", "crosspoints"))
 
 
 def test_the_progress_of_a_run_goes_forward_over_its_stages_to_the_end(simulation, capture, reconstruction):

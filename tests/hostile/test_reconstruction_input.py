@@ -50,7 +50,8 @@ def test_a_camera_name_that_climbs_out_of_the_folder_is_refused_by_the_cli(tmp_p
     before = files_under(tmp_path)
     out = inputs / "out"
     result = run_cli("reconstruction", "detect", "--views", views, "--cameras", cameras, "--template", "shirt",
-                     "--out", out, "--checkpoints", "l.pt", "r.pt", "c.pt", "--quiet")
+                     "--out", out, "--localizer", "l.pt", "--recognizer", "r.pt", "--crosspoints", "c.pt",
+                     "--no-progress")
     assert_refused(result, "cameras.json: cameras[0].name", "../../escaped_cam")
     assert files_under(tmp_path) == before and not out.exists()
 
@@ -126,7 +127,7 @@ def test_captured_points_scalars_of_the_wrong_kind_are_refused_by_name(tmp_path,
 
 
 def _sequence():
-    from reconstruction.export import GarmentSequence
+    from reconstruction.exports import GarmentSequence
 
     positions = np.random.default_rng(0).random((2, 4, 3))
     faces = np.array([[0, 1, 2], [0, 2, 3]])
@@ -136,11 +137,11 @@ def _sequence():
 
 @pytest.mark.hostile("half")
 def test_an_export_that_fails_part_way_leaves_the_previous_export_whole(tmp_path, monkeypatch):
-    from reconstruction import export
+    from reconstruction import exports
 
     folder = tmp_path / "export"
     formats = ("npz", "obj", "ply", "pc2")
-    first = export.export_sequence(folder, _sequence(), formats=formats, progress=False)
+    first = exports.export_sequence(folder, _sequence(), formats=formats, progress=False)
     assert all(p.is_file() and p.parent.is_relative_to(folder) for paths in first.values() for p in paths)
     before = files_under(folder)
 
@@ -151,9 +152,9 @@ def test_an_export_that_fails_part_way_leaves_the_previous_export_whole(tmp_path
 
     changed = _sequence()
     object.__setattr__(changed, "positions", changed.positions + 1)
-    monkeypatch.setattr(export, "write_pc2", disk_full)
+    monkeypatch.setattr(exports, "write_pc2", disk_full)
     with pytest.raises(OSError, match="No space left"):
-        export.export_sequence(folder, changed, formats=formats, progress=False)
+        exports.export_sequence(folder, changed, formats=formats, progress=False)
     assert files_under(folder) == before  # no new npz, OBJ or PLY beside the old point cache, no staging left
 
 

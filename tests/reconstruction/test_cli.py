@@ -10,7 +10,7 @@ import pytest
 from reconstruction.__main__ import main
 from reconstruction.groundtruth import GroundTruthCapture
 from reconstruction.points import load_sequence
-from reconstruction.refine import RefinedSequence
+from reconstruction.refinement import RefinedSequence
 
 pytestmark = pytest.mark.slow  # Newton's first kernel compile and the shared capture
 
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.slow  # Newton's first kernel compile and the shared ca
 def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, capsys):
     out = tmp_path / "rec"
     argv = ["run", "--views", str(capture_folder), "--template", str(capture_folder / "template.npz"),
-            "--out", str(out), "--detections", "groundtruth", "--levels", "12", "--evaluate", "--quiet"]
+            "--out", str(out), "--detections", "groundtruth", "--levels", "12", "--evaluate", "--no-progress"]
     assert main(argv) == 0
     cameras = [c["name"] for c in json.loads((capture_folder / "cameras.json").read_text())["cameras"]]
     for camera in cameras:
@@ -50,24 +50,38 @@ def test_the_cli_reconstructs_a_capture_and_resumes(capture_folder, tmp_path, ca
     assert main(argv) == 0  # resumes: nothing is redone
     assert {p: p.stat().st_mtime_ns for p in (out / "points").iterdir()} == stamps
 
-    # without the neighbour check: the same detections give every point, the dropped patches too
+    # triangulating again with other settings would mix points made two ways: refused by name
+    capsys.readouterr()
+    assert main(["triangulate", "--out", str(out), "--no-neighbour-check", "--no-progress"]) != 0
+    assert "points/triangulation.json" in (err := capsys.readouterr().err) and "(neighbours: {" in err
+    assert {p: p.stat().st_mtime_ns for p in (out / "points").iterdir()} == stamps
+
+    # without the neighbour check, in a folder of its own: the same detections give every point, the
+    # dropped patches too
     unchecked = tmp_path / "unchecked"
     shutil.copytree(out / "detections", unchecked / "detections")
     shutil.copy2(out / "run.json", unchecked / "run.json")
-    assert main(["triangulate", "--out", str(unchecked), "--no-neighbour-check", "--quiet"]) == 0
+    assert main(["triangulate", "--out", str(unchecked), "--no-neighbour-check", "--no-progress"]) == 0
     for checked, kept in zip(points, load_sequence(unchecked / "points")):
         assert set(map(tuple, checked.key)) <= set(map(tuple, kept.key))
     assert sum(len(p.key) for p in load_sequence(unchecked / "points")) > sum(len(p.key) for p in points)
+    assert json.loads((unchecked / "points" / "triangulation.json").read_text())["neighbours"] is None
+    # points without a record (an older version's) are all made again
+    (unchecked / "points" / "triangulation.json").unlink()
+    made = {p: p.stat().st_mtime_ns for p in (unchecked / "points").glob("f*.npz")}
+    assert main(["triangulate", "--out", str(unchecked), "--no-neighbour-check", "--no-progress"]) == 0
+    assert all(p.stat().st_mtime_ns != made[p] for p in made)
 
     capsys.readouterr()
-    assert main(argv[:-2] + ["--noise", "0.5", "--quiet"]) != 0
-    assert "other settings" in capsys.readouterr().err
+    assert main(argv[:-2] + ["--noise", "0.5", "--no-progress"]) != 0
+    assert "run.json: this folder holds a run made with other settings or inputs (noise_px: 0.0 -> 0.5)" \
+        in capsys.readouterr().err
 
 
 def test_a_missing_initial_shape_is_refused_before_anything_is_written(tmp_path, capsys):
     out = tmp_path / "rec"
     argv = ["detect", "--views", str(tmp_path), "--template", "shirt", "--out", str(out),
-            "--detections", "groundtruth", "--initial-shape", str(tmp_path / "nowhere.npz"), "--quiet"]
+            "--detections", "groundtruth", "--initial-shape", str(tmp_path / "nowhere.npz"), "--no-progress"]
     assert main(argv) != 0
     assert "nowhere.npz: no such file" in capsys.readouterr().err
     assert not out.exists()

@@ -9,7 +9,7 @@ from assets.cameras import Camera
 from networks.detections import Detections
 from reconstruction.consistency import NeighbourConfig, consistent_points
 from reconstruction.correspondence import CrosspointMap
-from reconstruction.triangulate import TriangulationConfig, triangulate_frame
+from reconstruction.triangulation import TriangulationConfig, triangulate_frame
 from tests.reconstruction.cylinder import cylinder_template, wrapped
 
 K = 25

@@ -1,4 +1,5 @@
-"""reconstruction.export and reconstruction.review: files read back by other programs (trimesh, bpy)."""
+"""reconstruction.exports and reconstruction.review: files read back by other programs (trimesh, bpy).
+The review is bpy's (a leaf module, imported only by the tests that need it)."""
 
 import shutil
 
@@ -7,12 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from assets.cameras import Camera
+from assets.cameras import Camera, save_cameras
 from assets.fileio import load_npz, save_npz
-from reconstruction.export import (CAPTURED_RGB, FILLED_RGB, GarmentSequence, export_sequence, load_sequence_npz,
+from reconstruction.exports import (CAPTURED_RGB, FILLED_RGB, GarmentSequence, export_sequence, load_sequence_npz,
                                    read_pc2, save_sequence_npz, write_frame_meshes, write_obj, write_pc2, write_ply)
-from reconstruction.review import (CAPTURED_RGBA, FILLED_RGBA, SHAPE_KEY_MAX_VERTEX_FRAMES, choose_animation,
-                                   write_review_blend)
+from reconstruction.pipeline import write_review
 
 FRAMES = np.array([10, 12, 14])  # not starting at 0, step 2: offsets and scales must be right
 
@@ -167,15 +167,35 @@ def test_pc2_round_trip_and_header(tmp_path):
 
 def test_export_sequence_writes_every_file_format(tmp_path):
     sequence = _sequence()
-    written = export_sequence(tmp_path, sequence, progress=False, texture=_texture(tmp_path / "texture.png"),
-                              cameras=_cameras())
-    assert {k: len(v) for k, v in written.items()} == {"npz": 1, "obj": 3, "ply": 3, "pc2": 1, "blend": 1}
-    assert written["blend"] == [tmp_path / "review.blend"] and (tmp_path / "obj" / "garment.mtl").exists()
+    written = export_sequence(tmp_path, sequence, progress=False, texture=_texture(tmp_path / "texture.png"))
+    assert {k: len(v) for k, v in written.items()} == {"npz": 1, "obj": 3, "ply": 3, "pc2": 1}
+    assert (tmp_path / "obj" / "garment.mtl").exists() and not (tmp_path / "review.blend").exists()
     cache = read_pc2(tmp_path / "garment.pc2")
     assert (cache.start_frame, cache.sample_rate) == (10.0, 2.0)
     np.testing.assert_array_equal(load_sequence_npz(tmp_path / "sequence.npz").positions, cache.positions)
     with pytest.raises(ValueError, match="unknown format.*glb"):
         export_sequence(tmp_path, sequence, formats=("glb",))
+
+
+def test_the_review_is_written_in_a_process_of_its_own_and_its_failure_keeps_the_previous_export(tmp_path):
+    """The pipeline's review (`write_review`: python -m reconstruction.review) gives export_sequence its
+    .blend without bpy in this process' modules; a review that fails discards the staged files."""
+    import sys
+
+    pytest.importorskip("bpy")
+    sequence, cameras = _sequence(), tmp_path / "cameras.json"
+    save_cameras(cameras, _cameras())
+    texture = _texture(tmp_path / "texture.png")
+    loaded = "bpy" in sys.modules
+    written = export_sequence(tmp_path / "export", sequence, progress=False, texture=texture,
+                              review=lambda path: write_review(path, sequence, cameras, texture))
+    assert written["blend"] == [tmp_path / "export" / "review.blend"] and written["blend"][0].stat().st_size > 0
+    assert ("bpy" in sys.modules) == loaded  # this process did not load it
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "export").rglob("*")}
+    with pytest.raises(RuntimeError, match=r"review.blend: the review .blend was not written: .*nowhere.png"):
+        export_sequence(tmp_path / "export", _sequence(seed=1), progress=False,
+                        review=lambda path: write_review(path, sequence, cameras, tmp_path / "nowhere.png"))
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "export").rglob("*")} == before
 
 
 def _cameras():
@@ -187,6 +207,8 @@ def _cameras():
 
 
 def test_choose_animation_by_size():
+    review = pytest.importorskip("reconstruction.review")
+    SHAPE_KEY_MAX_VERTEX_FRAMES, choose_animation = review.SHAPE_KEY_MAX_VERTEX_FRAMES, review.choose_animation
     small = _sequence().positions
     assert choose_animation(small) == "shape_keys"
     for vertices, expected in ((SHAPE_KEY_MAX_VERTEX_FRAMES // 2, "shape_keys"),
@@ -212,6 +234,8 @@ def test_review_blend_opens_in_blender(tmp_path, animation):
     bpy = pytest.importorskip("bpy")
     from bpy_extras.object_utils import world_to_camera_view
     from mathutils import Vector
+
+    from reconstruction.review import CAPTURED_RGBA, FILLED_RGBA, write_review_blend
 
     sequence, cameras = _sequence(), _cameras()
     texture = _texture(tmp_path / "made" / "texture.png")
@@ -273,6 +297,8 @@ def test_review_blend_opens_in_blender(tmp_path, animation):
 @pytest.mark.slow
 def test_review_blend_of_a_single_frame_without_cameras(tmp_path):
     bpy = pytest.importorskip("bpy")
+    from reconstruction.review import write_review_blend
+
     sequence = _sequence(frames=np.array([7]))
     assert write_review_blend(tmp_path / "one.blend", sequence) == [tmp_path / "one.blend"]
     bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "one.blend"))

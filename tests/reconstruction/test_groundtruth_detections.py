@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from reconstruction.groundtruth import GroundTruthCapture, GroundTruthConfig, ground_truth_detections
-from reconstruction.triangulate import TriangulationConfig, triangulate_frame
+from reconstruction.triangulation import TriangulationConfig, triangulate_frame
 from reconstruction.views import Views
 
 pytestmark = pytest.mark.slow  # the shared shirt simulation (about 70 s, once per session) and renders

@@ -6,7 +6,7 @@ import pytest
 
 from reconstruction.anchors import LevelAnchoring
 from reconstruction.intersections import count_intersections
-from reconstruction.refine import RefineConfig, RefinedSequence, load_initial_shape, refine_sequence
+from reconstruction.refinement import RefineConfig, RefinedSequence, load_initial_shape, refine_sequence
 from tests.reconstruction.cylinder import (
     HEIGHT, RADIUS, WIDTH, bent, captured_points, cylinder_template, every_key, key_pattern_xy, sewn_pattern_xy,
     wrapped,
@@ -90,11 +90,20 @@ def test_a_short_sequence_propagates_smooths_upsamples_and_resumes(cylinder, tmp
     loaded = RefinedSequence.load(path)
     assert np.array_equal(loaded.positions, result.positions) and loaded.diagnostics == result.diagnostics
 
+    solved = {p: p.stat().st_mtime_ns for p in out.rglob("*.npz")}
     again = refine_sequence(template, captures, config, progress=False, out=out, initial_shape=rest,
                             initial_level_mm=12)  # every frame on file: nothing is solved again
     assert np.array_equal(again.positions, result.positions) and again.diagnostics == result.diagnostics
-    with pytest.raises(ValueError, match="different config"):
-        refine_sequence(template, captures, RefineConfig(levels_mm=(12, 4), steps=3), progress=False, out=out)
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.npz")} == solved
+    record = (out / "refine_run.json").read_text()
+    with pytest.raises(ValueError, match=r"refine_run.json: .*\(steps: 4 -> 3\)"):
+        refine_sequence(template, captures, RefineConfig(levels_mm=(12, 4), steps=3), progress=False, out=out,
+                        initial_shape=rest, initial_level_mm=12)
+    fewer = [c.select(np.arange(len(c) - 1)) for c in captures]  # other points, the same settings
+    with pytest.raises(ValueError, match=r'\(captures: "[0-9a-f]{40}" -> "[0-9a-f]{40}"\)'):
+        refine_sequence(template, fewer, config, progress=False, out=out, initial_shape=rest, initial_level_mm=12,
+                        start_frame=1)
+    assert (out / "refine_run.json").read_text() == record
 
 
 def test_bad_input_is_named(cylinder, tmp_path):

@@ -9,7 +9,7 @@ from assets.garments.markers import face_normals
 from factory.simulate import load_template
 from reconstruction.anchors import LevelAnchoring
 from reconstruction.intersections import count_intersections
-from reconstruction.refine import RefineConfig, load_initial_shape, refine_sequence
+from reconstruction.refinement import RefineConfig, load_initial_shape, refine_sequence
 from tests.reconstruction.cylinder import captured_points, every_key, key_pattern_xy, sewn_pattern_xy
 
 

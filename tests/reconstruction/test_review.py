@@ -1,16 +1,15 @@
-"""reconstruction.review's pieces on their own: the sequence of a reconstruction folder (exported or
-only refined), and the review built into a scene of the caller's (as the Blender add-on does) with
-plain arrays animated."""
+"""reconstruction.review's pieces on their own: the sequence of a reconstruction folder to review
+(`pipeline.sequence_of`: exported or only refined), and the review built into a scene of the
+caller's (as the Blender add-on does) with plain arrays animated."""
 
 import os
 
 import numpy as np
 import pytest
 
-from reconstruction.export import export_sequence, from_refined
-from reconstruction.pipeline import RunSettings, start
-from reconstruction.refine import RefinedSequence
-from reconstruction.review import animate, build_review_scene, new_mesh, reconstruction_sequence
+from reconstruction.exports import export_sequence, from_refined
+from reconstruction.pipeline import RunSettings, sequence_of, start
+from reconstruction.refinement import RefinedSequence
 from tests.reconstruction.cylinder import cylinder_template, wrapped
 from tests.reconstruction.test_export import _cameras, _sequence
 
@@ -32,26 +31,26 @@ def _refined_folder(folder, template):
 def test_a_folder_refined_but_not_exported_is_reviewed_from_its_sequence_and_template(tmp_path):
     template = cylinder_template()
     refined = _refined_folder(tmp_path, template)
-    sequence = reconstruction_sequence(tmp_path)
+    sequence = sequence_of(tmp_path)
     level = template.level(12)
     np.testing.assert_array_equal(sequence.positions, refined.positions)
     np.testing.assert_array_equal(sequence.corner_uv, level.uv[level.faces].astype(np.float32))
     np.testing.assert_array_equal(sequence.captured, refined.captured)
     assert (sequence.frames.tolist(), sequence.fps, sequence.level_mm, sequence.source) == ([3, 4], 120.0, 12,
                                                                                               "groundtruth(test)")
-    assert reconstruction_sequence(tmp_path, fps=30.0).fps == 30.0
+    assert sequence_of(tmp_path, fps=30.0).fps == 30.0
 
     export_sequence(tmp_path / "export", from_refined(refined, template, 60.0), formats=("npz",), progress=False)
-    assert reconstruction_sequence(tmp_path).fps == 60.0  # the export stage's, with its frame rate
+    assert sequence_of(tmp_path).fps == 60.0  # the export stage's, with its frame rate
     refined.save(tmp_path / "sequence.npz")  # refined again after the export: the export is stale
     later = (tmp_path / "export" / "sequence.npz").stat().st_mtime_ns + 10**9
     os.utime(tmp_path / "sequence.npz", ns=(later, later))
-    assert reconstruction_sequence(tmp_path).fps == 120.0
+    assert sequence_of(tmp_path).fps == 120.0
 
 
 def test_a_folder_without_a_sequence_is_refused_naming_the_stage(tmp_path):
     with pytest.raises(ValueError, match="no sequence.npz: run the reconstruction \\(its refine stage\\) first"):
-        reconstruction_sequence(tmp_path)
+        sequence_of(tmp_path)
     template = cylinder_template()
     refined = _refined_folder(tmp_path, template)
     elsewhere = RefinedSequence(4, refined.positions, refined.captured, refined.faces, refined.frames, 0, "", [], {})
@@ -62,6 +61,8 @@ def test_a_folder_without_a_sequence_is_refused_naming_the_stage(tmp_path):
 @pytest.mark.slow
 def test_the_review_goes_into_the_scene_and_collection_it_is_given(tmp_path):
     bpy = pytest.importorskip("bpy")
+    from reconstruction.review import build_review_scene
+
     bpy.ops.wm.read_factory_settings(use_empty=True)
     main = bpy.context.scene
     main.frame_start, main.frame_end = 1, 250
@@ -91,6 +92,8 @@ def test_the_review_goes_into_the_scene_and_collection_it_is_given(tmp_path):
 @pytest.mark.slow
 def test_plain_positions_are_animated_at_their_frames(tmp_path):
     bpy = pytest.importorskip("bpy")
+    from reconstruction.review import animate, new_mesh
+
     bpy.ops.wm.read_factory_settings(use_empty=True)
     sequence = _sequence()
     obj = bpy.data.objects.new("body", new_mesh("body", sequence.positions[0], sequence.faces))

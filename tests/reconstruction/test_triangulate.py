@@ -12,7 +12,7 @@ from networks.detections import Detections
 from reconstruction.cameras import pinhole
 from reconstruction.correspondence import CrosspointMap
 from reconstruction.points import CapturedPoints, load_sequence, save_sequence
-from reconstruction.triangulate import (TriangulationConfig, gather_views, merge_duplicates, triangulate_frame,
+from reconstruction.triangulation import (TriangulationConfig, gather_views, merge_duplicates, triangulate_frame,
                                         triangulate_points)
 from tests.assets.garment_fixtures import tube
 
