@@ -1,6 +1,6 @@
 """The `reconstruction` package as a user meets it: a flat documented API that imports without OpenCV,
-torch or bpy, no import cycles among its modules, and bpy in one leaf module (the review) that no other
-module imports."""
+torch or bpy, and bpy in one leaf module (the review) that no other module imports.  (No import
+cycles: tests/test_import_cycles.py.)"""
 
 import ast
 import importlib
@@ -16,7 +16,7 @@ FOLDER = PROJECT / "reconstruction"
 
 def _imports(path: Path) -> set[str]:
     """Every module `path` imports anywhere in its source (function bodies too: a lazy import is an
-    import as soon as that code runs), by full name."""
+    import as soon as that code runs), by full name (``from a import b``: a and a.b)."""
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom) and node.module:
@@ -27,49 +27,12 @@ def _imports(path: Path) -> set[str]:
     return found
 
 
-def _graph() -> dict[str, set[str]]:
-    """module -> the modules of the package it imports."""
-    modules = {path.stem for path in FOLDER.glob("*.py")} - {"__init__"}
-    return {name: {m.split(".")[1] for m in _imports(FOLDER / f"{name}.py") if m.startswith("reconstruction.")}
-            & modules - {name} for name in modules}
-
-
-def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    """One import cycle of `graph` (its modules in order, the first repeated at the end), or None."""
-    state: dict[str, int] = {}  # 1: on the current path, 2: done
-    path: list[str] = []
-
-    def visit(node: str) -> list[str] | None:
-        state[node] = 1
-        path.append(node)
-        for other in sorted(graph[node]):
-            if state.get(other) == 1:
-                return path[path.index(other):] + [other]
-            if other not in state and (found := visit(other)):
-                return found
-        state[node] = 2
-        path.pop()
-        return None
-
-    for node in sorted(graph):
-        if node not in state and (found := visit(node)):
-            return found
-    return None
-
-
-def test_the_cycle_finder_finds_one():
-    assert _cycle({"exports": {"review"}, "review": {"pipeline"}, "pipeline": {"exports"}}) == \
-        ["exports", "review", "pipeline", "exports"]
-    assert _cycle({"exports": set(), "review": {"exports"}, "pipeline": {"exports"}}) is None
-
-
-def test_the_modules_import_no_cycle_and_only_the_review_imports_bpy():
-    graph = _graph()
-    assert _cycle(graph) is None
-    assert [name for name in graph if "review" in graph[name]] == []  # a leaf: run in its own process
-    uses_bpy = sorted(path.stem for path in FOLDER.glob("*.py")
-                      if any(m == "bpy" or m.startswith("bpy.") for m in _imports(path)))
-    assert uses_bpy == ["review"]
+def test_only_the_review_imports_bpy_and_no_module_imports_the_review():
+    """The review is a leaf (its cycle with export and pipeline is gone: tests/test_import_cycles.py),
+    run by the export stage in a process of its own."""
+    imports = {path.stem: _imports(path) for path in FOLDER.glob("*.py")}
+    assert sorted(name for name, found in imports.items() if any(m.split(".")[0] == "bpy" for m in found)) == ["review"]
+    assert sorted(name for name, found in imports.items() if "reconstruction.review" in found) == []
 
 
 def test_import_reconstruction_needs_nothing_heavy_and_its_stages_no_torch_or_bpy():
