@@ -415,7 +415,8 @@ def train(config: TrainConfig, data: Data, out: str | Path, device: str | torch.
     samples from.  garment: a factory dataset folder or template.npz whose marker IDs are
     synthesized and, for the recognizer, are its classes (default: `data`'s template.npz).
     spec: the pattern (default `training_spec(data)`).  resume: continue from `out/last.pt` (a fresh
-    run refuses a folder that already holds one).  until_step / time_limit_s: stop early at that step
+    run refuses a folder that already holds one); either way a folder whose record (`RUN_RECORD`,
+    `record_run`) names another config is refused before any work.  until_step / time_limit_s: stop early at that step
     or after that many seconds, writing `last.pt` (resume later).  Ctrl-C writes `last.pt` and
     re-raises.  fit_to_time_limit: shorten the schedule (`config.steps`, so the cosine decay) to end
     within time_limit_s at the step rate measured early in this call (`FIT_SKIP_STEPS`,
