@@ -1,7 +1,7 @@
 """A recipe's data on every core of one machine: `factory.dataset build --recipe NAME`'s folders, made
 by a pool of worker processes, one task each at a time, Cycles on one thread per worker.
 
-    python3.11 benchmarks/device_recipe.py all_garments --out /tmp/data/all_garments [--workers 16]
+    python3.11 benchmarks/device_recipe.py all_garments --out /tmp/data/all_garments [--workers 10 --gpu-workers 6]
 
 On the GPU machine this runs under the relocated Python (`benchmarks/device_factory.py`), detached:
 
@@ -21,9 +21,12 @@ ground truth (about as long as a render on 16 cores) runs on one; and N processe
 (`factory.build.prepare`, `factory.shards`): per part, `prepare` and the first motion's simulation
 (which dresses the garment the part's motions share), then its other motions, then `plan_shards` and
 one `make_shard` per frame;
-simulations go first, renders fill the free workers.  Each worker renders with cores // workers
-Cycles threads (1 on 16 workers), on the CPU: the GPU is hidden from the workers, since Cycles
-compiles its kernels for the H200 for over 5 minutes in every process.  When every task is done,
+simulations go first, renders fill the free workers.  Each CPU worker renders with cores // workers
+Cycles threads (1 on 16 workers), on the CPU: the GPU is hidden from it.  `--gpu-workers N` adds N
+processes that take render tasks only and render with Cycles on the GPU (OptiX on the H200: 8,600
+images an hour at 512 px with 8 of them, 5x the 16 cores); Cycles compiles its GPU kernels for the
+H200 in about 8 minutes unless the driver's cache (``CUDA_CACHE_PATH``, ``CUDA_CACHE_MAXSIZE`` of a
+few GiB; 32 MB) holds them from an earlier run, so carry it.  When every task is done,
 `factory.recipe.build_recipe` runs once over the finished folders: it plans nothing more and writes
 the recipe's record, each part's manifest, timing and contact sheet, exactly as a plain build does
 (each part's ``timing.json`` then counts that pass, 0 images; ``factory_run.json`` has the build's).
@@ -102,11 +105,12 @@ class _Task:
 class RecipeRun:
     """The schedule and its record: tasks waiting (simulations first), running, and what is done."""
 
-    def __init__(self, name: str, out: Path, workers: int, train_only: bool):
+    def __init__(self, name: str, out: Path, workers: int, train_only: bool, gpu_workers: int = 0):
         from factory.shards import dataset_frames
         from factory.recipe import HOLDOUT, load_data_recipe
 
         self.name, self.out, self.workers, self.train_only = name, Path(out), workers, train_only
+        self.gpu_workers = gpu_workers
         self.threads = max(1, (os.cpu_count() or 1) // workers)
         _, _, recipe = load_data_recipe(name)
         self.parts = [_Part(str(self.out / p.folder), p.config, p.config.motions,
@@ -118,6 +122,14 @@ class RecipeRun:
         self.done = {"simulations": 0, "images": 0, "simulate_s": 0.0, "render_s": 0.0, "groundtruth_s": 0.0,
                      "setup_s": 0.0}
         self.failures: list[dict] = []
+
+    def next_render(self) -> _Task | None:
+        """The next render task (a GPU worker's), None when none is waiting."""
+        while self.renders:
+            task = self.renders.popleft()
+            if task.part.failed is None:
+                return task
+        return None
 
     def next_task(self) -> _Task | None:
         for queue in (self.simulations, self.renders):
@@ -181,7 +193,8 @@ class RecipeRun:
 
     def record(self, finished: bool = False) -> dict:
         images = max(self.done["images"], 1)
-        return {"recipe": self.name, "out": str(self.out), "workers": self.workers, "render_threads": self.threads,
+        return {"recipe": self.name, "out": str(self.out), "workers": self.workers,
+                "gpu_workers": self.gpu_workers, "render_threads": self.threads,
                 "cores": os.cpu_count(), "parts": len(self.parts), "train_only": self.train_only,
                 "simulations": [self.done["simulations"], self.total_simulations],
                 "images": [self.done["images"], self.total_images], "images_per_hour": round(self.images_per_hour, 1),
@@ -192,49 +205,70 @@ class RecipeRun:
                 "setup_s": round(self.done["setup_s"], 1), "failures": self.failures, "finished": finished}
 
 
-def _pool(workers: int) -> ProcessPoolExecutor:
+def _show_gpu() -> None:
+    """A GPU worker's initializer: Cycles there sees the GPU the main process hides from CPU workers."""
+    os.environ.pop("CUDA_VISIBLE_DEVICES", None)
+
+
+def _pool(workers: int, gpu: bool = False) -> ProcessPoolExecutor:
     import multiprocessing
 
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_show_gpu if gpu else None)
 
 
-def run_recipe(name: str, out: Path, workers: int | None = None, train_only: bool = False) -> dict:
-    """Build recipe `name`'s data in `out` on `workers` processes (default: one per core); returns
-    ``factory_run.json``'s record."""
+def run_recipe(name: str, out: Path, workers: int | None = None, train_only: bool = False,
+               gpu_workers: int = 0) -> dict:
+    """Build recipe `name`'s data in `out` on `workers` CPU processes (default: one per core) and
+    `gpu_workers` processes whose Cycles renders on the GPU (render tasks only; Cycles' kernels for the
+    GPU are compiled once per machine: keep ``CUDA_CACHE_PATH`` and a large ``CUDA_CACHE_MAXSIZE``);
+    returns ``factory_run.json``'s record."""
     from assets.fileio import save_json
 
     os.environ.update(WORKER_ENV)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     workers = workers or os.cpu_count() or 1
-    run = RecipeRun(name, out, workers, train_only)
-    log.info("recipe %s: %d parts, %d simulations, %d images on %d workers, %d Cycles threads each", name,
-             len(run.parts), run.total_simulations, run.total_images, workers, run.threads)
+    run = RecipeRun(name, out, workers, train_only, gpu_workers)
+    log.info("recipe %s: %d parts, %d simulations, %d images on %d workers (%d Cycles threads each) and %d GPU "
+             "workers", name, len(run.parts), run.total_simulations, run.total_images, workers, run.threads,
+             gpu_workers)
     functions = {"simulate": _simulate, "render": _render}
-    running: dict = {}
-    pool = _pool(workers)
+    sizes = {"cpu": workers, "gpu": gpu_workers}
+    pools = {kind: _pool(size, kind == "gpu") for kind, size in sizes.items() if size}
+    running: dict = {}  # future -> (task, pool kind)
+
+    def busy(kind: str) -> int:
+        return sum(1 for _, k in running.values() if k == kind)
+
     try:
         while True:
-            while len(running) < workers and (task := run.next_task()) is not None:
-                running[pool.submit(functions[task.kind], *task.args)] = task
+            for kind in pools:
+                while busy(kind) < sizes[kind]:
+                    task = run.next_task() if kind == "cpu" else run.next_render()
+                    if task is None:
+                        break
+                    args = task.args if kind == "cpu" or task.kind != "render" else (*task.args[:3], 1)
+                    running[pools[kind].submit(functions[task.kind], *args)] = (task, kind)
             if not running:
                 break
             ready, _ = wait(running, return_when=FIRST_COMPLETED)
-            broken = []
+            broken: dict[str, list] = {}
             for future in ready:
-                task = running.pop(future)
+                task, kind = running.pop(future)
                 try:
                     run.finished(task, future.result())
                 except BrokenProcessPool:
-                    broken.append(task)
+                    broken.setdefault(kind, []).append(task)
                 except Exception:
                     run.failed(task, traceback.format_exc())
-            if broken:  # a worker died: every task in flight is lost; start a new pool and try them again
-                broken += list(running.values())
-                running.clear()
-                pool.shutdown(cancel_futures=True)
-                pool = _pool(workers)
-                for task in broken:
+            for kind, lost in broken.items():  # a worker died: that pool's tasks in flight are lost; retry them
+                lost += [t for f, (t, k) in list(running.items()) if k == kind]
+                for future in [f for f, (_, k) in running.items() if k == kind]:
+                    del running[future]
+                pools[kind].shutdown(cancel_futures=True)
+                pools[kind] = _pool(sizes[kind], kind == "gpu")
+                for task in lost:
                     task.attempts += 1
                     if task.attempts > RETRIES:
                         run.failed(task, f"its worker died {task.attempts} times")
@@ -242,7 +276,8 @@ def run_recipe(name: str, out: Path, workers: int | None = None, train_only: boo
                         (run.simulations if task.kind == "simulate" else run.renders).appendleft(task)
             save_json(out / STATUS, run.record())
     finally:
-        pool.shutdown(cancel_futures=True)
+        for pool in pools.values():
+            pool.shutdown(cancel_futures=True)
     if not run.failures:
         from factory.recipe import build_recipe
 
@@ -260,13 +295,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("recipe", help="a recipe name (networks/recipes/NAME.toml) or a .toml file")
     parser.add_argument("--out", type=Path, required=True, help="the recipe's data folder (resumes what is there)")
     parser.add_argument("--workers", type=int, help="worker processes (default: one per core)")
+    parser.add_argument("--gpu-workers", type=int, default=0, metavar="N",
+                        help="processes rendering on the GPU (render tasks only; default 0)")
     parser.add_argument("--train-only", action="store_true", help="the recipe's training parts only")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if args.workers is not None and args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
     try:
-        record = run_recipe(args.recipe, args.out, args.workers, args.train_only)
+        record = run_recipe(args.recipe, args.out, args.workers, args.train_only, max(args.gpu_workers, 0))
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
