@@ -2,6 +2,7 @@
 markers from neighbours, and the whole chain with real (untrained, seeded) networks on CPU."""
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -456,6 +457,19 @@ def test_detector_end_to_end_on_cpu(detector, table, scene):
     assert empty.detections == empty.located == empty.localizer_scales == []
     with pytest.raises(ValueError, match=r"images\[1\]: expected uint8"):
         detector([small, small.astype(np.float32)])
+
+
+def test_one_detector_serves_several_threads_at_once(detector, scene):
+    """Calls from two threads at once give what each call gives alone, with its own scales."""
+    images = [np.ascontiguousarray(scene[0][200:296, 200:328]), np.ascontiguousarray(scene[0][150:347, 180:441])]
+    alone = [detector.detect([image]) for image in images]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        together = list(pool.map(lambda image: detector.detect([image]), images * 2))
+    for run, expected in zip(together, alone * 2):
+        assert run.localizer_scales == expected.localizer_scales
+        (got,), (want,) = run.detections, expected.detections
+        assert np.array_equal(got.marker_id, want.marker_id) and np.array_equal(got.points_px, want.points_px)
+        assert np.allclose(got.crosspoints_px, want.crosspoints_px, atol=1e-4)
 
 
 def test_the_detector_smooths_crosspoints_only_when_configured(codebook, table, scene):
