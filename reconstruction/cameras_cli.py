@@ -55,8 +55,10 @@ def add_parser(sub: "argparse._SubParsersAction") -> None:
                            "most board views)")
     calibrate.add_argument("--min-corners", type=int, default=8, help="board corners a view needs to count "
                            "(default %(default)s)")
-    calibrate.add_argument("--no-refine", action="store_true", help="keep the chained poses, without the bundle "
-                           "adjustment of poses and board views")
+    calibrate.add_argument("--k3", action="store_true", help="also estimate OpenCV's sixth-order radial "
+                           "coefficient k3 (for wide lenses, with board views reaching the image corners)")
+    calibrate.add_argument("--no-refine", action="store_true", help="keep each camera's own intrinsics and the "
+                           "chained poses, without the bundle adjustment of all of them with the board poses")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -75,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
         from reconstruction.charuco import CharucoBoard, RigCalibrationConfig, calibrate_rig, find_images
 
         board = CharucoBoard.parse(args.board)
-        config = RigCalibrationConfig(min_corners=args.min_corners, refine=not args.no_refine,
+        config = RigCalibrationConfig(min_corners=args.min_corners, k3=args.k3, refine=not args.no_refine,
                                       reference=args.reference)
         cameras, reports = calibrate_rig(board, find_images(args.images), config)
         written = write_calibration(args.out, cameras, args.format)

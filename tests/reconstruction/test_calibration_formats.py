@@ -39,6 +39,13 @@ def _assert_same(expected, got, atol=1e-9):
             np.testing.assert_allclose(getattr(b, key), getattr(a, key), rtol=0, atol=atol, err_msg=f"{a.name} {key}")
 
 
+def _refused(path, text, message):
+    """`text` written to `path` is refused with a ValueError matching `message`."""
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        read_calibration(path)
+
+
 @pytest.mark.parametrize("format, name", [("json", "cameras.json"), ("opencv", "calibration.yml"),
                                           ("easymocap", "easymocap"), ("toml", "calibration.toml"),
                                           ("multical", "calibration.json"), ("colmap", "sparse")])
@@ -135,13 +142,11 @@ def test_anipose_calibration_toml(tmp_path):
     np.testing.assert_allclose(camera.t, [0.0025517119183276713, -0.0027696043565510524, -0.01817036813575914])
     np.testing.assert_allclose(camera.dist, [-0.03617269969805811, 0, 0, 0, 0])
     text = (tmp_path / "calibration.toml").read_text()
-    (tmp_path / "fisheye.toml").write_text(text.replace("[metadata]", "fisheye = true\n[metadata]")
-                                           .replace("0.0, 0.0, 0.0, 0.0,]", "0.0, 0.0, 0.0,]"))
-    with pytest.raises(ValueError, match=r"fisheye\.toml: \[cam_0\]: camera 'cam088' uses the fisheye model"):
-        read_calibration(tmp_path / "fisheye.toml")
-    (tmp_path / "bad.toml").write_text(text.replace("size = [ 1440, 1080,]", "size = [ 1440,]"))
-    with pytest.raises(ValueError, match=r"bad\.toml: \[cam_0\] \('cam088'\): image size: expected 2 numbers, got 1"):
-        read_calibration(tmp_path / "bad.toml")
+    _refused(tmp_path / "fisheye.toml", text.replace("[metadata]", "fisheye = true\n[metadata]")
+             .replace("0.0, 0.0, 0.0, 0.0,]", "0.0, 0.0, 0.0,]"),
+             r"fisheye\.toml: \[cam_0\]: camera 'cam088' uses the fisheye model")
+    _refused(tmp_path / "bad.toml", text.replace("size = [ 1440, 1080,]", "size = [ 1440,]"),
+             r"bad\.toml: \[cam_0\] \('cam088'\): image size: expected 2 numbers, got 1")
 
 
 def test_caliscope_camera_array_toml(tmp_path):
@@ -201,12 +206,10 @@ def test_multical_calibration_json(tmp_path):
     cam3 = read_calibration(tmp_path / "chained.json")[1]
     np.testing.assert_allclose(cam3.t, [-0.1, 0.0, 0.0], atol=1e-15)
     np.testing.assert_allclose(cam3.R, R2, atol=1e-15)
-    (tmp_path / "fisheye.json").write_text(text.replace('"model": "standard"', '"model": "fisheye"'))
-    with pytest.raises(ValueError, match=r"fisheye\.json: cameras\.cam2: camera 'cam2' uses the lens model 'fisheye'"):
-        read_calibration(tmp_path / "fisheye.json")
-    (tmp_path / "unplaced.json").write_text(text.replace('"cam2_to_cam1"', '"cam2_to_cam9"'))
-    with pytest.raises(ValueError, match=r"unplaced\.json: camera_poses\.cam2_to_cam9: no camera 'cam9'"):
-        read_calibration(tmp_path / "unplaced.json")
+    _refused(tmp_path / "fisheye.json", text.replace('"model": "standard"', '"model": "fisheye"'),
+             r"fisheye\.json: cameras\.cam2: camera 'cam2' uses the lens model 'fisheye'")
+    _refused(tmp_path / "unplaced.json", text.replace('"cam2_to_cam1"', '"cam2_to_cam9"'),
+             r"unplaced\.json: camera_poses\.cam2_to_cam9: no camera 'cam9'")
 
 
 def test_colmap_text_model(tmp_path):
