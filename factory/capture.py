@@ -3,10 +3,11 @@ frame of a sequence (`python -m factory.dataset capture`).
 
 Its folder: `capture.json` (its settings and input files' digests: a rerun renders only what is
 missing, and only for the same capture), `cameras.json` (`assets.cameras`), images per camera
-(``cam00/f000012.png``, its depth EXR and camera JSON) with their ground truth (``f000012_gt.npz``),
-`garment.npz` (the ground-truth garment sequence: positions, faces, frames, template level),
-`template.npz`, `texture.png`, `scene.npz`, the render jobs and the simulation (``sim/``), and
-``contact_sheet.png``: the synthetic capture reconstruction is tested and measured on.
+(``cam00/f000012.png``, its depth EXR and camera JSON, ``cam00/render.json``) with their ground
+truth (``f000012_gt.npz``), `garment.npz` (the ground-truth garment sequence: positions, faces,
+frames, template level), `template.npz`, `texture.png`, `scene.npz`, the render jobs and the
+simulation (``sim/``), and ``contact_sheet.png``: the synthetic capture reconstruction is tested and
+measured on.
 """
 
 from __future__ import annotations

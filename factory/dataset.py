@@ -25,7 +25,8 @@ Layout of a dataset folder:
   sim/dressings/<key>.npz      the dressed garment the motions' simulations share
   scenes/<motion>.npz          the frames to render: garment and body vertices
   jobs/<motion>-<shard>.json   render jobs (`factory.render`)
-  images/<name>.png            RGB; <name>_depth.exr (Z, float32), <name>_camera.json (K, R, t)
+  images/<name>.png            RGB; <name>_depth.exr (Z, float32), <name>_camera.json (K, R, t);
+                               render.json: the render settings they share (`factory.render`)
   gt/<name>.npz                ground truth of every marker (`assets.pattern.observation.ImageGroundTruth`)
   samples/<name>.npz           training arrays: the Marker Localizer's cell targets (`cells`), the
                                96 x 96 recognizer crops with their IDs, the 112 x 112 crosspoint crops

@@ -9,8 +9,10 @@ The job's JSON format is in `factory.renderjob`.
 Output per image in DIR: ``{name}.png`` (8-bit sRGB, view transform Standard), ``{name}_depth.exr``
 (float32 channel Z: camera-frame depth in metres, as Blender's Z pass; +inf on the background),
 ``{name}_position.exr`` (float32 X, Y, Z world metres; NaN on the background; Cycles only) and
-``{name}_camera.json``.  Every file is written under a temporary name and renamed; an image whose
-outputs all exist is skipped unless `force`.
+``{name}_camera.json``, and ``render.json``: the settings every image of DIR shares (size, engine,
+samples, denoising, device, passes; `assets.fileio.record_stage`).  Every file is written under a
+temporary name and renamed; an image whose outputs all exist is skipped unless `force`, and a job
+of other settings into DIR is refused naming them unless `force` (which renders its images again).
 
 The garment is exactly the given triangles (no subdivision, no displacement: ground truth is computed
 from them), smooth shaded, textured through its UVs.  The scene is built once per job; each image
@@ -58,12 +60,14 @@ import numpy as np
 from tqdm import tqdm
 
 from assets.cli import add_out, add_progress, progress, run_cli
-from assets.fileio import atomic_path, save_json
+from assets.fileio import atomic_path, record_stage, save_json
 from factory.renderjob import ENGINES, ImageSpec, RenderJob, RenderJobError, load_job
 
 log = logging.getLogger(__name__)
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the record of what a folder's images were rendered with (`RenderJob.settings`)
+RECORD = "render.json"
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "METAL", "ONEAPI")  # preferred first
 #: physical sky models, newest first (5.0 renamed Nishita and added multiple scattering)
 PHYSICAL_SKIES = ("MULTIPLE_SCATTERING", "NISHITA", "SINGLE_SCATTERING")
@@ -404,11 +408,14 @@ def render_job(job_path: str | os.PathLike, out_dir: str | os.PathLike, progress
     """Render every image of the job at `job_path` into `out_dir` (see the module docstring) with
     `threads` render threads (0: every core).
 
-    Images whose outputs all exist are skipped unless `force`.  Resets the Blender session to factory
+    Images whose outputs all exist are skipped unless `force`.  ``render.json`` in `out_dir` records the
+    job's `RenderJob.settings`: a job of other settings is refused naming them (old -> new) unless
+    `force`, which renders its images again and records the new settings.  Resets the Blender session to factory
     settings when anything is to be rendered."""
     start = time.perf_counter()
     job, out = load_job(job_path), Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    # images of other settings are never taken for this job's: refused by name, or with `force` made again
+    record_stage(out / RECORD, job.settings(), recompute=force)
     done = set() if force else {image.name for image in job.images
                                 if all(p.is_file() for p in job.outputs(image, out).values())}
     pending = [image for image in job.images if image.name not in done]

@@ -88,6 +88,14 @@ class RenderJob:
     position: bool
     images: tuple[ImageSpec, ...]
 
+    def settings(self) -> dict:
+        """What every image rendered into one folder shares (its record, `factory.render`): size, engine,
+        samples, denoising, device and passes; the scene and the images differ between the jobs of a
+        dataset's shards, which render into one folder."""
+        return {"resolution": list(self.resolution), "engine": self.engine, "samples": self.samples,
+                "denoise": self.denoise, "device": self.device,
+                "passes": {"depth": self.depth, "position": self.position}}
+
     def outputs(self, image: ImageSpec, out_dir: Path) -> dict[str, Path]:
         files = {"png": f"{image.name}.png", "camera": f"{image.name}_camera.json"}
         if self.depth:

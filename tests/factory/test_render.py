@@ -129,16 +129,26 @@ def test_cycles_outputs_resume_and_force(scene_dir, tmp_path, runner):
     _check_outputs(tmp_path, position=True)
     assert not list(tmp_path.glob(".*")), "temporary files left behind"
 
-    files = sorted(tmp_path.iterdir())
+    assert json.loads((tmp_path / "render.json").read_text()) == {
+        "resolution": [SIZE, SIZE], "engine": "CYCLES", "samples": 4, "denoise": False, "device": "auto",
+        "passes": {"depth": True, "position": True}}
+    files = sorted(f for f in tmp_path.iterdir() if f.name != "render.json")
     mtimes = [f.stat().st_mtime_ns for f in files]
     result = _render(runner, job, tmp_path)
     assert result.returncode == 0, result.stderr
     assert "skipped" in result.stderr
     assert [f.stat().st_mtime_ns for f in files] == mtimes
-    if runner == "bpy":  # forcing is the same code under both Blenders
-        result = _render(runner, job, tmp_path, "--force")
+    if runner == "bpy":  # refusing and forcing are the same code under both Blenders
+        more = job.with_name("job_more_samples.json")
+        more.write_text(json.dumps({**json.loads(job.read_text()), "engine": {
+            "name": "CYCLES", "samples": 8, "denoise": False, "device": "auto"}}))
+        result = _render(runner, more, tmp_path)  # its images exist, but were made with 4 samples
+        assert result.returncode == 2 and "render.json" in result.stderr and "samples: 4 -> 8" in result.stderr
+        assert [f.stat().st_mtime_ns for f in files] == mtimes
+        result = _render(runner, more, tmp_path, "--force")
         assert result.returncode == 0, result.stderr
         assert all(a != f.stat().st_mtime_ns for a, f in zip(mtimes, files))
+        assert json.loads((tmp_path / "render.json").read_text())["samples"] == 8
 
 
 @pytest.mark.slow
