@@ -241,12 +241,26 @@ def record_stage(path: str | os.PathLike, settings: Mapping[str, object], *, cha
     free = set(changeable)
     differ = sorted(key for key in {*saved, *current} if key not in free and saved.get(key) != current.get(key))
     if differ and not recompute:
-        detail = "; ".join(f"{key}: {_short(saved.get(key))} -> {_short(current.get(key))}" for key in differ)
+        old, new = _flat(saved), _flat(current)
+        named = sorted(key for key in {*old, *new} if key.split(".")[0] in differ and old.get(key) != new.get(key))
+        detail = "; ".join(f"{key}: {_short(old.get(key))} -> {_short(new.get(key))}" for key in named)
         raise ValueError(f"{path}: this folder holds a run made with other settings or inputs ({detail}); "
                          "use a new output folder, or delete this one to start over")
     if write and saved != current:
         save_json(path, current)
     return not differ
+
+
+def _flat(data: Mapping[str, object], prefix: str = "") -> dict[str, object]:
+    """Nested settings as dotted keys ({"synth": {"seed": 3}} -> {"synth.seed": 3}), so a refusal names
+    the setting that differs, not the table holding it."""
+    flat = {}
+    for key, value in data.items():
+        if isinstance(value, dict) and value:
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def _short(value: object, limit: int = 60) -> str:

@@ -52,3 +52,10 @@ def test_check_only_writes_nothing(tmp_path):
     path = tmp_path / "stage.json"
     check_settings(path, {"a": 1})
     assert not path.exists()
+
+
+def test_a_nested_setting_is_named_by_its_dotted_key(tmp_path):
+    path = tmp_path / "stage.json"
+    record_stage(path, {"synth": {"seed": 3, "image_size": 256}, "steps": 10})
+    with pytest.raises(ValueError, match=r"\(synth.seed: 3 -> 4\)"):
+        record_stage(path, {"synth": {"seed": 4, "image_size": 256}, "steps": 10})
