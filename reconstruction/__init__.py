@@ -18,7 +18,10 @@ each resumable, each recording its settings there and refusing a rerun with othe
 
 The parts they are made of, for use on plain data:
 - cameras: `read_cameras` (cameras.json or OpenCV YAML), `validate_cameras`, `undistort_pixels`;
-  `Views`: the frames of each camera (image folders or videos);
+  `Views`: the frames of each camera (image folders or videos); other tools' calibrations
+  (EasyMocap, anipose / caliscope TOML, multical, COLMAP text) by `read_calibration` and
+  `write_calibration`, the format found by `detect_format`; a rig calibrated from ChArUco board
+  images by `calibrate_rig` (a `CharucoBoard`, `RigCalibrationConfig`);
 - correspondence: `CrosspointMap` (template crosspoints <-> marker IDs and grid cells);
 - triangulation: `triangulate_points`, `triangulate_frame`, `triangulate_sequence` -> `CapturedPoints`
   (`save_sequence`, `load_sequence`); `NeighbourConfig` and `consistent_points`, the pattern-neighbour
@@ -52,6 +55,12 @@ _EXPORTS = {
     "undistort_pixels": "reconstruction.cameras",
     "validate_cameras": "reconstruction.cameras",
     "Views": "reconstruction.views",
+    "read_calibration": "reconstruction.calibration_formats",
+    "write_calibration": "reconstruction.calibration_formats",
+    "detect_format": "reconstruction.calibration_formats",
+    "CharucoBoard": "reconstruction.charuco",
+    "RigCalibrationConfig": "reconstruction.charuco",
+    "calibrate_rig": "reconstruction.charuco",
     "CrosspointMap": "reconstruction.correspondence",
     "CapturedPoints": "reconstruction.points",
     "load_sequence": "reconstruction.points",
