@@ -51,8 +51,12 @@ def add_parser(sub: "argparse._SubParsersAction") -> None:
     calibrate.add_argument("--out", required=True, type=Path, help="calibration to write (cameras.json, or any "
                            "format of convert)")
     calibrate.add_argument("--format", choices=FORMATS, help="the output's format (default: from its name)")
-    calibrate.add_argument("--reference", help="camera whose frame is the world (default: the one sharing the "
-                           "most board views)")
+    calibrate.add_argument("--reference", help="camera the others are chained from, whose frame is the world "
+                           "unless --origin-frame (default: the one sharing the most board views)")
+    calibrate.add_argument("--origin-frame", metavar="FRAME",
+                           help="the image (file name without suffix) whose board defines the world: lay the "
+                           "board on the floor, printed side up; the origin is its outer corner next to corner 0, "
+                           "Z up (default: the reference camera's frame is the world)")
     calibrate.add_argument("--min-corners", type=int, default=8, help="board corners a view needs to count "
                            "(default %(default)s)")
     calibrate.add_argument("--k3", action="store_true", help="also estimate OpenCV's sixth-order radial "
@@ -78,13 +82,13 @@ def main(args: argparse.Namespace) -> int:
 
         board = CharucoBoard.parse(args.board)
         config = RigCalibrationConfig(min_corners=args.min_corners, k3=args.k3, refine=not args.no_refine,
-                                      reference=args.reference)
+                                      reference=args.reference, origin_frame=args.origin_frame)
         cameras, reports = calibrate_rig(board, find_images(args.images), config)
         written = write_calibration(args.out, cameras, args.format)
         print(f"{'camera':<16} {'views':>5} {'corners':>7} {'intrinsic RMS px':>16} {'rig RMS px':>10}  chained from")
         for r in reports:
             print(f"{r.name:<16} {r.views:>5} {r.corners:>7} {r.intrinsic_rms_px:>16.3f} {r.rig_rms_px:>10.3f}  "
-                  f"{r.chained_from or '(reference: the world frame)'}")
+                  f"{r.chained_from or '(the reference)'}")
         print(f"{len(cameras)} cameras written to {written}")
 
     return run_cli(action)

@@ -14,7 +14,9 @@ Steps (`calibrate_rig`):
 3. Extrinsics: cameras are joined where they saw the board at the same instant.  Each pair's relative
    pose is the rotation average (chordal mean) and translation median of its shared views; a
    maximum spanning tree over the number of shared views chains every camera to the reference
-   camera, whose frame is the world (``R = I, t = 0``).  A camera sharing no view is an error.
+   camera, whose frame is the world (``R = I, t = 0``) unless a board view defines it
+   (`RigCalibrationConfig.origin_frame`: the board on the floor, Z up).  A camera sharing no view is
+   an error.
 4. Refinement (optional, on by default): bundle adjustment of every camera's pose and intrinsics
    (fx, fy, cx, cy and the distortion) together with every board pose, on the detected pixels (scipy
    ``least_squares``, sparse Jacobian, Huber loss at 1 px): board poses seen by several cameras tie
@@ -107,14 +109,17 @@ class RigCalibrationConfig:
     """min_corners: a view counts with at least this many corners; min_views: of a camera, for its
     intrinsics; k3: also estimate OpenCV's sixth-order radial coefficient (off: it overfits board
     views that do not reach the image's corners, trading principal point for distortion); refine:
-    bundle-adjust poses and intrinsics after chaining; reference: the camera whose frame is the world (default: the
-    one sharing most views)."""
+    bundle-adjust poses and intrinsics after chaining; reference: the camera chained from (default:
+    the one sharing most views), whose frame is the world unless `origin_frame` names the image (file
+    stem) whose board defines it: the board lying printed side up, origin at its outer corner next to
+    corner 0, x along its first row of corners, Z up (this project's world)."""
 
     min_corners: int = 8
     min_views: int = 4
     k3: bool = False
     refine: bool = True
     reference: str | None = None
+    origin_frame: str | None = None
 
 
 @dataclass(frozen=True)
@@ -202,6 +207,14 @@ def calibrate_rig(board: CharucoBoard, images: Mapping[str, Mapping[str, str | P
         reference = next(n for n, parent in parents.items() if parent is None)
         poses, world_boards, intrinsics = _bundle_adjust(names, reference, intrinsics, poses, world_boards,
                                                          observations, object_points, config.k3)
+    if config.origin_frame is not None:
+        if config.origin_frame not in world_boards:
+            raise ValueError(f"origin frame {config.origin_frame!r}: no camera found the board in it "
+                             f"(frames with the board: {sorted(world_boards)})")
+        # the board's frame has y along its columns and z into the board: Z up is its -z
+        world_to_reference = world_boards[config.origin_frame] @ np.diag([1.0, -1.0, -1.0, 1.0])
+        poses = {name: pose @ world_to_reference for name, pose in poses.items()}
+        world_boards = {f: np.linalg.inv(world_to_reference) @ pose for f, pose in world_boards.items()}
 
     rig_errors: dict[str, list[np.ndarray]] = defaultdict(list)
     for c, frame, ids, pixels in observations:

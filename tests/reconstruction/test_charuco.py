@@ -61,13 +61,13 @@ def _render(camera, board_to_world, art):
 
 @pytest.fixture(scope="module")
 def rendered():
-    """(cameras, {camera: {frame: image}}) for 30 board poses."""
+    """(cameras, {camera: {frame: image}}, board -> world poses) for 30 board poses."""
     art = BOARD.opencv().generateImage((BOARD.squares_x * _ART_PX, BOARD.squares_y * _ART_PX), marginSize=0)
     art = cv2.copyMakeBorder(art, *[_ART_PX // 2] * 4, cv2.BORDER_CONSTANT, value=255)
     cameras = _rig()
     poses = _board_poses(30, np.random.default_rng(0))
     images = {c.name: {f"{i:03d}": _render(c, pose, art) for i, pose in enumerate(poses)} for c in cameras}
-    return cameras, images
+    return cameras, images, poses
 
 
 def _relative_errors(truth, got, reference):
@@ -89,7 +89,7 @@ def _relative_errors(truth, got, reference):
 
 @pytest.mark.slow
 def test_calibrate_recovers_the_rig_from_board_images(rendered, tmp_path, capsys):
-    cameras, images = rendered
+    cameras, images, _ = rendered
     for name, frames in images.items():
         (tmp_path / "boards" / name).mkdir(parents=True)
         for frame, image in frames.items():
@@ -109,13 +109,13 @@ def test_calibrate_recovers_the_rig_from_board_images(rendered, tmp_path, capsys
         assert degrees < 0.5 and mm < 10.0, (name, degrees, mm)
     # one row per camera with its reprojection errors, the reference marked
     rows = {line.split()[0]: line.split() for line in report.splitlines() if line.split()[0] in ("cam0", "cam1", "cam2", "cam3")}
-    assert set(rows) == {"cam0", "cam1", "cam2", "cam3"} and "(reference:" in " ".join(rows["cam0"])
+    assert set(rows) == {"cam0", "cam1", "cam2", "cam3"} and "(the reference)" in " ".join(rows["cam0"])
     assert all(0 < float(rows[n][3]) < 0.5 and 0 < float(rows[n][4]) < 0.5 for n in rows), report
 
 
 @pytest.mark.slow
 def test_refinement_lowers_the_rig_error_and_unjoined_cameras_are_named(rendered):
-    cameras, images = rendered
+    cameras, images, _ = rendered
     subset = {name: dict(list(frames.items())[:10]) for name, frames in images.items() if name in ("cam1", "cam2")}
     chained, chained_reports = calibrate_rig(BOARD, subset, RigCalibrationConfig(refine=False))
     refined, refined_reports = calibrate_rig(BOARD, subset)
@@ -129,6 +129,23 @@ def test_refinement_lowers_the_rig_error_and_unjoined_cameras_are_named(rendered
     blank = dict(subset, cam3={f"{i:03d}": np.full((960, 1280), 110, np.uint8) for i in range(10)})
     with pytest.raises(ValueError, match=r"camera 'cam3': the board was found \(>= 8 corners\) in 0 of 10 images"):
         calibrate_rig(BOARD, blank)
+
+
+@pytest.mark.slow
+def test_a_board_view_defines_the_world_with_z_up(rendered):
+    """With origin_frame the world is that view's board turned Z up (x along its rows, y and z
+    flipped): each camera's pose is its true world pose moved into that frame."""
+    cameras, images, poses = rendered
+    subset = {name: dict(list(frames.items())[:12]) for name, frames in images.items() if name in ("cam1", "cam2")}
+    got, _ = calibrate_rig(BOARD, subset, RigCalibrationConfig(origin_frame="003"))
+    board_world = poses[3] @ np.diag([1.0, -1.0, -1.0, 1.0])  # the Z-up world in the true world
+    for truth, camera in zip(cameras[1:3], got):
+        expected = Camera(K=truth.K, R=truth.R @ board_world[:3, :3], t=truth.R @ board_world[:3, 3] + truth.t,
+                          width=1280, height=960)
+        assert np.degrees(Rotation.from_matrix(expected.R.T @ camera.R).magnitude()) < 0.5, camera.name
+        assert np.linalg.norm(expected.center - camera.center) < 0.01, (camera.name, expected.center, camera.center)
+    with pytest.raises(ValueError, match=r"origin frame 'x': no camera found the board in it"):
+        calibrate_rig(BOARD, subset, RigCalibrationConfig(origin_frame="x"))
 
 
 @pytest.mark.parametrize("spec, message", [
