@@ -48,7 +48,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from assets.cameras import MAX_IMAGE_PIXELS, Camera, check_camera_file_fields, distortion_coefficients, load_cameras, save_cameras
+from assets.cameras import (MAX_IMAGE_PIXELS, Camera, check_camera_file_fields, distortion_coefficients, load_cameras,
+                            save_cameras)
 from assets.fileio import atomic_path, load_json, save_json
 from reconstruction.cameras import read_opencv, validate_cameras, write_opencv
 
@@ -105,7 +106,8 @@ def detect_format(path: str | Path, for_writing: bool = False) -> str:
         data = load_json(path)
         multical = isinstance(data, dict) and ("camera_poses" in data or isinstance(data.get("cameras"), dict))
         return "multical" if multical else "json"
-    raise ValueError(f"{path}: cannot tell the calibration format from the name; name it ({', '.join(FORMATS)})")
+    raise ValueError(f"{path}: cannot tell the calibration format from the name; name it "
+                     f"(--format {', '.join(FORMATS)})")
 
 
 def read_calibration(path: str | Path, format: str | None = None, unit_m: float = 1.0,
@@ -179,7 +181,8 @@ def _camera(where: str, name: str, K: Any, dist: Any, R: Any, t: Any, size: Any,
     if R.size == 3:
         R = cv2.Rodrigues(R.reshape(3))[0]
     elif R.size != 9:
-        raise ValueError(f"{where}: rotation must be a Rodrigues vector (3 numbers) or a 3 x 3 matrix, got {R.size} numbers")
+        raise ValueError(f"{where}: rotation must be a Rodrigues vector (3 numbers) or a 3 x 3 matrix, "
+                         f"got {R.size} numbers")
     size = _array(size, (2,), f"{where}: image size")
     if not (size == np.round(size)).all() or (size <= 0).any():
         raise ValueError(f"{where}: image size must be positive whole pixels, got {size.tolist()}")
@@ -274,7 +277,8 @@ class _storage:
         try:
             self.fs = cv2.FileStorage(str(self.path), cv2.FILE_STORAGE_READ)
         except (cv2.error, SystemError) as exc:
-            raise ValueError(f"{self.path}: not a readable OpenCV YAML file ({str(exc).strip().splitlines()[-1]})") from None
+            detail = str(exc).strip().splitlines()[-1]
+            raise ValueError(f"{self.path}: not a readable OpenCV YAML file ({detail})") from None
         if not self.fs.isOpened():
             raise ValueError(f"{self.path}: not a readable OpenCV YAML file")
         return self.fs
@@ -488,7 +492,8 @@ def _read_colmap(folder: Path, image_size: tuple[int, int] | None) -> list[Camer
     for (number, fields) in lines[::2]:  # every image has a second line of 2D points, perhaps empty
         where = f"{images_txt}:{number}"
         if len(fields) < 10:
-            raise ValueError(f"{where}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, got {' '.join(fields)!r}")
+            raise ValueError(f"{where}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, "
+                             f"got {' '.join(fields)!r}")
         q = _array([_number(v, where) for v in fields[1:5]], (4,), f"{where}: quaternion")
         if not 0.5 < np.linalg.norm(q) < 2.0:
             raise ValueError(f"{where}: the quaternion {q.tolist()} is not a rotation (norm {np.linalg.norm(q):.3g})")
@@ -523,7 +528,8 @@ def _write_colmap(folder: Path, cameras: Sequence[Camera]) -> None:
             ("OPENCV", dist[:4].tolist()) if dist.size == 5 and dist[4] == 0 else \
             ("FULL_OPENCV", np.concatenate([dist, np.zeros(8 - dist.size)]).tolist())
         params = [K[0, 0], K[1, 1], K[0, 2], K[1, 2]] + coefficients
-        camera_lines.append(" ".join([str(i), model, str(camera.width), str(camera.height)] + [repr(float(v)) for v in params]))
+        camera_lines.append(" ".join([str(i), model, str(camera.width), str(camera.height)]
+                                     + [repr(float(v)) for v in params]))
         image_lines.append(" ".join([str(i)] + [repr(float(v)) for v in _matrix_to_quaternion(camera.R)]
                                     + [repr(float(v)) for v in camera.t] + [str(i), f"{camera.name}.png"]))
         image_lines.append("")
@@ -538,7 +544,8 @@ def _data_lines(path: Path, keep_empty: bool = False) -> list[tuple[int, list[st
     try:
         text = path.read_text()
     except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a text file (COLMAP's binary models are not read; export them as text)") from None
+        raise ValueError(f"{path}: not a text file (COLMAP's binary models are not read; export them as "
+                         "text)") from None
     rows = [(n, line.split()) for n, line in enumerate(text.splitlines(), start=1) if not line.startswith("#")]
     if keep_empty:
         while rows and not rows[-1][1] and len(rows) % 2:

@@ -108,7 +108,8 @@ def test_calibrate_recovers_the_rig_from_board_images(rendered, tmp_path, capsys
     for name, (degrees, mm) in zip(["cam0", "cam1", "cam2", "cam3"], _relative_errors(cameras, got, cameras[0])):
         assert degrees < 0.5 and mm < 10.0, (name, degrees, mm)
     # one row per camera with its reprojection errors, the reference marked
-    rows = {line.split()[0]: line.split() for line in report.splitlines() if line.split()[0] in ("cam0", "cam1", "cam2", "cam3")}
+    rows = {line.split()[0]: line.split() for line in report.splitlines()
+            if line.split()[0] in ("cam0", "cam1", "cam2", "cam3")}
     assert set(rows) == {"cam0", "cam1", "cam2", "cam3"} and "(the reference)" in " ".join(rows["cam0"])
     assert all(0 < float(rows[n][3]) < 0.5 and 0 < float(rows[n][4]) < 0.5 for n in rows), report
 
