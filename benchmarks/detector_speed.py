@@ -127,6 +127,8 @@ def main() -> None:
                         help="the renders' scale in the 1920 x 1080 frame (default 2: 512 px renders, markers ~28 px)")
     parser.add_argument("--localizer-scale", type=float, default=None,
                         help="a fixed localizer scale (default: the Detector's automatic one)")
+    parser.add_argument("--batch-sizes", default="64",
+                        help="comma-separated crop batch sizes of the Detector to time (Detector batch_size; default 64)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--json", type=Path, help="write the numbers here")
     args = parser.parse_args()
@@ -135,33 +137,47 @@ def main() -> None:
     if not 0.1 <= args.upscale <= 4:
         parser.error(f"--upscale must be in [0.1, 4], got {args.upscale}")
 
+    try:
+        batch_sizes = [int(b) for b in args.batch_sizes.split(",")]
+    except ValueError:
+        parser.error(f"--batch-sizes must be integers separated by commas, got {args.batch_sizes!r}")
+    if min(batch_sizes) < 1:
+        parser.error("--batch-sizes must be >= 1")
+
     device = resolve_device(args.device)
     config = DetectorConfig(localizer_scale=args.localizer_scale)
-    detector = Detector.from_checkpoints(args.localizer, args.recognizer, args.crosspoints, device=device)
-    detector = Detector(detector.localizer, detector.recognizer, detector.crosspoints, detector.spec,
-                        device=detector.device, tables=garment_tables(args.data, detector.codebook), config=config,
-                        codebook=detector.codebook)
+    loaded = Detector.from_checkpoints(args.localizer, args.recognizer, args.crosspoints, device=device)
+    tables = garment_tables(args.data, loaded.codebook)
     images = frame_images(args.data, args.images, args.upscale)
-
-    seconds, stages, found = time_detector(detector, images, args.repeats)
-    markers, scales = sum(len(d) for d in found.detections), found.localizer_scales
-    rows = [("Detector (float32)", seconds)]
-    rows.append(("networks alone, float32", time_networks(detector, images, scales, markers, args.repeats, bf16=False)))
-    if detector.device.type == "cuda":
-        rows.append(("networks alone, bf16", time_networks(detector, images, scales, markers, args.repeats, bf16=True)))
-    name = torch.cuda.get_device_name(detector.device) if detector.device.type == "cuda" else "CPU"
-    print(f"\n{args.images} images of {CANVAS[0]} x {CANVAS[1]}, {markers / args.images:.0f} markers an image, "
-          f"localizer scales {sorted(set(round(s, 3) for s in scales))}, {name}")
-    print("| what | s a frame | images/s |\n|---|---|---|")
-    for what, s in rows:
-        print(f"| {what} | {s:.3f} | {args.images / s:.1f} |")
-    print("\nDetector stages, s a frame: " + ", ".join(f"{k} {v:.3f}" for k, v in stages.items()))
-    best = rows[-1][1]
-    print(f"Detector / best networks-alone rate: {best / seconds:.2f} (target >= 0.9)")
+    name = torch.cuda.get_device_name(loaded.device) if loaded.device.type == "cuda" else "CPU"
+    rows, record = [], {"device": name, "images": args.images, "batches": {}}
+    for batch_size in batch_sizes:
+        detector = Detector(loaded.localizer, loaded.recognizer, loaded.crosspoints, loaded.spec,
+                            device=loaded.device, batch_size=batch_size, tables=tables, config=config,
+                            codebook=loaded.codebook)
+        seconds, stages, found = time_detector(detector, images, args.repeats)
+        markers, scales = sum(len(d) for d in found.detections), found.localizer_scales
+        alone = {"float32": time_networks(detector, images, scales, markers, args.repeats, bf16=False)}
+        if detector.device.type == "cuda":
+            alone["bf16"] = time_networks(detector, images, scales, markers, args.repeats, bf16=True)
+        rows.append((batch_size, seconds, alone, stages))
+        record["markers"], record["localizer_scales"] = markers, scales
+        record["batches"][batch_size] = {"detector_s": seconds, "networks_alone_s": alone, "stages": stages}
     if args.json:
-        args.json.write_text(json.dumps({"device": name, "images": args.images, "markers": markers,
-                                         "rows": dict(rows), "stages": stages,
-                                         "localizer_scales": scales}, indent=2) + "\n")
+        args.json.write_text(json.dumps(record, indent=2) + "\n")
+    print(f"\n{args.images} images of {CANVAS[0]} x {CANVAS[1]}, {record['markers'] / args.images:.0f} markers an "
+          f"image, localizer scales {sorted(set(round(s, 3) for s in record['localizer_scales']))}, {name}")
+    print("| crop batch | Detector (float32) images/s | networks alone float32 | networks alone bf16 | "
+          "Detector / best alone |\n|---|---|---|---|---|")
+    for batch_size, seconds, alone, _ in rows:
+        best = min(alone.values())
+        print(f"| {batch_size} | {args.images / seconds:.1f} | {args.images / alone['float32']:.1f} | "
+              f"{args.images / alone['bf16']:.1f} | " if "bf16" in alone else
+              f"| {batch_size} | {args.images / seconds:.1f} | {args.images / alone['float32']:.1f} | - | ", end="")
+        print(f"{best / seconds:.2f} (target >= 0.9) |")
+    for batch_size, _, _, stages in rows:
+        print(f"Detector stages at crop batch {batch_size}, s a frame: "
+              + ", ".join(f"{k} {v:.3f}" for k, v in stages.items()))
 
 
 if __name__ == "__main__":
