@@ -71,13 +71,12 @@ from networks.detections import Detections
 from networks.device_geometry import (crop_to_image_on_device, images_on_device, smooth_crosspoints_on_device,
                                       unwarp_markers_on_device)
 from networks.homography import (
-    AUTO_MIN_MARKERS,
-    auto_localizer_scale,
     crop_to_image,
     inside_image,
     layout_residual,
     smooth_crosspoints,
 )
+from networks.localizer_scale import search_scales
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks.models import CELL, normalize
 from networks.tasks import reads_modules
@@ -117,11 +116,10 @@ class DetectorConfig:
       by default): 0.5 for a camera whose markers are 32 to 64 px across.  Its points are mapped back
       to full-resolution pixels; the recognizer and crosspoint crops are always cut from the full
       image, so only the localizer's input shrinks (and its cost, by the factor squared).  None (the
-      default): chosen per image (`Detector.localize`): the localizer looks at the image at the
-      scales `AUTO_LEVELS` from the coarsest (cheap) to 1 until one finds markers with confidence
-      (`sees_markers`); the median side of those markers gives the scale that makes it
-      `localizer_marker_px` (`auto_localizer_scale`), where the image is localized again.  A
-      `DetectorResult` gives the scale of each image.
+      default): chosen per image (`networks.localizer_scale.search_scales`): the localizer looks at
+      the image at scales from 1/16 (cheap) to 1 until one finds markers with confidence; the
+      median side of those markers gives the scale that makes it `localizer_marker_px`, where the
+      image is localized again.  A `DetectorResult` gives the scale of each image.
     localizer_marker_px: the marker side (pixels, the square root of its area) that the automatic
       scale aims at: the best fixed scales measured were 0.4 on the 8-camera capture's 55 px markers
       (22 px), 0.75 on 1024 px renders' 32 px markers (24 px) and 1 on 512 px renders' 19.6 px ones.
@@ -213,37 +211,6 @@ def pad_images(images: Sequence[np.ndarray], cell: int = CELL) -> np.ndarray:
     for b, image in enumerate(images):
         batch[b, : image.shape[0], : image.shape[1]] = image
     return batch
-
-
-#: the scales at which the automatic localizer scale looks for markers, coarsest first: a factor of 2
-#: apart, so that a marker of 16 to 400 px is 8 to 25 px at one of them (the localizer trained on 16-32
-#: px finds most markers from about 12 px), and each costs a quarter of the next
-AUTO_LEVELS = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0)
-#: the coarsest level an image is looked at shows it at least this many pixels along its longest side
-#: (a marker spans at most half of the image)
-AUTO_COARSEST_SIDE_PX = 64
-#: a pass sees the markers when it finds at least `networks.homography.AUTO_MIN_MARKERS` whose median
-#: presence probability is at least this.  Markers from 0.45 to 1.1 times the localizer's training
-#: sizes give medians of 0.87-1.0; markers a third of them or twice them give 0.62-0.78, with many
-#: detections (several per marker when they are too large) at sizes the localizer knows, so the
-#: number of detections and their sizes cannot tell a wrong scale, their confidence can
-#: (docs/journal/2026-11-29-auto-localizer-scale.md)
-AUTO_MIN_PRESENCE = 0.85
-#: a chosen scale this close to that of the pass that measured it (relative) keeps that pass's markers
-AUTO_KEEP_RELATIVE = 0.1
-
-
-def sees_markers(presence: np.ndarray) -> bool:
-    """Whether a localizer pass that found markers of these presence probabilities (N,) saw the
-    image's markers at a size it knows (`AUTO_MIN_PRESENCE`)."""
-    return len(presence) >= AUTO_MIN_MARKERS and float(np.median(presence)) >= AUTO_MIN_PRESENCE
-
-
-def auto_levels(image_size: tuple[int, int]) -> list[float]:
-    """The `AUTO_LEVELS` at which an image of (H, W) is looked at: those showing its longest side at
-    `AUTO_COARSEST_SIDE_PX` or more, and 1 always."""
-    side = max(image_size)
-    return [level for level in AUTO_LEVELS if level == 1.0 or side * level >= AUTO_COARSEST_SIDE_PX]
 
 
 def resize_for_localizer(image: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -452,44 +419,8 @@ class Detector:
         return self._localize(images, scales), [float(scale) for scale in scales]
 
     def localize_auto(self, images: Sequence[np.ndarray]) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[float]]:
-        """`localize` at a scale chosen per image: each image is looked at at its `auto_levels`, coarsest
-        first; at the first pass that `sees_markers`, their median side gives the scale that makes it
-        `config.localizer_marker_px` (`auto_localizer_scale`), and the image is localized there (that
-        pass's markers kept when the scale is within `AUTO_KEEP_RELATIVE` of its).  A scale whose
-        pass does not see the markers (a measure thrown by a few large markers) lets the search go on
-        at the next level.  An image no pass convinces keeps the pass of the most confident markers
-        (the highest median presence; the finest level when none found any)."""
-        images = list(images)
-        located: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(images)
-        scales: list[float | None] = [None] * len(images)
-        levels = [auto_levels(image.shape[:2]) for image in images]
-        best: list[tuple[float, float, tuple[np.ndarray, np.ndarray]] | None] = [None] * len(images)
-
-        def consider(i: int, scale: float, found: tuple[np.ndarray, np.ndarray]) -> None:
-            presence = float(np.median(found[1])) if len(found[1]) else -1.0
-            if best[i] is None or presence > best[i][0] or (presence == best[i][0] == -1.0):
-                best[i] = (presence, scale, found)
-
-        for level in AUTO_LEVELS:
-            todo = [i for i in range(len(images)) if scales[i] is None and level in levels[i]]
-            again = []
-            for i, found in zip(todo, self._localize([images[i] for i in todo], [level] * len(todo))):
-                consider(i, level, found)
-                if not sees_markers(found[1]):
-                    continue
-                chosen = auto_localizer_scale(found[0], level, self.config.localizer_marker_px)
-                if abs(chosen / level - 1) <= AUTO_KEEP_RELATIVE:
-                    located[i], scales[i] = found, level
-                else:
-                    again.append((i, chosen))
-            for (i, chosen), found in zip(again, self._localize([images[i] for i, _ in again], [c for _, c in again])):
-                consider(i, chosen, found)
-                if sees_markers(found[1]):
-                    located[i], scales[i] = found, chosen
-        for i in range(len(images)):
-            if scales[i] is None:
-                _, scales[i], located[i] = best[i]
-        return located, scales
+        """`localize` at a scale chosen per image (`networks.localizer_scale.search_scales`)."""
+        return search_scales(list(images), self._localize, self.config.localizer_marker_px)
 
     def _localize(self, images: Sequence[np.ndarray], scales: Sequence[float]) -> list[tuple[np.ndarray, np.ndarray]]:
         """`localize` with the localizer scale of each image given."""

@@ -26,8 +26,8 @@ from assets.pattern import (
 from networks.checkpoint import save_checkpoint
 from networks.config import TrainConfig
 from networks.detections import Detections
-from networks.detector import (AUTO_LEVELS, STAGES, Detector, DetectorConfig, DetectorResult, auto_levels,
-                               fully_observed, pad_images, sees_markers, unwarp_markers, usable_points)
+from networks.detector import (STAGES, Detector, DetectorConfig, DetectorResult, fully_observed, pad_images,
+                               unwarp_markers, usable_points)
 from networks.device_geometry import (crop_to_image_on_device, images_on_device, smooth_crosspoints_on_device,
                                       unwarp_markers_on_device)
 from networks.homography import (
@@ -37,6 +37,7 @@ from networks.homography import (
     layout_residual,
     marker_side_px,
 )
+from networks.localizer_scale import AUTO_LEVELS, auto_levels, sees_markers
 from networks.neighbours import MarkerLayout, estimate_from_neighbours, predict_missing, vote_ids
 from networks import homography as homography_module
 from networks.models import CrosspointLocalizer, MarkerLocalizer, MarkerRecognizer
