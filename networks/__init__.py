@@ -11,7 +11,8 @@
 The public API, by what a user does:
 
 * detect: `Detector` (images -> `Detections`), `DetectorConfig` (its options), `Detections` (plain
-  numpy, saved as npz).
+  numpy, saved as npz), `DetectorResult` (what `Detector.detect` returns: the detections with the
+  localizer scale of each image and the seconds of each stage; a Detector keeps nothing of a call).
 * train: `TrainConfig` (one run's numbers), `train_network` (a run folder), `load_recipe` (a recipe file's
   networks and data), `TASKS` (the networks' names: localizer, recognizer, crosspoints).
 * synthesize: `SynthConfig` and `PatternSynthesizer` (procedural samples with exact ground truth),
@@ -39,6 +40,7 @@ from networks.detections import Detections
 _LAZY = {
     "Detector": ("networks.detector", "Detector"),
     "DetectorConfig": ("networks.detector", "DetectorConfig"),
+    "DetectorResult": ("networks.detector", "DetectorResult"),
     "TASKS": ("networks.config", "TASKS"),
     "TrainConfig": ("networks.config", "TrainConfig"),
     "train_network": ("networks.train", "train"),
