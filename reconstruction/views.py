@@ -9,11 +9,18 @@ mapping camera name -> folder or video file.
   numbered by the digits that end its name (``f000012.png`` is frame 12, ``img_7.jpg`` frame 7),
   sorted by that number.  Other files (the factory's ``_depth.exr`` and ``_gt.npz``) are ignored;
   an image whose name does not end in digits, or two images of one frame, are errors.
-* A video (``.mp4 .avi .mov .mkv .webm .m4v``, read with OpenCV): frame k is the k-th decoded
-  frame, from 0.
+* A video (``.mp4 .avi .mov .mkv .webm .m4v``, read with PyAV through `reconstruction.video`): frame
+  k is the frame with the k-th timestamp, from 0, found by seeking and checked against its timestamp;
+  a variable frame rate, or videos of different frame rates, are refused.
 
-Every camera must have the same frame numbers (the error lists what each camera misses) and images
-of its calibrated size (checked on the first frame when opening, and on every image read, from the
+Per-camera frame offsets (`reconstruction.video_sync`: ``{"camera name": offset_frames}``, from the
+argument `offsets` or else ``root/offsets.json``) say that capture frame k is the camera's frame (or
+image number) k + offset; they are estimated from motion by ``python -m reconstruction video offsets``.
+
+Folders of frames must have the same frame numbers (the error lists what each camera misses); when
+every camera is a video, the capture's frames are those all videos hold after their offsets (cameras
+start and stop recording at different moments), and how many frames each video loses is logged.
+Images must be of the camera's calibrated size (checked on the first frame when opening, and on every image read, from the
 file's header before it is decoded, so a file claiming a huge image allocates nothing).  A JPEG
 without its end marker (a truncated file, which OpenCV would decode with a grey lower part) is
 refused.  Images are returned as (H, W, 3) uint8 RGB.
@@ -21,6 +28,7 @@ refused.  Images are returned as (H, W, 3) uint8 RGB.
 
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,9 +40,13 @@ from PIL import Image
 
 from assets.cameras import Camera
 from reconstruction.cameras import validate_cameras
+from reconstruction.video import VIDEO_SUFFIXES, VideoReader, probe
+from reconstruction.video_sync import check_offsets, check_rates, overlap, read_offsets
+
+log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
+OFFSETS_FILE = "offsets.json"
 _TRAILING_NUMBER = re.compile(r"(\d+)$")
 
 
@@ -73,35 +85,33 @@ class ImageFolder:
     def describe(self, frame: int) -> str:
         return str(self.files[frame])
 
+    def shifted(self, offset: int) -> "ImageFolder":
+        """The same images with capture frame k the image numbered k + `offset`."""
+        return ImageFolder(self.folder, {frame - offset: path for frame, path in self.files.items()})
+
 
 @dataclass(frozen=True)
 class VideoFile:
-    """One camera's frames as a video file (frames 0 .. num_frames - 1)."""
+    """One camera's frames as a video file: capture frame k is its frame k + offset (frames
+    -offset .. num_frames - 1 - offset)."""
 
     path: Path
     num_frames: int
     size: tuple[int, int]
+    fps: float
+    offset: int = 0
 
     @classmethod
-    def probe(cls, path: Path) -> "VideoFile":
-        capture = cv2.VideoCapture(str(path))
-        try:
-            if not capture.isOpened():
-                raise ValueError(f"{path}: OpenCV cannot open this video")
-            count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-            size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
-        finally:
-            capture.release()
-        if count <= 0:
-            raise ValueError(f"{path}: the video reports no frames")
-        return cls(path, count, size)
+    def probe(cls, path: Path, offset: int = 0) -> "VideoFile":
+        info = probe(path)
+        return cls(path, info.num_frames, info.size, float(info.fps), offset)
 
     @property
     def frames(self) -> list[int]:
-        return list(range(self.num_frames))
+        return list(range(-self.offset, self.num_frames - self.offset))
 
     def describe(self, frame: int) -> str:
-        return f"{self.path} frame {frame}"
+        return f"{self.path} frame {frame + self.offset}"
 
 
 Source = ImageFolder | VideoFile
@@ -119,7 +129,10 @@ class Views:
         self.cameras = tuple(cameras)
         self.sources = tuple(sources)
         validate_cameras(self.cameras, "views")
-        common = check_synchronised({c.name: s.frames for c, s in zip(self.cameras, self.sources)})
+        if all(isinstance(s, VideoFile) for s in self.sources):
+            common = _overlap(self.cameras, self.sources)
+        else:
+            common = check_synchronised({c.name: s.frames for c, s in zip(self.cameras, self.sources)})
         if frames is not None:
             missing = sorted(set(frames) - set(common))
             if not len(frames):
@@ -128,16 +141,18 @@ class Views:
                 raise ValueError(f"frames {_ranges(missing)} were asked for but the views hold {_ranges(common)}")
             common = sorted(set(frames))
         self.frames = tuple(common)
-        self._videos: dict[int, tuple[cv2.VideoCapture, int]] = {}
+        self._videos: dict[int, VideoReader] = {}
         for camera, source in zip(self.cameras, self.sources):
             size = source.size if isinstance(source, VideoFile) else _size_of(source.files[self.frames[0]])
             validate_cameras(self.cameras, source.describe(self.frames[0]), image_sizes={camera.name: size})
 
     @classmethod
     def open(cls, views: str | Path | Mapping[str, str | Path], cameras: Sequence[Camera],
-             frames: Sequence[int] | None = None) -> "Views":
+             frames: Sequence[int] | None = None,
+             offsets: str | Path | Mapping[str, int] | None = None) -> "Views":
         """Find every camera's folder or video in the folder `views` (or take the mapping camera name
-        -> path), check them, and keep `frames` (default: all)."""
+        -> path), check them, and keep `frames` (default: all); `offsets` (a JSON file or a mapping
+        camera name -> frames; default ``views/offsets.json`` if there) shift each camera's frames."""
         if isinstance(views, Mapping):
             unknown = sorted(set(views) - {c.name for c in cameras})
             if unknown:
@@ -152,12 +167,21 @@ class Views:
             if not root.is_dir():
                 raise ValueError(f"{root}: not a folder of views")
             paths = [_find(root, camera.name, i) for i, camera in enumerate(cameras)]
+            if offsets is None and (root / OFFSETS_FILE).is_file():
+                offsets = root / OFFSETS_FILE
+        names = [camera.name for camera in cameras]
+        if offsets is None:
+            shifts = dict.fromkeys(names, 0)
+        elif isinstance(offsets, Mapping):
+            shifts = check_offsets(offsets, names)
+        else:
+            shifts = read_offsets(offsets, names)
         sources = []
-        for path in paths:
+        for name, path in zip(names, paths):
             if path.is_dir():
-                sources.append(ImageFolder.scan(path))
+                sources.append(ImageFolder.scan(path).shifted(shifts[name]))
             elif path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES:
-                sources.append(VideoFile.probe(path))
+                sources.append(VideoFile.probe(path, shifts[name]))
             else:
                 raise ValueError(f"{path}: neither a folder of frames nor a video ({', '.join(VIDEO_SUFFIXES)})")
         return cls(cameras, sources, frames)
@@ -204,8 +228,8 @@ class Views:
             yield frame, self.images(frame)
 
     def close(self) -> None:
-        for capture, _ in self._videos.values():
-            capture.release()
+        for reader in self._videos.values():
+            reader.close()
         self._videos.clear()
 
     def __enter__(self) -> "Views":
@@ -215,21 +239,9 @@ class Views:
         self.close()
 
     def _video_frame(self, c: int, source: VideoFile, frame: int) -> np.ndarray:
-        capture, position = self._videos.get(c, (None, -1))
-        if capture is None:
-            capture, position = cv2.VideoCapture(str(source.path)), 0
-        if position != frame:  # seeking is slow and, for some codecs, approximate: read on when ahead
-            if frame > position and frame - position < 64:
-                for _ in range(frame - position):
-                    capture.grab()
-            else:
-                capture.set(cv2.CAP_PROP_POS_FRAMES, frame)
-        ok, bgr = capture.read()
-        self._videos[c] = (capture, frame + 1)
-        if not ok:
-            raise ValueError(f"{source.describe(frame)}: cannot be decoded (the video reported "
-                             f"{source.num_frames} frames)")
-        return bgr
+        if c not in self._videos:
+            self._videos[c] = VideoReader(source.path)
+        return self._videos[c].frame(frame + source.offset, "bgr24")
 
 
 def check_synchronised(frames: Mapping[str, Sequence[int]]) -> list[int]:
@@ -244,6 +256,19 @@ def check_synchronised(frames: Mapping[str, Sequence[int]]) -> list[int]:
         lines = "; ".join(f"{name} lacks frame(s) {_ranges(m)}" for name, m in missing.items())
         raise ValueError(f"the cameras' frames are not synchronised: {lines}")
     return sorted(union)
+
+
+def _overlap(cameras: Sequence[Camera], videos: Sequence[VideoFile]) -> list[int]:
+    """The capture frames every video holds after its offset (`video_sync.overlap`), after checking
+    that they run at one rate; logs the frames each video loses."""
+    check_rates({video.path.name: video.fps for video in videos})
+    frames = overlap({c.name: v.num_frames for c, v in zip(cameras, videos)},
+                     {c.name: v.offset for c, v in zip(cameras, videos)})
+    for video in videos:
+        if video.num_frames > len(frames):
+            log.info("%s: %d of its %d frames lie outside the frames all cameras hold (%d-%d)", video.path,
+                     video.num_frames - len(frames), video.num_frames, frames[0], frames[-1])
+    return list(frames)
 
 
 def _find(root: Path, name: str, index: int) -> Path:

@@ -93,6 +93,6 @@ def test_one_video_per_camera(tmp_path):
     for f in range(4):
         writer.write(np.zeros((24, 32, 3), np.uint8))
     writer.release()
-    with pytest.raises(ValueError, match=r"cam01 lacks frame\(s\) 4-5"):
-        Views.open({"cam00": tmp_path / "cam00.avi", "cam01": tmp_path / "short.avi"},
-                   [_camera("cam00"), _camera("cam01")])
+    shorter = Views.open({"cam00": tmp_path / "cam00.avi", "cam01": tmp_path / "short.avi"},
+                         [_camera("cam00"), _camera("cam01")])  # videos stop at different moments
+    assert shorter.frames == tuple(range(4))
