@@ -24,7 +24,7 @@ from pathlib import Path
 from assets.cli import (add_completion_options, add_crosspoint_options, add_device, add_networks, add_out,
                         add_progress, completion_options, crosspoint_options, localizer_scale_arg, networks_of,
                         progress, run_cli)
-from reconstruction import cameras_cli
+from reconstruction import cameras_cli, video_cli
 
 
 def _frames(text: str | None) -> list[int] | None:
@@ -50,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def settings(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--views", required=True, help="a folder of frames per camera (or a video each), or with "
+        p.add_argument("--views", required=True, help="a folder of frames per camera (or a video each, with "
+                       "offsets.json when they started apart: `video offsets`), or with "
                        "--detections groundtruth a factory capture folder")
         p.add_argument("--cameras", help="cameras.json or OpenCV calibration YAML (default: the capture's)")
         p.add_argument("--template", required=True, help="default garment name, pattern JSON or template .npz")
@@ -64,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--frames", help="frames to use, e.g. 120-131 or 120,125 (default: all)")
         add_device(p, help="networks mode: cpu, cuda or cuda:N (default: a GPU when there is one); several, "
-                   "comma-separated (cuda:0,cuda:1), shard the frames over them, one process each")
+                   "comma-separated (cuda:0,cuda:1), shard the frames over them, one process each; `run` "
+                   "also refines on the first (default: the CPU)")
         p.add_argument("--localizer-scale", type=localizer_scale_arg, default="auto",
                        help="networks mode: the marker localizer sees the views resized by this factor, so that "
                        "markers are 16 to 32 px across there (0.5 for 32 to 64 px markers), or 'auto' (the "
@@ -101,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     refine = sub.add_parser("refine", help="Newton VBD post-processing -> sequence.npz")
     common(refine), refine_options(refine)
     refine.add_argument("--frames", help="refine a window of the triangulated frames, e.g. 120-131 (default: all)")
+    add_device(refine, help="where Newton's VBD solves run: cpu (the default), cuda or cuda:N")
     export = sub.add_parser("export", help="npz, PLY/OBJ per frame, PC2 and a review .blend")
     common(export)
     export.add_argument("--texture", help="the garment's pattern texture PNG for the OBJ and .blend materials")
@@ -110,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(evaluate)
     evaluate.add_argument("--groundtruth", required=True, help="the factory capture folder")
     cameras_cli.add_parser(sub)
+    video_cli.add_parser(sub)
     return parser
 
 
@@ -117,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "cameras":  # calibration files and rig calibration: reconstruction/cameras_cli.py
         return cameras_cli.main(args)
+    if args.command == "video":  # offsets and frames of one video per camera: reconstruction/video_cli.py
+        return video_cli.main(args)
     out, bars = Path(args.out), progress(args)
 
     def action() -> None:
@@ -141,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"captured points of {len(paths)} frames in {out / 'points'}")
         elif args.command == "refine":
             path = pipeline.refine(out, config=_refinement(args), start_frame=args.start_frame, progress=bars,
-                                   frames=_frames(args.frames))
+                                   frames=_frames(args.frames), device=args.device)
             print(f"refined sequence {path}")
         elif args.command == "export":
             print(f"exports in {pipeline.export(out, texture=args.texture, fps=args.fps, progress=bars)}")

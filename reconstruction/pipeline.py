@@ -165,7 +165,7 @@ def run(out: str | Path, views: str | Path, settings: RunSettings, cameras: Sequ
     """Every stage into `out` (`start`, `detect`, `triangulate`, `refine`, `export`, and with
     `evaluate_against`, a factory capture folder, `evaluate`); returns the evaluation, or None.
 
-    Each stage's arguments are its function's: triangulation is `triangulate`'s config (a
+    `device` is the detection's and the refinement's.  Each stage's arguments are its function's: triangulation is `triangulate`'s config (a
     `TriangulationConfig`), refinement `refine`'s (a `RefineConfig`); texture: default the views
     folder's ``texture.png`` when there is one (a factory capture's).  `evaluate_against` is checked
     before any stage runs."""
@@ -174,7 +174,7 @@ def run(out: str | Path, views: str | Path, settings: RunSettings, cameras: Sequ
     start(out, settings)
     detect(out, views, cameras, frames, device, progress, max_image_pixels=max_image_pixels)
     triangulate(out, config=triangulation, progress=progress)
-    refine(out, config=refinement, start_frame=start_frame, progress=progress)
+    refine(out, config=refinement, start_frame=start_frame, progress=progress, device=device)
     if texture is None and (Path(views) / "texture.png").is_file():
         texture = Path(views) / "texture.png"
     export(out, texture=texture, fps=fps, progress=progress)
@@ -348,9 +348,10 @@ def triangulate(out: str | Path, template: Template | None = None, config=None, 
 
 
 def refine(out: str | Path, template: Template | None = None, config=None, start_frame: int | None = None,
-           progress: bool = True, frames: Sequence[int] | None = None) -> Path:
+           progress: bool = True, frames: Sequence[int] | None = None, device: str | None = None) -> Path:
     """The complete, intersection-free sequence from the captured points: ``sequence.npz`` (of every
-    triangulated frame, or of `frames` only: a window of the sequence)."""
+    triangulated frame, or of `frames` only: a window of the sequence).  device: where Newton's
+    solves run (`refine_sequence`; None: the CPU; of a comma-separated list, the first)."""
     from reconstruction.points import load_sequence
     from reconstruction.refinement import RefineConfig, load_initial_shape, refine_sequence
 
@@ -367,7 +368,8 @@ def refine(out: str | Path, template: Template | None = None, config=None, start
         log.warning("%s: no initial shape in run.json; refine starts from the template's placement pose", out)
     sequence = refine_sequence(template or load_template(settings.template), captures, config or RefineConfig(),
                                start_frame=start_frame, progress=progress, out=out / "refine",
-                               initial_shape=shape, initial_level_mm=shape_level)
+                               initial_shape=shape, initial_level_mm=shape_level,
+                               device=device.split(",")[0].strip() if device else "cpu")
     sequence.save(out / "sequence.npz")
     return out / "sequence.npz"
 

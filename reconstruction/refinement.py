@@ -185,7 +185,8 @@ class RefinedSequence:
 
 def refine_sequence(template: Template, captures: Sequence[CapturedPoints], config: RefineConfig = RefineConfig(),
                     start_frame: int | None = None, progress: bool = True, out: str | Path | None = None,
-                    initial_shape: np.ndarray | None = None, initial_level_mm: int | None = None) -> RefinedSequence:
+                    initial_shape: np.ndarray | None = None, initial_level_mm: int | None = None,
+                    device: str = "cpu") -> RefinedSequence:
     """Post-process a captured sequence (see the module docstring).
 
     captures: one CapturedPoints per frame, in time order (their keys are what is used).
@@ -196,8 +197,11 @@ def refine_sequence(template: Template, captures: Sequence[CapturedPoints], conf
         placement-hint pose (`assets.garments.export.placed_positions`), flat panels with seams
         stretched across the body: far from penetration-free (3379 intersecting pairs once fitted to a
         walking shirt's capture) and a poor start (anchors then end 64 mm RMS from their targets, where
-        the dressed garment gives 0.2 mm): pass a dressed shape."""
-    return _Refiner(template, captures, config, out, progress).run(start_frame, initial_shape, initial_level_mm)
+        the dressed garment gives 0.2 mm): pass a dressed shape.
+    device: where Newton's VBD solves run ("cpu", "cuda", "cuda:1"); the same energies and float32
+        solves either way, so it is not part of what `out` records."""
+    return _Refiner(template, captures, config, out, progress, device).run(start_frame, initial_shape,
+                                                                           initial_level_mm)
 
 
 def load_initial_shape(path: str | Path) -> tuple[np.ndarray, int]:
@@ -218,7 +222,7 @@ class _Refiner:
     """The state of one refine_sequence call: per-level anchoring, solvers and template rest shapes."""
 
     def __init__(self, template: Template, captures: Sequence[CapturedPoints], config: RefineConfig,
-                 out: str | Path | None, progress: bool):
+                 out: str | Path | None, progress: bool, device: str = "cpu"):
         if not captures:
             raise ValueError("captures: expected at least one frame of CapturedPoints")
         sources = sorted({points.source for points in captures})
@@ -233,6 +237,7 @@ class _Refiner:
         self.out = None if out is None else Path(out)
         self.reuse = False  # whether the frames in `out` are this run's (`_record`)
         self.progress = progress
+        self.device = device
         self._anchoring: dict[int, LevelAnchoring] = {}
         self._solvers: dict[int, object] = {}
         self._template_rest: dict[int, RestShape] = {}
@@ -274,7 +279,7 @@ class _Refiner:
                 faces, positions, mass, anchor_weight=c.anchor_weight, membrane_mu=c.membrane_mu,
                 membrane_lambda=c.membrane_lambda, bending_weight=c.bending_weight, contact_weight=c.contact_weight,
                 contact_radius=c.contact_radius, contact_gap=gap, timestep=c.timestep,
-                iterations=c.iterations, contact_filter_rings=rings)
+                iterations=c.iterations, contact_filter_rings=rings, device=self.device)
             self._template_rest[mm] = pattern_rest(level.pattern_xy, level.faces, faces, solver.hinges)
             solver.set_rest(self._template_rest[mm])
             self._solvers[mm] = solver

@@ -44,22 +44,27 @@ class ClothSolver:
     (Newton drops those; its rest shape is this shape's until `set_rest`); vertex_mass (V,) kg;
     weights as in the module docstring (N/m, N m, m, s); contact_filter_rings: self-contact ignores
     vertex-triangle and edge-edge pairs within this many rings of each other (Newton's topological
-    filter; below 2 only a triangle's own vertices and edges).  `hinges` (E, 4): Newton's bending
-    edges (o0, o1, v0, v1), the order `set_rest` expects."""
+    filter; below 2 only a triangle's own vertices and edges).  device: warp's device for the model and
+    the solve ("cpu", "cuda", "cuda:1"); positions go in and come out as host arrays either way.
+    `hinges` (E, 4): Newton's bending edges (o0, o1, v0, v1), the order `set_rest` expects."""
 
     def __init__(self, faces: np.ndarray, positions: np.ndarray, vertex_mass: np.ndarray, *,
                  anchor_weight: float, membrane_mu: float, membrane_lambda: float, bending_weight: float,
                  contact_weight: float, contact_radius: float, contact_gap: float, timestep: float,
-                 iterations: int, contact_filter_rings: int = 2):
+                 iterations: int, contact_filter_rings: int = 2, device: str = "cpu"):
         import newton
         import warp as wp
+
+        if str(device).startswith("cuda") and not wp.is_cuda_available():
+            raise ValueError(f"refine device {device!r}: warp sees no CUDA device here (use --device cpu)")
+        self.device = str(device)
 
         faces = np.asarray(faces, dtype=np.int64)
         positions = np.asarray(positions, dtype=np.float64)
         n = len(positions)
         self.num_vertices, self.anchor_weight, self.timestep = n, float(anchor_weight), float(timestep)
         self._wp = wp
-        with wp.ScopedDevice("cpu"):
+        with wp.ScopedDevice(self.device):
             builder = newton.ModelBuilder(up_axis=newton.Axis.Z, gravity=(0.0, 0.0, 0.0))
             builder.begin_world()
             builder.add_cloth_mesh(
@@ -85,7 +90,7 @@ class ClothSolver:
             builder.spring_control.extend([0.0] * n)
             self.hinges = np.asarray(builder.edge_indices, dtype=np.int64).reshape(-1, 4)
             builder.color(include_bending=True)
-            self.model = builder.finalize(device="cpu")
+            self.model = builder.finalize(device=self.device)
             self.model.soft_contact_ke = float(contact_weight)
             self.model.soft_contact_kd = 0.0
             self.model.soft_contact_mu = 0.0
@@ -118,7 +123,7 @@ class ClothSolver:
         captured = np.asarray(captured, dtype=bool)
         weight = self.anchor_weight if anchor_weight is None else float(anchor_weight)
         q = np.concatenate([positions, np.where(captured[:, None], targets, positions)]).astype(np.float32)
-        with self._wp.ScopedDevice("cpu"):
+        with self._wp.ScopedDevice(self.device):
             self.state.particle_q.assign(q)
             self.model.spring_stiffness.assign(np.where(captured, weight, 0.0).astype(np.float32))
             self.solver.rebuild_bvh(self.state)

@@ -126,3 +126,14 @@ def test_bad_input_is_named(cylinder, tmp_path):
     np.savez(tmp_path / "dressed.npz", positions=np.zeros((4, 3)), meta=np.array('{"garment": "x"}'))
     with pytest.raises(ValueError, match="level_mm"):
         load_initial_shape(tmp_path / "dressed.npz")
+
+
+def test_a_cuda_device_without_one_is_refused_by_name(cylinder):
+    import warp as wp
+
+    if wp.is_cuda_available():
+        pytest.skip("this machine has a CUDA device: the refusal cannot happen here")
+    template, anchoring, seen = cylinder
+    capture = captured_points(anchoring, wrapped(template, 12), seen)
+    with pytest.raises(ValueError, match="refine device 'cuda:0': warp sees no CUDA device"):
+        refine_sequence(template, [capture], RefineConfig(levels_mm=(12,)), progress=False, device="cuda:0")
