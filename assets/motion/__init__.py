@@ -2,7 +2,7 @@
 
 from assets.motion.amass import read_amass
 from assets.motion.builtin import BUILTIN_MOTIONS, builtin_motion, list_builtin_motions
-from assets.motion.bvh import parse_bvh, read_bvh, retarget_to_smpl
+from assets.motion.bvh import SKELETON_MAPS, parse_bvh, read_bvh, resolve_mapping, retarget_to_smpl
 from assets.motion.motion import (
     A_POSE_ARM_DEG,
     SIMULATION_FPS,
@@ -32,4 +32,6 @@ __all__ = [
     "read_bvh",
     "parse_bvh",
     "retarget_to_smpl",
+    "resolve_mapping",
+    "SKELETON_MAPS",
 ]

@@ -18,7 +18,15 @@ bone, ``d_src`` the source bone from forward kinematics and ``G_src`` the source
 
 so the bone points exactly along the source's (intermediate source joints such as CMU's Neck1 are
 covered by the correction, which is the identity when the far joint is a direct child) and its twist
-follows the source joint.  The pelvis does the same with the hip line (right hip -> left hip) as its
+follows the source joint.
+
+Which map (`resolve_mapping`): without one, the first of `SKELETON_MAPS` whose joints the file all has
+(CMU's cgspeed "MotionBuilder-friendly" skeleton, or the Daz/Poser skeleton of cgspeed's
+"Daz-friendly" CMU release).  Converters often stack joints at one place (cgspeed puts FingerBase,
+the thumb, the hip joints, the neck base and the shoulders on their parent, offset 0 0 0), so a far
+joint that lies (nearly) on its source joint at rest is replaced by the first joint below it, breadth
+first through its children and End Sites, that lies away from the source joint: every map's far joint
+can name the anatomical joint, whatever the converter did.  Only a bone with no such joint is refused.  The pelvis does the same with the hip line (right hip -> left hip) as its
 bone and the mapped root as its source joint: its left-right axis runs through the source's hip joints
 whichever way the source's rest pose faces, and its tilt about that axis follows the source root.
 
@@ -55,10 +63,11 @@ MAX_BVH_JOINTS = 500
 CHANNEL_NAMES = tuple(f"{axis}{kind}" for kind in ("position", "rotation") for axis in "XYZ")
 
 #: SMPL joint -> (source joint, source joint at the far end of the SMPL joint's bone, or None), for the
-#: CMU motion-capture skeleton (Y up, facing +Z, T-pose at rest).  CMU's Neck and shoulders start at
-#: Spine1, so SMPL's upper-chest bone (spine3 -> neck) has no source bone and takes Spine1's rotation.
-#: The cgspeed conversion puts FingerBase where the hand joint is (offset 0 0 0), so the wrist's bone
-#: ends at HandIndex1 (the knuckles).
+#: CMU motion-capture skeleton as cgspeed's "MotionBuilder-friendly" BVH conversion names it (Y up,
+#: facing +Z, T-pose at rest).  CMU's Neck and shoulders start at Spine1, so SMPL's upper-chest bone
+#: (spine3 -> neck) has no source bone and takes Spine1's rotation.  The wrist's bone ends at
+#: FingerBase, which that conversion puts on the hand joint (offset 0 0 0): `resolve_mapping` walks on
+#: to HandIndex1 (the knuckles).
 CMU_TO_SMPL: dict[str, tuple[str, str | None]] = {
     "pelvis": ("Hips", None),
     "left_hip": ("LeftUpLeg", "LeftLeg"),
@@ -80,11 +89,42 @@ CMU_TO_SMPL: dict[str, tuple[str, str | None]] = {
     "right_shoulder": ("RightArm", "RightForeArm"),
     "left_elbow": ("LeftForeArm", "LeftHand"),
     "right_elbow": ("RightForeArm", "RightHand"),
-    "left_wrist": ("LeftHand", "LeftHandIndex1"),
-    "right_wrist": ("RightHand", "RightHandIndex1"),
+    "left_wrist": ("LeftHand", "LeftFingerBase"),
+    "right_wrist": ("RightHand", "RightFingerBase"),
     "left_hand": ("LeftFingerBase", None),
     "right_hand": ("RightFingerBase", None),
 }
+
+#: The same for the Daz/Poser figure of cgspeed's "Daz-friendly" release of the CMU database (hip,
+#: abdomen, chest, lCollar, lShldr, lThigh, lShin, lFoot, ...; Y up, facing +Z, arms out at rest).  It
+#: has one chest bone for SMPL's spine2 and spine3 (spine3 turns with spine2), no toes (the ankle's
+#: bone ends at the foot's End Site) and fingers instead of a hand joint (the wrist's bone ends at the
+#: middle finger's base).
+DAZ_TO_SMPL: dict[str, tuple[str, str | None]] = {
+    "pelvis": ("hip", None),
+    "left_hip": ("lThigh", "lShin"),
+    "right_hip": ("rThigh", "rShin"),
+    "spine1": ("abdomen", "chest"),
+    "left_knee": ("lShin", "lFoot"),
+    "right_knee": ("rShin", "rFoot"),
+    "spine2": ("chest", "neck"),
+    "left_ankle": ("lFoot", "lFoot_End"),
+    "right_ankle": ("rFoot", "rFoot_End"),
+    "neck": ("neck", "head"),
+    "left_collar": ("lCollar", "lShldr"),
+    "right_collar": ("rCollar", "rShldr"),
+    "head": ("head", None),
+    "left_shoulder": ("lShldr", "lForeArm"),
+    "right_shoulder": ("rShldr", "rForeArm"),
+    "left_elbow": ("lForeArm", "lHand"),
+    "right_elbow": ("rForeArm", "rHand"),
+    "left_wrist": ("lHand", "lMid1"),
+    "right_wrist": ("rHand", "rMid1"),
+}
+#: Skeletons recognised by their joint names, tried in this order when no map is given.
+SKELETON_MAPS: dict[str, dict[str, tuple[str, str | None]]] = {"cmu": CMU_TO_SMPL, "daz": DAZ_TO_SMPL}
+#: A far joint closer than this fraction of the rest skeleton's size to its source joint is walked past.
+MIN_BONE_FRACTION = 1e-3
 
 _INDEX = {name: k for k, name in enumerate(SMPL_JOINT_NAMES)}
 #: SMPL joint -> the joint at the far end of its bone: its only child; spine3's is the neck (its other
@@ -311,8 +351,7 @@ def _smpl_rest_joints(body: BodyModel) -> np.ndarray:
     return out
 
 
-def _resolve(bvh: BvhData, mapping: Mapping[str, tuple[str, str | None]]) -> dict[int, tuple[int, int]]:
-    """SMPL joint index -> (source joint index, far source joint index or -1), checked against the file."""
+def _check_map(mapping: Mapping[str, tuple[str, str | None]]) -> None:
     unknown = sorted(set(mapping) - set(SMPL_JOINT_NAMES))
     absent = [name for name in _REQUIRED if name not in mapping]
     no_bone = [name for name, (_, far) in mapping.items() if far is not None and _INDEX.get(name) not in _BONE_END]
@@ -321,15 +360,73 @@ def _resolve(bvh: BvhData, mapping: Mapping[str, tuple[str, str | None]]) -> dic
     problems += [f"{no_bone} have no SMPL bone, so their far joint must be None"] if no_bone else []
     if problems:
         raise ValueError(f"retargeting map: {'; '.join(problems)}")
+
+
+def _map_joints(mapping: Mapping[str, tuple[str, str | None]]) -> set[str]:
+    return {joint for pair in mapping.values() for joint in pair if joint is not None}
+
+
+def _known_map(bvh: BvhData) -> Mapping[str, tuple[str, str | None]]:
+    """The first of `SKELETON_MAPS` whose joints `bvh` all has; a ValueError names the nearest one's
+    missing joints."""
+    lacking = {name: sorted(_map_joints(m) - set(bvh.names)) for name, m in SKELETON_MAPS.items()}
+    for name, missing in lacking.items():
+        if not missing:
+            return SKELETON_MAPS[name]
+    nearest = min(lacking, key=lambda name: len(lacking[name]))
+    raise ValueError(
+        f"{bvh.path}: the skeleton lacks joint(s) {', '.join(lacking[nearest])} of the SMPL retargeting map "
+        f"'{nearest}', the nearest of the known skeletons ({', '.join(SKELETON_MAPS)}; it has "
+        f"{', '.join(bvh.names)}); pass a mapping for this skeleton"
+    )
+
+
+def resolve_mapping(
+    bvh: BvhData, mapping: Mapping[str, tuple[str, str | None]] | None = None
+) -> dict[str, tuple[str, str | None]]:
+    """The map retargeting uses on `bvh`: `mapping`, or the first known skeleton's (`SKELETON_MAPS`)
+    when None, with every far joint that lies on its source joint at rest (closer than
+    `MIN_BONE_FRACTION` of the skeleton's size) replaced by the first joint below it, breadth first,
+    that does not.  ValueError naming the file for a joint the skeleton lacks, or a bone with nothing
+    usable below its far joint."""
+    mapping = _known_map(bvh) if mapping is None else mapping
+    _check_map(mapping)
     index = {name: j for j, name in enumerate(bvh.names)}
-    named = {joint for pair in mapping.values() for joint in pair if joint is not None}
-    missing = sorted(named - set(index))
+    missing = sorted(_map_joints(mapping) - set(index))
     if missing:
         raise ValueError(
             f"{bvh.path}: the skeleton lacks joint(s) {', '.join(missing)} of the SMPL retargeting map "
             f"(it has {', '.join(bvh.names)}); pass a mapping for this skeleton"
         )
-    return {_INDEX[name]: (index[src], -1 if far is None else index[far]) for name, (src, far) in mapping.items()}
+    rest = bvh.rest_positions()
+    tolerance = MIN_BONE_FRACTION * float(np.ptp(rest, axis=0).max())
+    children: list[list[int]] = [[] for _ in bvh.names]
+    for j, parent in enumerate(bvh.parents):
+        if parent >= 0:
+            children[parent].append(j)
+    resolved = {}
+    for name, (src, far) in mapping.items():
+        if far is not None:
+            queue = [index[far]]
+            while queue and np.linalg.norm(rest[queue[0]] - rest[index[src]]) <= tolerance:
+                queue = queue[1:] + children[queue[0]]
+            if not queue:
+                raise ValueError(
+                    f"{bvh.path}: bone {src} -> {far} for SMPL {name} has zero length at rest and no joint below "
+                    f"{far} lies away from {src}; map another far joint for {name}, or None"
+                )
+            far = bvh.names[queue[0]]
+        resolved[name] = (src, far)
+    return resolved
+
+
+def _resolve(bvh: BvhData, mapping: Mapping[str, tuple[str, str | None]] | None) -> dict[int, tuple[int, int]]:
+    """SMPL joint index -> (source joint index, far source joint index or -1), from `resolve_mapping`."""
+    index = {name: j for j, name in enumerate(bvh.names)}
+    return {
+        _INDEX[name]: (index[src], -1 if far is None else index[far])
+        for name, (src, far) in resolve_mapping(bvh, mapping).items()
+    }
 
 
 def _up_axis_conversion(up: str) -> np.ndarray:
@@ -393,7 +490,7 @@ def retarget_to_smpl(
     body: BodyModel | None = None,
     up: str = "y",
     scale: float | None = None,
-    mapping: Mapping[str, tuple[str, str | None]] = CMU_TO_SMPL,
+    mapping: Mapping[str, tuple[str, str | None]] | None = None,
 ) -> Motion:
     """Retarget a parsed BVH onto SMPL's 24 joints of `body` (default: the default body); see the module
     docstring for the method.
@@ -401,7 +498,8 @@ def retarget_to_smpl(
     `up`: the file's up axis, 'y' (Y up, facing +Z, as CMU) or 'z' (already the project's frame).
     `scale`: metres per file unit for the root path; None: the ratio of the body's leg length (hip to
     ankle) to the source's.
-    `mapping`: SMPL joint name -> (source joint, far source joint of the SMPL joint's bone or None).
+    `mapping`: SMPL joint name -> (source joint, far source joint of the SMPL joint's bone or None);
+    None: the known skeleton the file's joint names match (`resolve_mapping`).
     Returns poses (T, 24, 3), trans (T, 3) metres, fps = 1 / frame time."""
     convert = _up_axis_conversion(up)
     body = default_body() if body is None else body
@@ -448,5 +546,5 @@ def retarget_to_smpl(
 def read_bvh(path: str | os.PathLike, body: BodyModel | None = None, max_frames: int = MAX_FRAMES,
              **options) -> Motion:
     """Parse a BVH file (at most `max_frames` frames) and retarget it onto `body`; `options` go to
-    `retarget_to_smpl` (up, scale, mapping).  The CMU skeleton (Y up) is the default."""
+    `retarget_to_smpl` (up, scale, mapping).  Known skeletons (`SKELETON_MAPS`, Y up) need no mapping."""
     return retarget_to_smpl(parse_bvh(path, max_frames), body, **options)

@@ -1,5 +1,7 @@
 """BVH files: parsing (channel orders, end sites, clear errors) and retargeting a CMU skeleton onto the
-default body (bone directions follow the source exactly, whatever the source's rest pose)."""
+default body (bone directions follow the source exactly, whatever the source's rest pose), on a
+synthetic skeleton and on real headers of two CMU conversions (cgspeed's MotionBuilder-friendly and
+Daz-friendly releases), whose skeleton is recognised by its joint names."""
 
 from pathlib import Path
 
@@ -9,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from assets.body import SMPL_JOINT_NAMES, SMPL_PARENTS, default_body
 from assets.motion import Motion
-from assets.motion.bvh import CMU_TO_SMPL, parse_bvh, read_bvh, retarget_to_smpl
+from assets.motion.bvh import CMU_TO_SMPL, DAZ_TO_SMPL, parse_bvh, read_bvh, resolve_mapping, retarget_to_smpl
 from assets.rotations import Y_UP_TO_Z_UP, align_vectors, rotvec_to_matrix
 
 # The CMU skeleton as the cgspeed BVH conversion writes it: Y up, facing +Z, T-pose, CMU units; like
@@ -54,6 +56,18 @@ CMU_END_SITES = {
 }  # fmt: skip
 FRAME_TIME = 0.008333
 MOTIONS = Path(__file__).resolve().parents[2] / "assets" / "data" / "motions"
+# Real headers (tests/assets/data):
+# - cmu_05_04_cgspeed_first3.bvh: CMU trial 05_04 in Bruce Hahne's cgspeed "MotionBuilder-friendly"
+#   conversion, from github.com/una-dinosauria/cmu-mocap, file 005/05_04.bvh at commit
+#   62ac0fb0ec43cff2bf66426928f4fa6682d4bbdc: the hierarchy and the first 3 of its 1200 frames digit
+#   for digit ('Frames: 3'); frame 1 is the conversion's added T-pose frame.  The file the issue
+#   reported ("bone LeftHand -> LeftFingerBase ... has zero length at rest").
+# - cmu_daz_friendly_skeleton.bvh: the skeleton of cgspeed's "Daz-friendly" release of the CMU database
+#   (hip, abdomen, chest, lCollar, lShldr, rButtock, rThigh, ...), as published in
+#   github.com/AmmarkoV/RGBDAcquisition, file opengl_acquisition_shared_library/
+#   opengl_depth_and_color_renderer/Motions/DAZFriendlyCMU.bvh at commit
+#   cc47865ff84692704ee44e0679e60f60773be134, verbatim with its one all-zero frame.
+REAL = Path(__file__).resolve().parent / "data"
 SHIPPED_CMU = {"cmu_93_03_charleston.bvh": 353, "cmu_144_05_front_kick.bvh": 304}  # file -> frames at 120 Hz
 ARM_CHAINS = {  # joints below each shoulder, turned to hang at rest in the hanging-arm variant
     "Left": ("LeftForeArm", "LeftHand", "LeftFingerBase", "LeftHandIndex1", "LThumb"),
@@ -135,9 +149,11 @@ def angle(a, b):
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
 
 
-def bone_errors(motion, bvh, body, mapping=CMU_TO_SMPL):
+def bone_errors(motion, bvh, body, mapping=None):
     """SMPL joint -> (T,) angle in degrees between the body's posed bone and the source's bone (axis
-    converted), for every bone with a far source joint, and the pelvis's hip line."""
+    converted), for every bone with a far source joint (as `resolve_mapping` resolves them), and the
+    pelvis's hip line."""
+    mapping = resolve_mapping(bvh, mapping)
     _, joints = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])
     positions = bvh.forward_kinematics()[0] @ Y_UP_TO_Z_UP.T
     src = {name: j for j, name in enumerate(bvh.names)}
@@ -281,7 +297,8 @@ def test_retarget_follows_source_bone_directions(walk, body):
     world_r = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])[0]
     source_r = Y_UP_TO_Z_UP @ bvh.forward_kinematics()[1] @ Y_UP_TO_Z_UP.T
     rest, source_rest = body.rest()[1], bvh.rest_positions() @ Y_UP_TO_Z_UP.T
-    direct = {k: (bvh.names.index(s), bvh.names.index(f)) for k, (s, f) in CMU_TO_SMPL.items() if f is not None}
+    resolved = resolve_mapping(bvh).items()
+    direct = {k: (bvh.names.index(s), bvh.names.index(f)) for k, (s, f) in resolved if f is not None}
     direct = {k: (s, f) for k, (s, f) in direct.items() if bvh.parents[f] == s}
     assert "left_knee" in direct and "neck" not in direct
     for name, (s, f) in direct.items():
@@ -308,7 +325,7 @@ def test_zero_rotations_on_a_t_posed_source(tmp_path, body):
         np.testing.assert_allclose(world_r[:, smpl(f"{side}_shoulder")], np.tile(np.eye(3), (frames, 1, 1)), atol=1e-6)
     rest = body.rest()[1]
     source_rest = bvh.rest_positions() @ Y_UP_TO_Z_UP.T
-    for name, (src, far) in CMU_TO_SMPL.items():
+    for name, (src, far) in resolve_mapping(bvh).items():
         if far is None:
             continue
         k, c = smpl(name), smpl(bone_end(name))
@@ -397,3 +414,118 @@ def test_missing_mapped_joint_is_named(tmp_path):
         read_bvh(path, mapping={k: v for k, v in CMU_TO_SMPL.items() if k != "left_ankle"})
     with pytest.raises(ValueError, match="up must be 'y' or 'z'"):
         read_bvh(path, up="x")
+
+
+# -- real headers of two CMU conversions --------------------------------------------------------------
+
+
+def with_frames(tmp_path, name, frames):
+    """The real file `name` with its motion replaced by `frames` (rows of channel values)."""
+    header = (REAL / name).read_text().split("MOTION")[0]
+    frame_time = "Frame Time: " + (REAL / name).read_text().split("Frame Time:")[1].split()[0]
+    rows = "\n".join(" ".join(f"{v:g}" for v in row) for row in frames)
+    path = tmp_path / name
+    path.write_text(f"{header}MOTION\nFrames: {len(frames)}\n{frame_time}\n{rows}\n")
+    return path
+
+
+def channel(bvh, joint, axis):
+    """Column of `joint`'s `axis` rotation channel in a frame row."""
+    column = sum(len(c) for c in bvh.channels[: bvh.names.index(joint)])
+    return column + bvh.channels[bvh.names.index(joint)].index(f"{axis}rotation")
+
+
+def world_turns(motion, body):
+    """(T, 24) each SMPL joint's world rotation angle in degrees, away from the T-pose."""
+    world = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])[0]
+    return np.degrees(np.linalg.norm(Rotation.from_matrix(world.reshape(-1, 3, 3)).as_rotvec(), axis=-1)).reshape(
+        len(motion.poses), -1)
+
+
+def elevation(motion, body, joint, child):
+    """(T,) degrees the bone joint -> child of the posed body points above the horizontal."""
+    joints = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])[1]
+    bone = joints[:, smpl(child)] - joints[:, smpl(joint)]
+    return np.degrees(np.arcsin(bone[:, 2] / np.linalg.norm(bone, axis=1)))
+
+
+LIMBS = [f"{side}_{joint}" for side in ("left", "right") for joint in ("hip", "knee", "shoulder", "elbow", "wrist")]
+
+
+def test_real_cgspeed_header_walks_past_joints_stacked_on_their_parent(body):
+    """The file the issue reported: cgspeed's FingerBase sits on the hand (offset 0 0 0), so the wrist's
+    bone LeftHand -> LeftFingerBase has no length; the map walks on to HandIndex1 and the motion
+    converts, every mapped bone following the source."""
+    bvh = parse_bvh(REAL / "cmu_05_04_cgspeed_first3.bvh")
+    np.testing.assert_array_equal(bvh.offsets[bvh.names.index("LeftFingerBase")], 0.0)
+    assert CMU_TO_SMPL["left_wrist"] == ("LeftHand", "LeftFingerBase")
+    resolved = resolve_mapping(bvh)
+    assert resolved["left_wrist"] == ("LeftHand", "LeftHandIndex1")
+    assert resolved["right_wrist"] == ("RightHand", "RightHandIndex1")
+    others = {k: v for k, v in CMU_TO_SMPL.items() if "wrist" not in k}
+    assert {k: v for k, v in resolved.items() if "wrist" not in k} == others
+    motion = read_bvh(REAL / "cmu_05_04_cgspeed_first3.bvh", body)
+    assert motion.poses.shape == (3, 24, 3) and np.isfinite(motion.poses).all()
+    assert max(float(e.max()) for e in bone_errors(motion, bvh, body).values()) < 1e-4
+    # Frame 1 is the conversion's T-pose (legs turned 21 degrees in to stand straight, arms 8 degrees
+    # down): the body's pelvis does not turn and its limbs stay within 10 degrees of SMPL's T-pose.
+    turns = world_turns(motion, body)
+    assert turns[0, smpl("pelvis")] < 0.5
+    assert max(turns[0, smpl(name)] for name in LIMBS) < 10.0
+    for side in ("left", "right"):
+        assert elevation(motion, body, f"{side}_shoulder", f"{side}_elbow")[0] == pytest.approx(-8.0, abs=0.5)
+
+
+def test_real_cgspeed_arm_raise_reaches_the_left_shoulder(tmp_path, body):
+    """The T-pose frame with LeftArm turned 60 degrees about the facing axis (Zrotation): the body's
+    left upper arm rises 60 degrees, its right arm does not move."""
+    bvh = parse_bvh(REAL / "cmu_05_04_cgspeed_first3.bvh")
+    first_row = (REAL / "cmu_05_04_cgspeed_first3.bvh").read_text().split("Frame Time:")[1].splitlines()[1]
+    tpose = np.array(first_row.split(), dtype=float)
+    raised = tpose.copy()
+    raised[channel(bvh, "LeftArm", "Z")] += 60.0
+    motion = read_bvh(with_frames(tmp_path, "cmu_05_04_cgspeed_first3.bvh", [tpose, raised]), body)
+    left = elevation(motion, body, "left_shoulder", "left_elbow")
+    right = elevation(motion, body, "right_shoulder", "right_elbow")
+    assert left[1] - left[0] == pytest.approx(60.0, abs=0.5)
+    assert right[1] == pytest.approx(right[0], abs=1e-6)
+    right_shoulder = motion.poses[:, smpl("right_shoulder")]
+    np.testing.assert_allclose(right_shoulder[1], right_shoulder[0], atol=1e-9)
+
+
+def test_real_daz_friendly_header_is_recognised_and_followed(tmp_path, body):
+    """cgspeed's Daz-friendly skeleton (no CMU names) converts without a mapping: its rest frame keeps
+    the pelvis and legs near SMPL's T-pose, a 60 degree lShldr raise lifts the left upper arm 60
+    degrees and a 45 degree rShin bend bends the right knee 45 degrees."""
+    bvh = parse_bvh(REAL / "cmu_daz_friendly_skeleton.bvh")
+    assert resolve_mapping(bvh) == DAZ_TO_SMPL  # nothing stacked: no far joint to walk past
+    rest = np.zeros(sum(len(c) for c in bvh.channels))
+    raised, bent = rest.copy(), rest.copy()
+    raised[channel(bvh, "lShldr", "Z")] = 60.0
+    bent[channel(bvh, "rShin", "X")] = 45.0
+    path = with_frames(tmp_path, "cmu_daz_friendly_skeleton.bvh", [rest, raised, bent])
+    motion = read_bvh(path, body)
+    assert motion.poses.shape == (3, 24, 3) and motion.fps == pytest.approx(25.0)
+    assert max(float(e.max()) for e in bone_errors(motion, parse_bvh(path), body).values()) < 1e-4
+    turns = world_turns(motion, body)
+    legs = [f"{side}_{joint}" for side in ("left", "right") for joint in ("hip", "knee")]
+    assert turns[0, smpl("pelvis")] < 0.5 and max(turns[0, smpl(name)] for name in legs) < 10.0
+    left = elevation(motion, body, "left_shoulder", "left_elbow")
+    assert left[1] - left[0] == pytest.approx(60.0, abs=0.5)
+    joints = body.joint_transforms(motion.poses, motion.trans, body.rest()[1])[1]
+    thigh, shin = (joints[:, smpl(b)] - joints[:, smpl(a)] for a, b in (("right_hip", "right_knee"),
+                                                                        ("right_knee", "right_ankle")))
+    flexion = angle(thigh, shin)
+    assert flexion[2] - flexion[0] == pytest.approx(45.0, abs=2.0)
+    np.testing.assert_allclose(motion.poses[1, smpl("right_knee")], motion.poses[0, smpl("right_knee")], atol=1e-9)
+
+
+def test_a_bone_with_nothing_usable_below_is_refused_by_name(tmp_path):
+    """A far joint stacked on its source with only stacked joints below it cannot give a bone."""
+    text = (REAL / "cmu_05_04_cgspeed_first3.bvh").read_text()
+    flat = text.replace("OFFSET 0.72750 -0.00000 0.00000", "OFFSET 0 0 0").replace(
+        "OFFSET 0.58653 -0.00000 0.00000", "OFFSET 0 0 0")
+    (tmp_path / "flat_hand.bvh").write_text(flat)
+    with pytest.raises(ValueError, match=r"flat_hand\.bvh: bone LeftHand -> LeftFingerBase for SMPL left_wrist has "
+                                         r"zero length at rest and no joint below LeftFingerBase lies away"):
+        read_bvh(tmp_path / "flat_hand.bvh")
