@@ -48,7 +48,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/body.py
 	$(BIN)/python benchmarks/simulate.py
 	$(BIN)/python benchmarks/render.py
-	$(BIN)/python benchmarks/reconstruction.py --refine-frames 12:120,4:6,2:3
+	$(BIN)/python benchmarks/reconstruction_capture.py --refine-frames 12:120,4:6,2:3
 	$(BIN)/python benchmarks/hostile.py
 
 $(STAMP): pyproject.toml Makefile

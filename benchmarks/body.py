@@ -16,7 +16,7 @@ import os
 import platform
 import time
 
-from common import run_fresh
+from common import add_results_flag, run_fresh, write_results
 
 POSE = """
     import numpy as np
@@ -69,27 +69,33 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=1200)
     parser.add_argument("--json", help="also write the results here")
+    add_results_flag(parser)
     args = parser.parse_args()
     ours = run_fresh(POSE.format(frames=args.frames))
     baseline = run_fresh(ANNY_POSE.format(frames=args.frames))
     build = run_fresh(BUILD)
     print(f"machine: {platform.machine()}, python {platform.python_version()}, {os.cpu_count()} cores; "
           f"{time.strftime('%Y-%m-%d')}")
-    print("| task | method | frames | vertices | time s | output MiB | peak RSS GiB |")
-    print("|---|---|---:|---:|---:|---:|---:|")
-    print(f"| pose | default body, vectorised LBS (24 joints, float32) | {args.frames} | {ours['vertices']} | "
-          f"{ours['pose_s']:.2f} | {ours['output_mib']:.0f} | {ours['peak_rss_gib']:.2f} |")
-    print(f"| pose | baseline: Anny forward (104 bones, torch CPU, float64) | {args.frames} | {baseline['vertices']} | "
-          f"{baseline['pose_s']:.2f} | {baseline['output_mib']:.0f} | {baseline['peak_rss_gib']:.2f} |")
-    print(f"| build | default body from anny (12 corner shapes, T-pose) | - | {build['vertices']} | "
-          f"{build['build_s']:.2f} | - | {build['peak_rss_gib']:.2f} |")
-    print(f"posing {args.frames} frames: {ours['pose_s']:.2f} s (target < 2 s); "
-          f"{baseline['pose_s'] / ours['pose_s']:.1f}x faster than Anny's own posing")
+    table = ["| task | method | frames | vertices | time s | output MiB | peak RSS GiB |",
+             "|---|---|---:|---:|---:|---:|---:|",
+             f"| pose | default body, vectorised LBS (24 joints, float32) | {args.frames} | {ours['vertices']} | "
+             f"{ours['pose_s']:.2f} | {ours['output_mib']:.0f} | {ours['peak_rss_gib']:.2f} |",
+             f"| pose | baseline: Anny forward (104 bones, torch CPU, float64) | {args.frames} | {baseline['vertices']} | "
+             f"{baseline['pose_s']:.2f} | {baseline['output_mib']:.0f} | {baseline['peak_rss_gib']:.2f} |",
+             f"| build | default body from anny (12 corner shapes, T-pose) | - | {build['vertices']} | "
+             f"{build['build_s']:.2f} | - | {build['peak_rss_gib']:.2f} |"]
+    print("\n".join(table))
+    stands = (f"posing {args.frames} frames: {ours['pose_s']:.2f} s (target < 2 s: "
+              f"{'met' if ours['pose_s'] < 2 else 'missed'}); "
+              f"{baseline['pose_s'] / ours['pose_s']:.1f}x faster than Anny's own posing.")
+    print(stands)
     rows = {"ours": ours, "anny": baseline, "build": build}
     print("JSON " + json.dumps(rows))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
+    if not args.no_results:
+        write_results("body", "\n".join(table), stands)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import pytest
 
+from common import add_results_flag, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
 #: the last commit before the hostile-input guards
 BASELINE_REV = "1f56bf8"
@@ -91,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the counts here")
     parser.add_argument("--tree", type=Path, default=ROOT, help=argparse.SUPPRESS)
     parser.add_argument("--counts", type=Path, help=argparse.SUPPRESS)
+    add_results_flag(parser)
     args = parser.parse_args(argv)
     if args.counts:  # the baseline's worker process
         args.counts.write_text(json.dumps(tally(args.tree)))
@@ -107,24 +110,31 @@ def main(argv: list[str] | None = None) -> int:
         row["held"] += ok
         row["baseline_held"] += bool(before and before.get(node, [kind, False])[1])
     print(f"\n{platform.node()} {platform.machine()}, Python {platform.python_version()}, suite {seconds:.0f} s")
-    print(f"| guards against | cases | held | failed as | failed | baseline ({args.baseline}): held |")
-    print("|---|---:|---:|---|---:|---:|")
+    table = [f"| guards against | cases | held | failed as | failed | baseline ({args.baseline}): held |",
+             "|---|---:|---:|---|---:|---:|"]
     empty = {"cases": 0, "held": 0, "baseline_held": 0}
     for kind in [*KINDS, *sorted(set(counts) - set(KINDS))]:
         what, failure = KINDS.get(kind, (kind, kind))
         row = counts.get(kind, empty)
-        print(f"| {what} | {row['cases']} | {row['held']} | {failure} | {row['cases'] - row['held']} | "
-              f"{row['baseline_held'] if before is not None else ''} |")
+        table.append(f"| {what} | {row['cases']} | {row['held']} | {failure} | {row['cases'] - row['held']} | "
+                     f"{row['baseline_held'] if before is not None else ''} |")
     total = sum(r["cases"] for r in counts.values())
     ok = sum(r["held"] for r in counts.values())
     base_ok = sum(r["baseline_held"] for r in counts.values())
-    print(f"| **all** | **{total}** | **{ok}** | | **{total - ok}** | {base_ok if before is not None else ''} |")
+    table.append(f"| **all** | **{total}** | **{ok}** | | **{total - ok}** | {base_ok if before is not None else ''} |")
+    print("\n".join(table))
     result = {"benchmark": "hostile", "cases": total, "held": ok, "by_kind": counts, "baseline": args.baseline,
               "seconds": seconds}
     print(json.dumps(result))
     if args.json:
         args.json.write_text(json.dumps(result, indent=2) + "\n")
-    return 0 if ok == total else 1
+    if ok != total:
+        return 1
+    if not args.no_results:
+        baseline = f"; on the code before the guards ({args.baseline}) {base_ok} held" if before is not None else ""
+        write_results("hostile", "\n".join(table), f"{ok} of {total} cases held (target: all){baseline}; "
+                      f"suite {seconds:.0f} s.")
+    return 0
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import os
 import platform
 import time
 
-from common import run_fresh
+from common import add_results_flag, run_fresh, write_results
 
 STAGES = {
     "codebook (4096 IDs)": """
@@ -81,6 +81,7 @@ def main() -> None:
     parser.add_argument("--size-m", type=float, default=1.5)
     parser.add_argument("--dpi", type=float, default=300.0)
     parser.add_argument("--json", help="also write the results as JSON here")
+    add_results_flag(parser)
     args = parser.parse_args()
     rows = []
     for name, body in STAGES.items():
@@ -89,18 +90,24 @@ def main() -> None:
         rows.append((name.format(**fmt), result))
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, python {platform.python_version()}, "
           f"{os.cpu_count()} cores; {time.strftime('%Y-%m-%d')}")
-    print("| stage | wall s | render s | peak RSS GiB | notes |")
-    print("|---|---:|---:|---:|---|")
+    table = ["| stage | wall s | render s | peak RSS GiB | notes |", "|---|---:|---:|---:|---|"]
     for name, r in rows:
         notes = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                           for k, v in r.items() if k not in ("wall_s", "render_s", "peak_rss_gib"))
         render = f"{r['render_s']:.1f}" if "render_s" in r else ""
-        print(f"| {name} | {r['wall_s']:.1f} | {render} | {r['peak_rss_gib']:.2f} | {notes} |")
-    print("target: 1.5 m x 1.5 m at 300 DPI in < 60 s and < 4 GiB")
+        table.append(f"| {name} | {r['wall_s']:.1f} | {render} | {r['peak_rss_gib']:.2f} | {notes} |")
+    print("\n".join(table))
+    written = next(r for name, r in rows if name.startswith("render + write PNG"))
+    met = written["wall_s"] < 60 and written["peak_rss_gib"] < 4
+    stands = (f"{args.size_m} m x {args.size_m} m at {args.dpi:g} DPI written as PNG in {written['wall_s']:.1f} s, "
+              f"{written['peak_rss_gib']:.2f} GiB peak (target < 60 s and < 4 GiB): {'met' if met else 'missed'}.")
+    print(stands)
     print("JSON " + json.dumps({name: r for name, r in rows}))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({name: r for name, r in rows}, f, indent=2)
+    if not args.no_results:
+        write_results("pattern", "\n".join(table), stands)
 
 
 if __name__ == "__main__":

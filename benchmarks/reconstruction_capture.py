@@ -16,8 +16,8 @@
    capture alone (triangulated points snapped onto the start, no physics) as the baseline for the
    intersections.
 
-    python benchmarks/reconstruction.py --out out/bench_reconstruction
-    python benchmarks/reconstruction.py --frames 4 --cameras 4 --resolution 480x270 --refine-frames 12:3,4:2 \\
+    python benchmarks/reconstruction_capture.py --out out/bench_reconstruction
+    python benchmarks/reconstruction_capture.py --frames 4 --cameras 4 --resolution 480x270 --refine-frames 12:3,4:2 \\
         --levels 12,4 --out /tmp/bench_rec_smoke            # a quick run
 
 Every step resumes from what `--out` holds (capture images, detections, points, refined frames), so an
@@ -47,6 +47,9 @@ from factory.plan import RenderSettings  # noqa: E402
 from reconstruction import pipeline  # noqa: E402
 from reconstruction.groundtruth import GroundTruthCapture  # noqa: E402
 from reconstruction.refinement import RefineConfig, RefinedSequence  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import add_results_flag, write_results  # noqa: E402
 
 HIERARCHY = (12, 4, 2)  # the reference's levels coarser than full resolution, mm
 TARGETS = {"error_mm_median": 1.0, "filled_error_mm_median": 5.0, "intersections_after_max": 0}
@@ -129,6 +132,7 @@ def main() -> None:
     parser.add_argument("--refine-frames", default="", help="frames refined per level, e.g. 12:120,4:6,2:3 "
                         "(default: every frame at every level)")
     cli.add_progress(parser)
+    add_results_flag(parser)
     args = parser.parse_args()
     levels = tuple(int(v) for v in args.levels.split(","))
     if any(mm not in HIERARCHY for mm in levels):
@@ -159,26 +163,35 @@ def main() -> None:
     print(f"# reconstruction benchmark, {result['date']}, {result['machine']}")
     print(f"capture: default shirt, walk, {args.frames} frames at 120 Hz, {args.cameras} cameras at {width} x {height}; "
           f"ground-truth detections with {args.noise} px noise; refine from the dressed garment")
-    print("| level | refine hierarchy | frames (refined) | points/frame | detect s/frame | triangulate s/frame | "
-          "refine s/frame | captured median / p95 mm | filled median / p95 mm | intersections capture alone -> "
-          "after | anchor rms mm | jitter mm (truth) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    table = ["| level | refine hierarchy | frames (refined) | points/frame | detect s/frame | triangulate s/frame | "
+             "refine s/frame | captured median / p95 mm | filled median / p95 mm | intersections capture alone -> "
+             "after | anchor rms mm | jitter mm (truth) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         s, t = r["summary"], r["seconds_per_frame"]
-        print(f"| {r['level_mm']} mm | {' -> '.join(map(str, r['refine_levels']))} | {r['frames']} ({r['refined_frames']}) "
-              f"| {r['points_per_frame']:.0f} | {t['detect']:.2f} | {t['triangulate']:.2f} | {t['refine']:.1f} | "
-              f"{_fmt(s['error_mm_median'])} / {_fmt(s['error_mm_p95'])} | {_fmt(s['filled_error_mm_median'])} / "
-              f"{_fmt(s['filled_error_mm_p95'])} | {r['intersections_before_max']} -> {s['intersections_after_max']} | "
-              f"{r['anchor_rms_mm_median']:.3f} | {_fmt(s.get('jitter_mm'))} ({_fmt(s.get('jitter_mm_groundtruth'))}) |")
+        table.append(
+            f"| {r['level_mm']} mm | {' -> '.join(map(str, r['refine_levels']))} | {r['frames']} ({r['refined_frames']}) "
+            f"| {r['points_per_frame']:.0f} | {t['detect']:.2f} | {t['triangulate']:.2f} | {t['refine']:.1f} | "
+            f"{_fmt(s['error_mm_median'])} / {_fmt(s['error_mm_p95'])} | {_fmt(s['filled_error_mm_median'])} / "
+            f"{_fmt(s['filled_error_mm_p95'])} | {r['intersections_before_max']} -> {s['intersections_after_max']} | "
+            f"{r['anchor_rms_mm_median']:.3f} | {_fmt(s.get('jitter_mm'))} ({_fmt(s.get('jitter_mm_groundtruth'))}) |")
+    print("\n".join(table))
     print("targets: captured median < 1 mm, filled median < 5 mm, 0 intersecting pairs after post-processing")
+    stands = []
     for r in rows:
         s = r["summary"]
         met = [s["error_mm_median"] is not None and s["error_mm_median"] < TARGETS["error_mm_median"],
                s["filled_error_mm_median"] is not None and s["filled_error_mm_median"] < TARGETS["filled_error_mm_median"],
                s["intersections_after_max"] == 0]
-        print(f"{r['level_mm']} mm: captured {'met' if met[0] else 'MISSED'}, filled {'met' if met[1] else 'MISSED'}, "
-              f"intersections {'met' if met[2] else 'MISSED'}")
+        stands.append(f"{r['level_mm']} mm: captured {'met' if met[0] else 'MISSED'}, filled {'met' if met[1] else 'MISSED'}, "
+                      f"intersections {'met' if met[2] else 'MISSED'}")
+    print("\n".join(stands))
     print("RESULT " + json.dumps(result))
+    if not args.no_results:
+        write_results("reconstruction_capture", "\n".join(table),
+                      f"{args.cameras} cameras at {width} x {height}, ground-truth detections with {args.noise} px "
+                      "noise; targets: captured median < 1 mm, filled median < 5 mm, 0 intersecting pairs after "
+                      "post-processing. " + "; ".join(stands) + ".", machine=result["machine"], date=result["date"])
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ import os
 import platform
 import time
 
-from common import run_fresh
+from common import add_results_flag, run_fresh, write_results
 
 ENGINE = """
     import json, time
@@ -46,6 +46,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--engines", default="CYCLES,EEVEE,WORKBENCH")
     parser.add_argument("--out", default="out/bench_render")
+    add_results_flag(parser)
     args = parser.parse_args()
     rows = {}
     for engine in args.engines.split(","):
@@ -53,16 +54,26 @@ def main() -> None:
                                                samples=args.samples, out=os.path.abspath(args.out)))
     print(f"# render benchmark, {time.strftime('%Y-%m-%d')}, {platform.node()} ({os.cpu_count()} CPUs), "
           f"512 x 512, {args.frames * args.variations} images per engine")
-    print("| engine | samples | set-up s/image | render s/image | ground truth s/image | GT / render | images per hour |")
-    print("|---|---|---|---|---|---|---|")
+    table = ["| engine | samples | set-up s/image | render s/image | ground truth s/image | GT / render | images per hour |",
+             "|---|---|---|---|---|---|---|"]
+    share = {}
     for engine, r in rows.items():
         n = r["images"]
         setup, render, gt = r["setup_s"] / n, r["render_s"] / n, r["groundtruth_s"] / n
         per_hour = 3600.0 / (setup + render + gt)
         samples = args.samples if engine == "CYCLES" else "-"
-        print(f"| {engine} | {samples} | {setup:.2f} | {render:.2f} | {gt:.3f} | {100 * gt / render:.1f} % | "
-              f"{per_hour:.0f} |")
+        share[engine] = 100 * gt / render
+        table.append(f"| {engine} | {samples} | {setup:.2f} | {render:.2f} | {gt:.3f} | {share[engine]:.1f} % | "
+                     f"{per_hour:.0f} |")
+    print("\n".join(table))
+    stands = (f"ground truth costs {share['CYCLES']:.1f} % of a Cycles render (target < 10 %: "
+              f"{'met' if share['CYCLES'] < 10 else 'missed'})." if "CYCLES" in share
+              else "no Cycles row in this run, so no comparison with the target (ground truth < 10 % of a Cycles render).")
+    print(stands)
     print("RESULT " + json.dumps(rows))
+    if not args.no_results:
+        write_results("render", "\n".join(table), f"{args.frames * args.variations} images per engine at 512 x 512; "
+                      + stands)
 
 
 if __name__ == "__main__":
