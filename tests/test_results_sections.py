@@ -1,5 +1,8 @@
 """benchmarks/common.write_results: a benchmark's table in its own marked section of RESULTS.md."""
 
+import re
+from pathlib import Path
+
 import pytest
 
 from benchmarks.common import results_section, write_results
@@ -66,3 +69,16 @@ def test_refuses_malformed_markers_naming_the_line(tmp_path, text, line, words):
 def test_a_name_that_would_not_make_a_marker_is_refused(tmp_path):
     with pytest.raises(ValueError, match="benchmark name"):
         write_results("two words", "| n |", "-", path=tmp_path / "R.md", **WHEN)
+
+
+def test_every_script_of_make_bench_writes_its_section_and_takes_no_results():
+    root = Path(__file__).resolve().parents[1]
+    makefile = (root / "Makefile").read_text()
+    recipe = makefile[makefile.index("\nbench:"):].split("\n\n")[0]
+    scripts = re.findall(r"benchmarks/(\w+)\.py", recipe)
+    assert len(scripts) >= 7, recipe
+    results = (root / "benchmarks" / "RESULTS.md").read_text()
+    for name in scripts:
+        source = (root / "benchmarks" / f"{name}.py").read_text()
+        assert f'write_results("{name}"' in source and "add_results_flag(parser)" in source, name
+        assert f"<!-- bench:{name} -->" in results, name  # its table is replaced, not appended
