@@ -31,7 +31,7 @@ stamp train
 declare -A INIT=([localizer]=localizer.pt [recognizer]=reader.pt [crosspoints]=crosspoints.pt)
 for task in localizer recognizer crosspoints; do
     PYTHONUNBUFFERED=1 python3 -m networks.train "$task" --recipe "$RECIPE" --data "$DATA" \
-        --init "/tmp/init/${INIT[$task]}" --out "$RUNS/$task" --workers 5 --steps 50000 \
+        --init "/tmp/init/${INIT[$task]}" --out "$RUNS/$task" --workers 5 \
         --time-limit "$TRAIN_S" --fit-time-limit --no-progress > "$RUNS/$task.log" 2>&1 &
 done
 wait
