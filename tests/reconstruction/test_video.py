@@ -148,3 +148,27 @@ def test_views_apply_offsets_and_extraction_resumes(tmp_path):
     assert extract_frames(videos, out, {"b": 4}, frames=range(0, 20), workers=2, progress=False) == 2  # resumed
     assert all(p.stat().st_mtime_ns == t for p, t in kept.items()) and all(p.is_file() for p in lost)
     assert _code(Views.open(out, cameras).image(3, "b")) == 3 and not list(out.rglob("*.partial"))
+
+
+def test_cli_writes_confident_offsets_and_extracts(tmp_path, capsys):
+    from reconstruction.__main__ import main
+
+    _encode(tmp_path / "a.mp4", [_scene(t, code=False) for t in range(30)])
+    _encode(tmp_path / "b.mp4", [_scene(t - 4, code=False, mirrored=True) for t in range(30)])
+    assert main(["video", "offsets", str(tmp_path), "--workers", "1", "--no-progress"]) == 0
+    assert json.loads((tmp_path / "offsets.json").read_text()) == {"a": 0, "b": 4}
+    assert "b                    +4" in capsys.readouterr().out
+    _encode(tmp_path / "c.mp4", [_scene(0, code=False) for _ in range(30)])  # no motion to align
+    assert main(["video", "offsets", str(tmp_path), "--out", str(tmp_path / "all.json"), "--workers", "1",
+                 "--no-progress"]) == 1
+    assert "offsets of ['c'] are not confident: nothing written" in capsys.readouterr().err
+    assert not (tmp_path / "all.json").exists()
+    (tmp_path / "c.mp4").unlink()
+    argv = ["video", "extract", str(tmp_path), "--out", str(tmp_path / "frames"), "--first", "2", "--last", "5",
+            "--workers", "1", "--no-progress"]
+    assert main(argv) == 0 and "8 images written" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "frames" / "b").iterdir()) == [f"f{k:06d}.png" for k in range(2, 6)]
+    assert main(argv) == 0 and "0 images written" in capsys.readouterr().out  # all there: nothing decoded
+    assert main(["video", "extract", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x"), "--no-progress"]) == 2
+    assert "nowhere: not a folder of videos" in capsys.readouterr().err
+
