@@ -18,7 +18,9 @@ each resumable, each recording its settings there and refusing a rerun with othe
 
 The parts they are made of, for use on plain data:
 - cameras: `read_cameras` (cameras.json or OpenCV YAML), `validate_cameras`, `undistort_pixels`;
-  `Views`: the frames of each camera (image folders or videos); other tools' calibrations
+  `Views`: the frames of each camera (image folders or videos, shifted by per-camera frame offsets:
+  `read_offsets`, `write_offsets`, `estimate_offsets` from motion; `VideoReader` reads a video
+  frame-accurately, `extract_frames` a capture's videos as folders of frames); other tools' calibrations
   (EasyMocap, anipose / caliscope TOML, multical, COLMAP text) by `read_calibration` and
   `write_calibration`, the format found by `detect_format`; a rig calibrated from ChArUco board
   images by `calibrate_rig` (a `CharucoBoard`, `RigCalibrationConfig`);
@@ -55,6 +57,11 @@ _EXPORTS = {
     "undistort_pixels": "reconstruction.cameras",
     "validate_cameras": "reconstruction.cameras",
     "Views": "reconstruction.views",
+    "VideoReader": "reconstruction.video",
+    "read_offsets": "reconstruction.video_sync",
+    "write_offsets": "reconstruction.video_sync",
+    "estimate_offsets": "reconstruction.video_sync",
+    "extract_frames": "reconstruction.video_extract",
     "read_calibration": "reconstruction.calibration_formats",
     "write_calibration": "reconstruction.calibration_formats",
     "detect_format": "reconstruction.calibration_formats",
