@@ -41,6 +41,7 @@ from tqdm import tqdm
 
 from assets.body.model import BodyModel
 from assets.fileio import load_npz, save_npz
+from assets.garments.defaults import default_body_misfit
 from assets.garments.export import placed_positions
 from assets.garments.template import Template
 from assets.motion.motion import dressing_pose
@@ -342,6 +343,12 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     """Steps 1-4 of the module docstring; raises `DressingError` when the pattern cannot be dressed."""
     started = time.perf_counter()
     betas = body.default_betas if betas is None else np.asarray(betas, np.float64)
+    # outside the shapes a default garment is known to fit, try anyway (it may well dress), but say
+    # why if it does not
+    misfit = default_body_misfit(template.pattern, body.name, body.shape_names, betas)
+    if misfit is not None:
+        log.warning("dressing '%s' on a shape it may not fit: %s", template.name, misfit)
+    misfit = "" if misfit is None else f"; {misfit}"
     level = template.level(params.level_mm)
     if len(level.seam_pairs) == 0:
         raise DressingError(f"cannot dress '{template.name}': the pattern has no seams")
@@ -394,7 +401,7 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
             f"cannot dress '{template.name}': sewing stopped after {steps} steps ({how}) with the widest seam gap "
             f"{gap * 1e3:.1f} mm (tolerance {params.gap_tolerance * 1e3:.1f} mm) and the deepest vertex "
             f"{max(depth, 0) * 1e3:.1f} mm inside the body; widest open seams: "
-            f"{_worst_seams(template, level.seam, solver.spring_lengths(state.positions), params)}", stuck)
+            f"{_worst_seams(template, level.seam, solver.spring_lengths(state.positions), params)}{misfit}", stuck)
     sew_gap = float(gap)
 
     # 4. merge and settle under gravity
@@ -410,7 +417,8 @@ def dress(template: Template, body: BodyModel, betas: np.ndarray | None = None,
     if drop > params.max_settle_drop:
         raise DressingError(
             f"cannot dress '{template.name}': the sewn garment does not hold on the body (it slid "
-            f"{drop * 100:.0f} cm down while settling: its panels closed around the wrong side of a body part)",
+            f"{drop * 100:.0f} cm down while settling: its panels closed around the wrong side of a body "
+            f"part){misfit}",
             DressedGarment(template.name, params.level_mm, level.sewn_faces.copy(), rest_corners, state.positions,
                            np.asarray(betas, np.float64), dressed.trans, dressed.pose))
     report = {

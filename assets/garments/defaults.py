@@ -470,6 +470,33 @@ DEFAULT_GARMENTS: dict[str, Callable[[BodyMeasurements], SewingPattern]] = {
 }
 
 
+#: The default body's shapes (`assets.body.default`: gender, weight, height, each 0 .. 1) the default
+#: garments, drafted for its default shape (1.70 m), are known to dress on: `benchmarks/body_range.py`
+#: (RESULTS.md, "Issue 48: the body's shape range").  Beyond it they may not close or hold (dressing
+#: tries, and names this range when it fails): on a 1.9 m man the
+#: skirt's and the pants' waists stay 1-3 cm open and the shirt's and the suit's sleeve caps 9-11 cm
+#: short of the armholes, on a heavy 1.75 m man the pants' hips 2.4 cm, and on a 1.3 m slim woman the
+#: skirt slides off.  A body outside it needs its garments drafted for its measurements
+#: (``python -m assets.garments.defaults --measurements``).
+DEFAULT_BODY_FIT = {"gender": (0.0, 1.0), "weight": (0.0, 0.75), "height": (0.25, 0.75)}
+
+
+def default_body_misfit(pattern: SewingPattern, body_name: str, shape_names: tuple[str, ...], betas) -> str | None:
+    """Why the default garment `pattern` (as drafted by default) does not fit the default body of shape
+    `betas`, or None when it does, or when either is not the default (another body, a garment drafted
+    for other measurements, a pattern of a file)."""
+    if body_name != "default" or pattern.name not in DEFAULT_GARMENTS or tuple(shape_names) != tuple(DEFAULT_BODY_FIT):
+        return None
+    outside = [f"{name}={float(value):g}" for (name, (lo, hi)), value in zip(DEFAULT_BODY_FIT.items(), betas)
+               if not lo - 1e-9 <= float(value) <= hi + 1e-9]
+    if not outside or pattern.to_dict() != default_pattern(pattern.name).to_dict():
+        return None
+    fit = ", ".join(f"{name} {lo:g} .. {hi:g}" for name, (lo, hi) in DEFAULT_BODY_FIT.items())
+    return (f"the default {pattern.name} is drafted for the default body's default shape and known to dress on "
+            f"{fit} (benchmarks/body_range.py), not on {', '.join(outside)}; draft it for this body's measurements "
+            "(python -m assets.garments.defaults --measurements FILE) or choose a shape inside that range")
+
+
 def default_pattern(name: str, measurements: BodyMeasurements = BodyMeasurements()) -> SewingPattern:
     """The default garment `name` (one of DEFAULT_GARMENTS) drafted for `measurements`."""
     if name not in DEFAULT_GARMENTS:
