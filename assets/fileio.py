@@ -241,9 +241,8 @@ def record_stage(path: str | os.PathLike, settings: Mapping[str, object], *, cha
     free = set(changeable)
     differ = sorted(key for key in {*saved, *current} if key not in free and saved.get(key) != current.get(key))
     if differ and not recompute:
-        old, new = _flat(saved), _flat(current)
-        named = sorted(key for key in {*old, *new} if key.split(".")[0] in differ and old.get(key) != new.get(key))
-        detail = "; ".join(f"{key}: {_short(old.get(key))} -> {_short(new.get(key))}" for key in named)
+        named = [change for key in differ for change in _changes(key, saved.get(key), current.get(key))]
+        detail = "; ".join(f"{key}: {_short(old)} -> {_short(new)}" for key, old, new in named)
         raise ValueError(f"{path}: this folder holds a run made with other settings or inputs ({detail}); "
                          "use a new output folder, or delete this one to start over")
     if write and saved != current:
@@ -251,16 +250,14 @@ def record_stage(path: str | os.PathLike, settings: Mapping[str, object], *, cha
     return not differ
 
 
-def _flat(data: Mapping[str, object], prefix: str = "") -> dict[str, object]:
-    """Nested settings as dotted keys ({"synth": {"seed": 3}} -> {"synth.seed": 3}), so a refusal names
-    the setting that differs, not the table holding it."""
-    flat = {}
-    for key, value in data.items():
-        if isinstance(value, dict) and value:
-            flat.update(_flat(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
+def _changes(key: str, old: object, new: object) -> list[tuple[str, object, object]]:
+    """(dotted key, old, new) of what differs between two settings values: within tables present on both
+    sides by their dotted keys ({"synth": {"seed": 3}} -> "synth.seed"), so a refusal names the setting,
+    not the table holding it; anything else (a table against none) as a whole."""
+    if not (isinstance(old, dict) and isinstance(new, dict)):
+        return [(key, old, new)]
+    return [change for sub in sorted({*old, *new}) if old.get(sub) != new.get(sub)
+            for change in _changes(f"{key}.{sub}", old.get(sub), new.get(sub))]
 
 
 def _short(value: object, limit: int = 60) -> str:

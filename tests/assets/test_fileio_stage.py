@@ -59,3 +59,5 @@ def test_a_nested_setting_is_named_by_its_dotted_key(tmp_path):
     record_stage(path, {"synth": {"seed": 3, "image_size": 256}, "steps": 10})
     with pytest.raises(ValueError, match=r"\(synth.seed: 3 -> 4\)"):
         record_stage(path, {"synth": {"seed": 4, "image_size": 256}, "steps": 10})
+    with pytest.raises(ValueError, match=r"\(synth: \{\"seed\": 3, \"image_size\": 256\} -> \(none\)\)"):
+        record_stage(path, {"synth": None, "steps": 10})
