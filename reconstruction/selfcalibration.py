@@ -336,31 +336,35 @@ def self_calibrate(cameras: Sequence[Camera], pixels: Sequence[np.ndarray],
     points0, observed, observed_pixels = solved.xyz[keep], observed[keep], observed_pixels[keep]
     _check_coverage(cameras, observed, config, where, "triangulated")
 
-    def problem_of(seen: np.ndarray) -> tuple[_Problem, np.ndarray]:
+    def problem_of(seen: np.ndarray) -> _Problem:
         point, camera = np.nonzero(seen)
         order = np.argsort(camera, kind="stable")
         point, camera = point[order], camera[order]
         start = np.searchsorted(camera, np.arange(c + 1))
-        problem = _Problem(cameras=cameras, point=point, pixels=observed_pixels[point, camera], start=start,
-                           reference=reference, scale_camera=scale_camera, distance=float(distances[scale_camera]),
-                           focal=config.focal, distortion=config.distortion)
-        return problem, camera
+        return _Problem(cameras=cameras, point=point, pixels=observed_pixels[point, camera], start=start,
+                        reference=reference, scale_camera=scale_camera, distance=float(distances[scale_camera]),
+                        focal=config.focal, distortion=config.distortion)
 
-    problem, _ = problem_of(observed)
+    problem = problem_of(observed)
     x0 = np.concatenate([np.zeros(problem.offsets[-1]), points0.reshape(-1)])
     before = _errors(problem, x0)
-    x, evaluations, message = _adjust(problem, x0, len(points0), config)
-    # drop the observations the first round could not explain, and the points left with too few views
+    # a first round with the loss scaled to the start's typical error: with a rig that is tens of pixels
+    # off, a 1 px scale makes every observation an "outlier" and the trust region crawls
+    coarse = replace(config, f_scale_px=max(config.f_scale_px, float(np.median(before))))
+    x, evaluations, _ = _adjust(problem, x0, len(points0), coarse)
+    x, more, message = _adjust(problem, x, len(points0), config)
+    evaluations += more
+    # then drop the observations it could not explain, and the points left with too few views
     error = _errors(problem, x)
     seen = observed.copy()
     seen[problem.point, np.repeat(np.arange(c), np.diff(problem.start))] = error <= config.outlier_px
     usable = seen.sum(axis=1) >= config.min_views
     outliers = int(observed[usable].sum() - seen[usable].sum() + observed[~usable].sum())
     if outliers:
-        _check_coverage(cameras, seen[usable], config, where, f"within {config.outlier_px} px after a first round")
+        _check_coverage(cameras, seen[usable], config, where, f"within {config.outlier_px} px after the first rounds")
         points = x[problem.offsets[-1]:].reshape(-1, 3)[usable]
         observed_pixels = observed_pixels[usable]
-        problem, _ = problem_of(seen[usable])
+        problem = problem_of(seen[usable])
         before = _errors(problem, np.concatenate([np.zeros(problem.offsets[-1]), points0[usable].reshape(-1)]))
         x, more, message = _adjust(problem, np.concatenate([x[:problem.offsets[-1]], points.reshape(-1)]),
                                    len(points), config)
@@ -442,6 +446,22 @@ def _fit_onto(refined: Sequence[Camera], given: Sequence[Camera]) -> list[Camera
     for cam in refined:
         R = _orthonormal(cam.R @ Q.T)
         out.append(replace(cam, R=R, t=-R @ (s * Q @ cam.center + d)))
+    return out
+
+
+def perturb_cameras(cameras: Sequence[Camera], rng: np.random.Generator, degrees: float = 1.0, mm: float = 10.0,
+                    focal: float = 0.01) -> list[Camera]:
+    """A rig that is off by a known amount (to measure self-calibration): each camera turned by
+    `degrees` about its centre around a random axis, its centre moved `mm` millimetres in a random
+    direction, its focal length (fx, fy) scaled by 1 + `focal` or 1 - `focal` (a random sign)."""
+    out = []
+    for camera in cameras:
+        axis, move = rng.normal(size=3), rng.normal(size=3)
+        R = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix() @ camera.R
+        centre = camera.center + mm / 1000.0 * move / np.linalg.norm(move)
+        K = camera.K.copy()
+        K[[0, 1], [0, 1]] *= 1.0 + focal * rng.choice([-1.0, 1.0])
+        out.append(replace(camera, K=K, R=_orthonormal(R), t=-_orthonormal(R) @ centre))
     return out
 
 

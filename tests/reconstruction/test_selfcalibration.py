@@ -8,7 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from assets.cameras import Camera
-from reconstruction.selfcalibration import SelfCalibrationConfig, project, self_calibrate, similarity_fit
+from reconstruction.selfcalibration import (SelfCalibrationConfig, perturb_cameras, project, self_calibrate,
+                                           similarity_fit)
 from reconstruction.triangulation import TriangulationConfig, triangulate_points
 
 
@@ -42,22 +43,8 @@ def _frames(cameras, frames=2, n=400, noise_px=0.0, seed=0):
     return out, np.stack(truth)
 
 
-def _perturb(cameras, seed=1, degrees=1.0, mm=10.0, focal=0.01, keep_first=False):
-    """Each camera turned by `degrees` about its centre (random axis), moved `mm`, focal length scaled
-    by 1 +- `focal`."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for i, c in enumerate(cameras):
-        if keep_first and i == 0:
-            out.append(c)
-            continue
-        axis, move = rng.normal(size=3), rng.normal(size=3)
-        R = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix() @ c.R
-        centre = c.center + mm / 1000.0 * move / np.linalg.norm(move)
-        K = c.K.copy()
-        K[[0, 1], [0, 1]] *= 1.0 + focal * rng.choice([-1.0, 1.0])
-        out.append(Camera(K=K, R=R, t=-R @ centre, width=c.width, height=c.height, dist=c.dist, name=c.name))
-    return out
+def _perturb(cameras, seed=1, degrees=1.0, mm=10.0, focal=0.01):
+    return perturb_cameras(cameras, np.random.default_rng(seed), degrees, mm, focal)
 
 
 def _similarity_error(a, b):
@@ -171,3 +158,27 @@ def test_bad_shapes_and_settings_are_refused():
         self_calibrate(cameras, _frames(cameras)[0], SelfCalibrationConfig(reference="nope"))
     with pytest.raises(ValueError, match="loss"):
         SelfCalibrationConfig(loss="l2")
+
+
+@pytest.mark.slow  # the session's shared capture
+def test_the_cli_refines_the_cameras_of_a_reconstruction_folder(capture_folder, tmp_path, capsys):
+    from reconstruction import pipeline
+    from reconstruction.__main__ import main
+    from reconstruction.cameras import read_cameras
+
+    exact = read_cameras(capture_folder / "cameras.json")
+    perturbed = _perturb(exact, seed=9, degrees=2.0, mm=20.0, focal=0.0)
+    out = tmp_path / "rec"
+    pipeline.start(out, pipeline.RunSettings(template=str(capture_folder / "template.npz"), detections="groundtruth"))
+    pipeline.detect(out, capture_folder, cameras=perturbed, progress=False)  # ground truth seen by a rig that is off
+    argv = ["cameras", "selfcalibrate", "--run", str(out), "--out", str(tmp_path / "refined.json"),
+            "--report", str(tmp_path / "report.json"), "--max-points", "3000"]
+    assert main(argv) == 0
+    assert "cameras written to" in capsys.readouterr().out
+    refined = read_cameras(tmp_path / "refined.json")
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["frames"] == [3, 4] and [c.name for c in refined] == [c.name for c in exact]
+    assert report["rms_before_px"] > 2.0 and report["rms_after_px"] < 0.01  # exact pixels
+    assert report["points"] == 3000
+    assert main([*argv[:4], "--frames", "3,9", "--out", str(tmp_path / "x.json")]) == 2
+    assert "frames [9] have no detections" in capsys.readouterr().err
