@@ -1,12 +1,12 @@
 """The `networks` package as a user meets it: a flat documented API that imports without torch, and no
 script beside the benchmarks that shadows it (its import cycles: tests/test_import_cycles.py)."""
 
-import importlib
 import subprocess
 import sys
 from pathlib import Path
 
 import networks
+from tests.package_api import check_flat_api
 
 PROJECT = Path(__file__).resolve().parents[2]
 
@@ -19,17 +19,7 @@ def test_import_networks_needs_no_torch():
 
 
 def test_every_public_name_resolves_documented_and_survives_importing_the_modules():
-    # importing a submodule sets it as an attribute of the package: no public name may be a module's
-    for path in sorted((PROJECT / "networks").glob("*.py")):
-        importlib.import_module(f"networks.{path.stem}")
-    assert len(set(networks.__all__)) == len(networks.__all__)
-    for name in networks.__all__:
-        value = getattr(networks, name)
-        assert not isinstance(value, type(networks)), name
-        if callable(value):
-            assert value.__doc__, name
-        assert f"`{name}`" in networks.__doc__, f"{name} is not described in the package's docstring"
-    assert set(networks.__all__) <= set(dir(networks))
+    check_flat_api(networks)
     assert networks.TrainConfig("localizer").task == "localizer"
 
 

@@ -3,12 +3,12 @@ torch or bpy, and bpy in one leaf module (the review) that no other module impor
 cycles: tests/test_import_cycles.py.)"""
 
 import ast
-import importlib
 import subprocess
 import sys
 from pathlib import Path
 
 import reconstruction
+from tests.package_api import check_flat_api
 
 PROJECT = Path(__file__).resolve().parents[2]
 FOLDER = PROJECT / "reconstruction"
@@ -47,16 +47,5 @@ def test_import_reconstruction_needs_nothing_heavy_and_its_stages_no_torch_or_bp
 
 
 def test_every_public_name_resolves_documented_and_survives_importing_the_modules():
-    # importing a submodule sets it as an attribute of the package: no public name may be a module's
-    for path in sorted(FOLDER.glob("*.py")):
-        if path.stem not in ("__init__", "__main__", "review"):
-            importlib.import_module(f"reconstruction.{path.stem}")
-    assert len(set(reconstruction.__all__)) == len(reconstruction.__all__)
-    for name in reconstruction.__all__:
-        value = getattr(reconstruction, name)
-        assert not isinstance(value, type(reconstruction)), name
-        if callable(value):
-            assert value.__doc__, name
-        assert f"`{name}`" in reconstruction.__doc__, f"{name} is not described in the package's docstring"
-    assert set(reconstruction.__all__) <= set(dir(reconstruction))
+    check_flat_api(reconstruction, skip=("review",))
     assert reconstruction.RunSettings(template="shirt", detections="groundtruth").level_mm == 12
