@@ -23,7 +23,9 @@ The parts they are made of, for use on plain data:
   frame-accurately, `extract_frames` a capture's videos as folders of frames); other tools' calibrations
   (EasyMocap, anipose / caliscope TOML, multical, COLMAP text) by `read_calibration` and
   `write_calibration`, the format found by `detect_format`; a rig calibrated from ChArUco board
-  images by `calibrate_rig` (a `CharucoBoard`, `RigCalibrationConfig`);
+  images by `calibrate_rig` (a `CharucoBoard`, `RigCalibrationConfig`); a rig refined from the
+  garment's own crosspoints by bundle adjustment, `self_calibrate` (or `self_calibrate_detections` from
+  a frame's detections; `SelfCalibrationConfig`);
 - correspondence: `CrosspointMap` (template crosspoints <-> marker IDs and grid cells);
 - triangulation: `triangulate_points`, `triangulate_frame`, `triangulate_sequence` -> `CapturedPoints`
   (`save_sequence`, `load_sequence`); `NeighbourConfig` and `consistent_points`, the pattern-neighbour
@@ -68,6 +70,9 @@ _EXPORTS = {
     "CharucoBoard": "reconstruction.charuco",
     "RigCalibrationConfig": "reconstruction.charuco",
     "calibrate_rig": "reconstruction.charuco",
+    "SelfCalibrationConfig": "reconstruction.selfcalibration",
+    "self_calibrate": "reconstruction.selfcalibration",
+    "self_calibrate_detections": "reconstruction.selfcalibration",
     "CrosspointMap": "reconstruction.correspondence",
     "CapturedPoints": "reconstruction.points",
     "load_sequence": "reconstruction.points",
