@@ -470,30 +470,37 @@ DEFAULT_GARMENTS: dict[str, Callable[[BodyMeasurements], SewingPattern]] = {
 }
 
 
-#: The default body's shapes (`assets.body.default`: gender, weight, height, each 0 .. 1) the default
-#: garments, drafted for its default shape (1.70 m), are known to dress on: `benchmarks/body_range.py`
-#: (RESULTS.md, "Issue 48: the body's shape range").  Beyond it they may not close or hold (dressing
-#: tries, and names this range when it fails): on a 1.9 m man the
-#: skirt's and the pants' waists stay 1-3 cm open and the shirt's and the suit's sleeve caps 9-11 cm
-#: short of the armholes, on a heavy 1.75 m man the pants' hips 2.4 cm, and on a 1.3 m slim woman the
-#: skirt slides off.  A body outside it needs its garments drafted for its measurements
+#: Per default garment, the default body's shapes (`assets.body.default`: gender 0 male .. 1 female,
+#: weight, height, each 0 .. 1) it is known to dress on, drafted as it is for the default shape
+#: (0.5, 0.5, 0.65; 1.70 m): `benchmarks/body_range.py`, RESULTS.md "Issue 48: the body's shape range"
+#: (not every corner of every box was run; the table says which were).  Beyond them: on a 1.9 m man
+#: the skirt's waist stays 1-3 cm open and the shirt's and the suit's sleeve caps 9-11 cm short of the
+#: armholes; the pants' hips stay 1-3 cm open on men from 1.75 m or of weight 0.5 up (drafted around
+#: the default body's hips, gender 0.5) and on a heavy 1.9 m woman; on a 1.3 m slim woman the skirt
+#: slides off.  A body outside needs its garment drafted for its measurements
 #: (``python -m assets.garments.defaults --measurements``).
-DEFAULT_BODY_FIT = {"gender": (0.0, 1.0), "weight": (0.0, 0.75), "height": (0.25, 0.75)}
+DEFAULT_BODY_FIT: dict[str, dict[str, tuple[float, float]]] = {
+    "shirt": {"gender": (0.0, 1.0), "weight": (0.0, 1.0), "height": (0.25, 0.75)},
+    "skirt": {"gender": (0.0, 1.0), "weight": (0.0, 1.0), "height": (0.25, 0.75)},
+    "pants": {"gender": (0.5, 1.0), "weight": (0.0, 0.75), "height": (0.25, 0.75)},
+    "suit": {"gender": (0.0, 1.0), "weight": (0.0, 1.0), "height": (0.25, 0.75)},
+}
 
 
 def default_body_misfit(pattern: SewingPattern, body_name: str, shape_names: tuple[str, ...], betas) -> str | None:
-    """Why the default garment `pattern` (as drafted by default) does not fit the default body of shape
-    `betas`, or None when it does, or when either is not the default (another body, a garment drafted
-    for other measurements, a pattern of a file)."""
-    if body_name != "default" or pattern.name not in DEFAULT_GARMENTS or tuple(shape_names) != tuple(DEFAULT_BODY_FIT):
+    """Why the default garment `pattern` (as drafted by default) may not fit the default body of shape
+    `betas` (outside its `DEFAULT_BODY_FIT`), or None when it fits, or when either is not the default
+    (another body, a garment drafted for other measurements, a pattern of a file)."""
+    fit = DEFAULT_BODY_FIT.get(pattern.name)
+    if body_name != "default" or fit is None or tuple(shape_names) != tuple(fit):
         return None
-    outside = [f"{name}={float(value):g}" for (name, (lo, hi)), value in zip(DEFAULT_BODY_FIT.items(), betas)
+    outside = [f"{name}={float(value):g}" for (name, (lo, hi)), value in zip(fit.items(), betas)
                if not lo - 1e-9 <= float(value) <= hi + 1e-9]
     if not outside or pattern.to_dict() != default_pattern(pattern.name).to_dict():
         return None
-    fit = ", ".join(f"{name} {lo:g} .. {hi:g}" for name, (lo, hi) in DEFAULT_BODY_FIT.items())
+    ranges = ", ".join(f"{name} {lo:g} .. {hi:g}" for name, (lo, hi) in fit.items())
     return (f"the default {pattern.name} is drafted for the default body's default shape and known to dress on "
-            f"{fit} (benchmarks/body_range.py), not on {', '.join(outside)}; draft it for this body's measurements "
+            f"{ranges} (benchmarks/body_range.py), not on {', '.join(outside)}; draft it for this body's measurements "
             "(python -m assets.garments.defaults --measurements FILE) or choose a shape inside that range")
 
 
