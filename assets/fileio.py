@@ -253,8 +253,8 @@ def record_stage(path: str | os.PathLike, settings: Mapping[str, object], *, cha
 def _changes(key: str, old: object, new: object) -> list[tuple[str, object, object]]:
     """(dotted key, old, new) of what differs between two settings values: within tables present on both
     sides by their dotted keys ({"synth": {"seed": 3}} -> "synth.seed"), so a refusal names the setting,
-    not the table holding it; anything else (a table against none) as a whole."""
-    if not (isinstance(old, dict) and isinstance(new, dict)):
+    not the table holding it; anything else (a table against none or an empty one) as a whole."""
+    if not (isinstance(old, dict) and isinstance(new, dict) and old and new):
         return [(key, old, new)]
     return [change for sub in sorted({*old, *new}) if old.get(sub) != new.get(sub)
             for change in _changes(f"{key}.{sub}", old.get(sub), new.get(sub))]

@@ -79,8 +79,8 @@ from benchmarks.device_files import MANIFEST, pack as pack_parts, unpack as unpa
 #: networkx and rtree are trimesh's optional graph and spatial-index backends, imported on its way
 FACTORY_DISTRIBUTIONS = ("bpy", "numpy", "scipy", "opencv-python-headless", "pillow", "OpenEXR", "trimesh",
                          "networkx", "rtree", "triangle", "xatlas", "tqdm")
-#: project dependencies the factory never imports: motion previews only
-LEFT_OUT = ("matplotlib",)
+#: project dependencies the factory never imports: motion previews (matplotlib), reading videos (av)
+LEFT_OUT = ("matplotlib", "av")
 #: bpy's declared requirements that rendering never imports (its downloader and .blend header reader)
 UNUSED_REQUIREMENTS = ("cython", "requests", "zstandard")
 #: reconstruction's refine (`--newton`)

@@ -76,7 +76,7 @@ def test_cli_writes_a_shard_folder(tmp_path, capsys):
     assert main(["write", "--out", str(out), "--task", "localizer", "--count", "2", "--pattern", str(pattern),
                  "--image-size", "32", "--images-per-part", "2", "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "shards.json: " in err and "other settings" in err and "synth: " in err
+    assert "shards.json: " in err and "other settings" in err and "synth.image_size: [64, 64] -> [32, 32]" in err
 
 
 def test_cli_writes_jittered_crops(tmp_path, capsys):
