@@ -29,7 +29,7 @@ rendering, and nothing of the factory imports torch.
 
 from __future__ import annotations
 
-import importlib
+from assets.lazy import lazy_api
 
 #: name -> (module, attribute) of the flat API
 _API = {
@@ -55,14 +55,4 @@ _API = {
 __all__ = sorted(_API)
 
 
-def __getattr__(name: str) -> object:
-    if name not in _API:
-        raise AttributeError(f"module 'factory' has no attribute {name!r}")
-    module, attribute = _API[name]
-    value = getattr(importlib.import_module(module), attribute)
-    globals()[name] = value  # the next access is a plain lookup
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = lazy_api(__name__, _API)

@@ -32,7 +32,7 @@ Names that would be those of the package's modules (`networks.train`, `networks.
 `evaluate_chain`, so that importing a module never replaces a function of this API.
 """
 
-from importlib import import_module
+from assets.lazy import lazy_api
 
 from networks.detections import Detections
 
@@ -59,14 +59,4 @@ _LAZY = {
 __all__ = ["Detections", *_LAZY]
 
 
-def __getattr__(name: str):
-    if name not in _LAZY:
-        raise AttributeError(f"module 'networks' has no attribute {name!r}")
-    module, attribute = _LAZY[name]
-    value = getattr(import_module(module), attribute)
-    globals()[name] = value  # once: later look-ups do not come here
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = lazy_api(__name__, _LAZY)

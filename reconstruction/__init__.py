@@ -40,7 +40,7 @@ add-on and the export stage's own process import it.  The names above are import
 importing the package costs nothing (no OpenCV, warp, torch or bpy).
 """
 
-from importlib import import_module
+from assets.lazy import lazy_api
 
 _EXPORTS = {
     "RunSettings": "reconstruction.pipeline",
@@ -98,11 +98,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'reconstruction' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_api(__name__, {name: (module, name) for name, module in _EXPORTS.items()})
